@@ -1,0 +1,351 @@
+"""The wire contract: every topic's msgspec Struct and key expression.
+
+Payloads are msgpack-encoded Structs; each carries ``schema`` (the schema version) so a
+peer on an older or newer climbd is detected instead of misread. Units are SI, frames as in
+DESIGN.md (body frame: x forward, y left, z up). ``docs/topics.md`` lists every topic.
+"""
+
+from __future__ import annotations
+
+import enum
+from typing import ClassVar
+
+import msgspec
+
+SCHEMA_VERSION = 1
+
+
+class Message(msgspec.Struct, kw_only=True):
+    """Base of every wire message: schema version and a timestamp (s, sender's clock)."""
+
+    TOPIC: ClassVar[str] = ""
+    RATE: ClassVar[str] = ""
+    schema: int = SCHEMA_VERSION
+    stamp: float = 0.0
+
+
+class Mode(str, enum.Enum):
+    """Robot modes of DESIGN.md, in the order a normal run passes through them."""
+
+    OFF = "OFF"
+    STAND = "STAND"
+    ACTIVE = "ACTIVE"
+    HOLD = "HOLD"
+    ESTOP = "ESTOP"
+    FAULT = "FAULT"
+
+
+class EstopPolicy(str, enum.Enum):
+    """What e-stop does to the joints: torque off, hold the measured pose, or hold and keep grip."""
+
+    TORQUE_OFF = "torque_off"
+    HOLD = "hold"
+    HOLD_GRIP = "hold_grip"
+
+
+# --- joints -----------------------------------------------------------------------------
+
+
+class JointState(Message):
+    """Measured joint state, one entry per joint in profile order (rad, rad/s, N·m)."""
+
+    TOPIC: ClassVar[str] = "state/joints"
+    RATE: ClassVar[str] = "control rate (100 Hz WidowX/HubRobo, 1 kHz Qingzhui)"
+    names: list[str] = []
+    position: list[float] = []
+    velocity: list[float] = []
+    effort: list[float] = []
+
+
+class JointCommand(Message):
+    """Joint command in profile order; torque legs also use velocity, feed-forward effort, kp, kd."""
+
+    TOPIC: ClassVar[str] = "state/command"
+    RATE: ClassVar[str] = "control rate"
+    position: list[float] = []
+    velocity: list[float] | None = None
+    effort: list[float] | None = None
+    kp: list[float] | None = None
+    kd: list[float] | None = None
+
+
+class JointHealth(msgspec.Struct, kw_only=True):
+    """Health of one joint's actuator: temperature (°C), voltage (V), device error bits."""
+
+    name: str
+    temperature: float = float("nan")
+    voltage: float = float("nan")
+    error: int = 0
+    errors: list[str] = []
+    lost: bool = False
+    derated: bool = False
+
+
+class LoopStats(msgspec.Struct, kw_only=True):
+    """Control-loop timing over the last window: lateness of wake-ups and per-tick compute (s)."""
+
+    rate_hz: float = 0.0
+    ticks: int = 0
+    overruns: int = 0
+    lateness_p50: float = 0.0
+    lateness_p99: float = 0.0
+    lateness_max: float = 0.0
+    compute_p50: float = 0.0
+    compute_p99: float = 0.0
+
+
+class Health(Message):
+    """Whole-robot health: mode, joints, loop timing, plugins, bus decode errors, refusals."""
+
+    TOPIC: ClassVar[str] = "state/health"
+    RATE: ClassVar[str] = "2 Hz"
+    role: str = "control"
+    mode: Mode = Mode.OFF
+    joints: list[JointHealth] = []
+    loop: LoopStats = msgspec.field(default_factory=LoopStats)
+    plugins: dict[str, str] = {}
+    decode_errors: int = 0
+    refused_commands: int = 0
+    dropped_frames: int = 0
+    messages: list[str] = []
+
+
+# --- body and motion --------------------------------------------------------------------
+
+
+class BodyState(Message):
+    """Estimated body pose in the odometry frame: position (m), quaternion (w, x, y, z), rates."""
+
+    TOPIC: ClassVar[str] = "state/body"
+    RATE: ClassVar[str] = "control rate"
+    position: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    orientation: list[float] = msgspec.field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
+    linear_velocity: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    angular_velocity: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    stance: list[bool] = []
+
+
+class FootTargets(Message):
+    """Foot positions in the body frame, one (x, y, z) per leg in profile order, and stance flags."""
+
+    TOPIC: ClassVar[str] = "state/feet"
+    RATE: ClassVar[str] = "control rate"
+    positions: list[list[float]] = []
+    stance: list[bool] = []
+    grip: list[bool] | None = None
+
+
+class MotionCommand(Message):
+    """Teleop/autonomy velocity and body-pose command (m/s, rad/s, m, rad)."""
+
+    TOPIC: ClassVar[str] = "cmd/motion"
+    RATE: ClassVar[str] = "operator rate, typically 10-50 Hz"
+    session: str = ""
+    vx: float = 0.0
+    vy: float = 0.0
+    yaw_rate: float = 0.0
+    body_height: float | None = None
+    roll: float = 0.0
+    pitch: float = 0.0
+    behaviour: str | None = None
+
+
+class ModeState(Message):
+    """The current mode and why it was entered."""
+
+    TOPIC: ClassVar[str] = "state/mode"
+    RATE: ClassVar[str] = "on change and 2 Hz"
+    mode: Mode = Mode.OFF
+    reason: str = ""
+
+
+class ModeRequest(Message):
+    """A request to change mode (e.g. STAND, ACTIVE, HOLD, OFF, or reset from ESTOP/FAULT)."""
+
+    TOPIC: ClassVar[str] = "cmd/mode"
+    RATE: ClassVar[str] = "on demand"
+    session: str = ""
+    mode: Mode = Mode.HOLD
+    reset: bool = False
+
+
+class EStop(Message):
+    """Engage (or, with ``engage=False``, release) the emergency stop; repeated by the sender."""
+
+    TOPIC: ClassVar[str] = "cmd/estop"
+    RATE: ClassVar[str] = "on demand, repeated 10 Hz for 1 s"
+    engage: bool = True
+    source: str = ""
+    reason: str = ""
+
+
+class SessionClaim(Message):
+    """Claim (or release) the controlling teleop session; ``override`` preempts autonomy."""
+
+    TOPIC: ClassVar[str] = "cmd/session"
+    RATE: ClassVar[str] = "on demand"
+    session: str = ""
+    client: str = ""
+    release: bool = False
+    override: bool = False
+
+
+class Heartbeat(Message):
+    """Keep-alive of the session holder; its absence past the profile's window means HOLD."""
+
+    TOPIC: ClassVar[str] = "cmd/heartbeat"
+    RATE: ClassVar[str] = "10 Hz or more"
+    session: str = ""
+    seq: int = 0
+
+
+# --- perception features ----------------------------------------------------------------
+
+
+class ElevationGrid(Message):
+    """Height map in the body frame: ``heights`` is row-major float32 little-endian, NaN unknown.
+
+    Cell (row, col) covers x = origin_x + row * resolution, y = origin_y + col * resolution.
+    """
+
+    TOPIC: ClassVar[str] = "features/grid"
+    RATE: ClassVar[str] = "camera rate, up to 30 Hz"
+    frame_stamp: float = 0.0
+    origin_x: float = 0.0
+    origin_y: float = 0.0
+    resolution: float = 0.01
+    rows: int = 0
+    cols: int = 0
+    heights: bytes = b""
+
+
+class Joist(msgspec.Struct, kw_only=True):
+    """A joist (paper 000): distance along the direction of motion, yaw ψ (eq. 2), height (m)."""
+
+    distance: float
+    yaw: float
+    height: float
+    endpoints: list[list[float]]
+    confidence: float = 1.0
+
+
+class Joists(Message):
+    """Joists seen in one frame, nearest first."""
+
+    TOPIC: ClassVar[str] = "features/joists"
+    RATE: ClassVar[str] = "camera rate"
+    frame_stamp: float = 0.0
+    joists: list[Joist] = []
+
+
+class GraspablePoints(Message):
+    """Graspable points (paper 001) in the body frame, metres, one (x, y, z) each."""
+
+    TOPIC: ClassVar[str] = "features/graspable"
+    RATE: ClassVar[str] = "camera rate"
+    frame_stamp: float = 0.0
+    points: list[list[float]] = []
+
+
+class TrussMember(msgspec.Struct, kw_only=True):
+    """A cylindrical truss member (paper 003): end points (m), radius (m), unit axis."""
+
+    p0: list[float]
+    p1: list[float]
+    radius: float
+    axis: list[float]
+    confidence: float = 1.0
+
+
+class TrussMembers(Message):
+    """Members of the truss model."""
+
+    TOPIC: ClassVar[str] = "features/truss"
+    RATE: ClassVar[str] = "on model update"
+    frame_stamp: float = 0.0
+    members: list[TrussMember] = []
+
+
+class Stair(msgspec.Struct, kw_only=True):
+    """One step (paper 004): rise above the previous tread, tread depth, tread height, edge line."""
+
+    height: float
+    rise: float
+    depth: float
+    edge: list[list[float]]
+
+
+class Stairs(Message):
+    """Stairs in the odometry frame, bottom step first."""
+
+    TOPIC: ClassVar[str] = "features/stairs"
+    RATE: ClassVar[str] = "camera rate"
+    frame_stamp: float = 0.0
+    steps: list[Stair] = []
+
+
+ALL_MESSAGES: tuple[type[Message], ...] = (
+    JointState,
+    JointCommand,
+    Health,
+    BodyState,
+    FootTargets,
+    MotionCommand,
+    ModeState,
+    ModeRequest,
+    EStop,
+    SessionClaim,
+    Heartbeat,
+    ElevationGrid,
+    Joists,
+    GraspablePoints,
+    TrussMembers,
+    Stairs,
+)
+
+
+def key(robot: str, message: type[Message] | str) -> str:
+    """Key expression ``climbd/<robot>/<topic>`` for a message type or a topic string."""
+    topic = message if isinstance(message, str) else message.TOPIC
+    return f"climbd/{robot}/{topic}"
+
+
+_encoder = msgspec.msgpack.Encoder()
+
+
+def encode(message: Message) -> bytes:
+    """Encode a message to its msgpack payload."""
+    return _encoder.encode(message)
+
+
+class SchemaMismatch(ValueError):
+    """A payload decoded but carries another schema version than ours."""
+
+
+_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+
+
+def decode(payload: bytes, message: type[Message]) -> Message:
+    """Decode a payload as ``message``; raises msgspec.DecodeError or SchemaMismatch."""
+    decoder = _decoders.get(message)
+    if decoder is None:
+        decoder = _decoders[message] = msgspec.msgpack.Decoder(message)
+    value = decoder.decode(payload)
+    if value.schema != SCHEMA_VERSION:
+        raise SchemaMismatch(
+            f"{message.__name__}: schema {value.schema}, this climbd speaks {SCHEMA_VERSION}"
+        )
+    return value
+
+
+def json_schemas() -> dict:
+    """JSON Schema of every message, keyed by topic, for third-party clients."""
+    _, components = msgspec.json.schema_components(ALL_MESSAGES, ref_template="#/$defs/{name}")
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "topics": {
+            m.TOPIC: {"type": m.__name__, "rate": m.RATE, "$ref": f"#/$defs/{m.__name__}"}
+            for m in ALL_MESSAGES
+        },
+        "$defs": components,
+    }

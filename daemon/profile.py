@@ -1,0 +1,330 @@
+"""Robot profiles: the robots/*.toml schema as msgspec Structs, includes, and validation.
+
+A profile is data, not code. Errors name the file, the field path, what was expected and
+what was found, so a user fixes a profile without reading our source.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from typing import Any, Literal
+
+import msgspec
+
+from daemon.messages import EstopPolicy
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+
+class ProfileError(ValueError):
+    """A profile that cannot be used; the message names file, field path, expected and found."""
+
+
+class Limits(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Per-joint limits in SI units: position (rad), velocity, acceleration, jerk, effort (N·m)."""
+
+    lower: float
+    upper: float
+    velocity: float
+    acceleration: float
+    jerk: float
+    effort: float
+
+
+class Joint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """One joint: its name, device id on the bus, zero offset (rad) and direction (±1)."""
+
+    name: str
+    id: int
+    zero_offset: float = 0.0
+    direction: Literal[1, -1] = 1
+    limits: Limits
+
+
+class Leg(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A 3-DOF leg: mount in the body frame (m), mount yaw (rad), link lengths (m), joints.
+
+    ``kind`` names the chain: coxa–femur–tibia (WidowX, HubRobo) or abduction–thigh–shank
+    (Qingzhui, paper 004 eqs. 1–3); ``knee`` is Qingzhui's knee type "a" or "b".
+    """
+
+    name: str
+    mount: list[float]
+    yaw: float
+    links: list[float]
+    joints: list[Joint]
+    kind: Literal["coxa_femur_tibia", "abduction_thigh_shank"] = "coxa_femur_tibia"
+    knee: Literal["a", "b"] = "a"
+
+
+class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The joint bus: driver kind and its transport settings."""
+
+    kind: str = "fake"
+    port: str = "/dev/ttyUSB0"
+    baud: int = 1_000_000
+    protocol: Literal[1, 2] = 1
+    model: str = "AX-18A"
+    return_delay_us: int = 0
+    latency_timer_ms: int = 1
+    health_rate_hz: float = 10.0
+    lost_after: int = 5
+    can_interface: str = "socketcan"
+    can_channel: str = "can0"
+
+
+class CameraMount(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Camera mount in the body frame: position (m), tilt down (deg, 0–90 in 15° steps), yaw."""
+
+    position: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.2])
+    tilt_deg: float = 0.0
+    yaw_deg: float = 0.0
+    roll_deg: float = 0.0
+
+
+class CameraConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A depth camera: model, serial, stream profile, mount, and optional post-processing."""
+
+    name: str = "depth"
+    kind: str = "realsense"
+    model: Literal["L515", "D435"] = "D435"
+    serial: str = ""
+    width: int = 640
+    height: int = 480
+    fps: int = 30
+    depth_units: float | None = None
+    visual_preset: str | None = None
+    emitter: bool = True
+    filters: list[str] = []
+    min_range: float = 0.1
+    max_range: float = 4.0
+    mount: CameraMount = msgspec.field(default_factory=CameraMount)
+
+
+class SafetyConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Safety policy: e-stop behaviour, heartbeat window, servo health thresholds."""
+
+    estop_policy: EstopPolicy = EstopPolicy.TORQUE_OFF
+    heartbeat_window: float = 0.3
+    command_timeout: float = 0.5
+    feature_max_age: float = 1.0
+    derate_temperature: float = 65.0
+    max_temperature: float = 75.0
+    min_voltage: float = 9.0
+    max_voltage: float = 16.0
+    stand_time: float = 2.0
+
+
+class PluginSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A plugin to run: entry-point name and its config overrides (validated by the plugin)."""
+
+    name: str
+    config: dict[str, Any] = {}
+
+
+class PluginsConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Plugins the profile runs: perception plugins and the gaits it may switch between."""
+
+    perception: list[PluginSpec] = []
+    gaits: list[PluginSpec] = []
+    default_gait: str = ""
+
+
+class RoleEndpoints(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Zenoh endpoints of one role, e.g. ``tcp/192.168.1.2:7447``."""
+
+    listen: list[str] = []
+    connect: list[str] = []
+
+
+class AuthConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Who may command: TLS files or a user/password file, and the authorised peers."""
+
+    tls_root_ca: str = ""
+    tls_certificate: str = ""
+    tls_private_key: str = ""
+    user: str = ""
+    password: str = ""
+    credentials_file: str = ""
+    commanders: list[str] = []
+
+
+class NetworkConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Zenoh setup: mode, multicast scouting (off by default), per-role endpoints, auth."""
+
+    mode: Literal["peer", "router", "client"] = "peer"
+    multicast_scouting: bool = False
+    roles: dict[str, RoleEndpoints] = {}
+    auth: AuthConfig | None = None
+
+
+class StandConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Standing pose: body height (m) and the feet's radial distance from their coxa (m)."""
+
+    body_height: float
+    foot_reach: float
+
+
+class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A whole robot profile as decoded from robots/*.toml."""
+
+    name: str
+    model: str
+    mass: float
+    rate_hz: float
+    legs: list[Leg]
+    bus: JointBusConfig = msgspec.field(default_factory=JointBusConfig)
+    cameras: list[CameraConfig] = []
+    safety: SafetyConfig = msgspec.field(default_factory=SafetyConfig)
+    plugins: PluginsConfig = msgspec.field(default_factory=PluginsConfig)
+    network: NetworkConfig = msgspec.field(default_factory=NetworkConfig)
+    stand: StandConfig
+    include: str | None = None
+    source: str = ""
+
+    @property
+    def joints(self) -> list[Joint]:
+        """All joints in profile order: leg by leg, three each."""
+        return [j for leg in self.legs for j in leg.joints]
+
+    @property
+    def joint_names(self) -> list[str]:
+        return [j.name for j in self.joints]
+
+
+def _merge(base: dict, override: dict) -> dict:
+    """Deep-merge ``override`` into ``base``: tables merge key by key, anything else replaces."""
+    out = dict(base)
+    for k, v in override.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
+    """Read a profile TOML, resolving ``include`` (relative to the including file) recursively."""
+    path = path.resolve()
+    if path in chain:
+        raise ProfileError(f"{chain[0]}: include cycle through {path}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        where = f"{chain[-1]}: include: " if chain else ""
+        raise ProfileError(f"{where}profile file not found: {path}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ProfileError(f"{path}: not valid TOML: {e}") from None
+    include = data.get("include")
+    if include is None:
+        return data
+    if not isinstance(include, str):
+        raise ProfileError(
+            f"{path}: $.include: expected a file path string, found {type(include).__name__}"
+        )
+    base = _read_toml(path.parent / include, (*chain, path))
+    return _merge(base, data)
+
+
+def _check(cond: bool, source: str, field: str, message: str) -> None:
+    if not cond:
+        raise ProfileError(f"{source}: {field}: {message}")
+
+
+def validate(profile: Profile) -> Profile:
+    """Check what the schema cannot: limit order, unique ids/names, three joints per leg."""
+    src = profile.source or profile.name
+    _check(profile.rate_hz > 0, src, "$.rate_hz", f"expected > 0, found {profile.rate_hz}")
+    _check(profile.mass > 0, src, "$.mass", f"expected > 0, found {profile.mass}")
+    _check(len(profile.legs) >= 2, src, "$.legs", f"expected >= 2 legs, found {len(profile.legs)}")
+    ids: dict[int, str] = {}
+    names: set[str] = set()
+    for i, leg in enumerate(profile.legs):
+        at = f"$.legs[{i}]"
+        _check(
+            len(leg.joints) == 3,
+            src,
+            f"{at}.joints",
+            f"expected 3 joints, found {len(leg.joints)} (leg {leg.name!r})",
+        )
+        _check(len(leg.mount) == 3, src, f"{at}.mount", f"expected [x, y, z], found {leg.mount}")
+        _check(
+            len(leg.links) == 3 and all(x > 0 for x in leg.links),
+            src,
+            f"{at}.links",
+            f"expected three positive lengths, found {leg.links}",
+        )
+        for k, joint in enumerate(leg.joints):
+            jat = f"{at}.joints[{k}]"
+            lim = joint.limits
+            _check(
+                lim.lower < lim.upper,
+                src,
+                f"{jat}.limits",
+                f"expected lower < upper, found lower={lim.lower} upper={lim.upper}",
+            )
+            for fname in ("velocity", "acceleration", "jerk", "effort"):
+                val = getattr(lim, fname)
+                _check(
+                    val > 0 and math.isfinite(val),
+                    src,
+                    f"{jat}.limits.{fname}",
+                    f"expected a finite value > 0, found {val}",
+                )
+            _check(
+                joint.id not in ids,
+                src,
+                f"{jat}.id",
+                f"duplicate id {joint.id} (already used by {ids.get(joint.id)!r})",
+            )
+            ids[joint.id] = joint.name
+            _check(joint.name not in names, src, f"{jat}.name", f"duplicate name {joint.name!r}")
+            names.add(joint.name)
+    for i, cam in enumerate(profile.cameras):
+        tilt = cam.mount.tilt_deg
+        _check(
+            0 <= tilt <= 90,
+            src,
+            f"$.cameras[{i}].mount.tilt_deg",
+            f"expected 0..90 degrees, found {tilt}",
+        )
+    s = profile.safety
+    _check(
+        s.heartbeat_window > 0,
+        src,
+        "$.safety.heartbeat_window",
+        f"expected > 0 s, found {s.heartbeat_window}",
+    )
+    _check(
+        s.derate_temperature <= s.max_temperature,
+        src,
+        "$.safety.derate_temperature",
+        f"expected <= max_temperature {s.max_temperature}, found {s.derate_temperature}",
+    )
+    return profile
+
+
+def from_dict(data: dict, source: str = "<profile>") -> Profile:
+    """Decode and validate a profile from a plain dict (as read from TOML)."""
+    try:
+        profile = msgspec.convert({**data, "source": source}, Profile, strict=True)
+    except msgspec.ValidationError as e:
+        raise ProfileError(f"{source}: {e}") from None
+    return validate(profile)
+
+
+def load(path: str | Path) -> Profile:
+    """Load, merge includes, decode and validate the profile at ``path``."""
+    path = Path(path)
+    return from_dict(_read_toml(path), str(path))
+
+
+def stock_profiles() -> dict[str, Path]:
+    """The stock profiles shipped in robots/, by robot name."""
+    root = Path(__file__).resolve().parent.parent / "robots"
+    return {p.stem: p for p in sorted(root.glob("*.toml"))}
