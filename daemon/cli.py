@@ -1,0 +1,44 @@
+"""The ``climbd`` command: one subcommand per module, each with ``add_arguments`` and ``main``.
+
+Subcommand modules keep heavy imports (zenoh, pyrealsense2, mujoco) inside ``main`` so that
+building the parser stays fast and a broken device library only breaks the command using it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("daemon.run", "run the daemon for a robot profile"),
+    "status": ("daemon.status", "print live mode, loop rate and joint health over Zenoh"),
+    "estop": ("daemon.estop", "engage (or reset) the e-stop of a robot over Zenoh"),
+    "profile": ("daemon.profile_cmd", "check a robot profile"),
+    "schema": ("daemon.schema_cmd", "write the JSON Schema of every message"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="climbd", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    return int(importlib.import_module(args._module).main(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
