@@ -9,6 +9,7 @@ is dropped, counted, and logged once per sender.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import threading
@@ -185,10 +186,8 @@ class Bus:
         return sub
 
     def _call_soon(self, fn: Callable, *args) -> None:
-        try:
+        with contextlib.suppress(RuntimeError):  # the loop is closing: the daemon is stopping
             self.loop.call_soon_threadsafe(fn, *args)
-        except RuntimeError:
-            pass  # the loop is closing; the daemon is shutting down
 
     def alive(self, role: str):
         """Declare this role's liveliness token ``climbd/<robot>/alive/<role>``."""

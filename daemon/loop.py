@@ -107,7 +107,7 @@ class SteppedClock:
 
 
 class TimingWindow:
-    """Ring buffers of recent lateness and compute times; percentiles on demand, off the hot path."""
+    """Ring buffers of recent lateness and compute times; percentiles computed off the hot path."""
 
     def __init__(self, size: int = 4096) -> None:
         self.lateness = np.zeros(size)

@@ -15,8 +15,12 @@ import msgspec
 SCHEMA_VERSION = 1
 
 
-class Message(msgspec.Struct, kw_only=True):
-    """Base of every wire message: schema version and a timestamp (s, sender's clock)."""
+class Message(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """Base of every wire message: schema version and a timestamp (s, sender's clock).
+
+    Unknown fields are refused, so a payload of another topic or schema never decodes as an
+    empty message of this one.
+    """
 
     TOPIC: ClassVar[str] = ""
     RATE: ClassVar[str] = ""
@@ -58,7 +62,7 @@ class JointState(Message):
 
 
 class JointCommand(Message):
-    """Joint command in profile order; torque legs also use velocity, feed-forward effort, kp, kd."""
+    """Joint command in profile order; torque legs add velocity, feed-forward torque, kp, kd."""
 
     TOPIC: ClassVar[str] = "state/command"
     RATE: ClassVar[str] = "control rate"
@@ -126,7 +130,7 @@ class BodyState(Message):
 
 
 class FootTargets(Message):
-    """Foot positions in the body frame, one (x, y, z) per leg in profile order, and stance flags."""
+    """Foot positions in the body frame, one (x, y, z) per leg in profile order; stance flags."""
 
     TOPIC: ClassVar[str] = "state/feet"
     RATE: ClassVar[str] = "control rate"

@@ -293,6 +293,12 @@ def validate(profile: Profile) -> Profile:
             f"$.cameras[{i}].mount.tilt_deg",
             f"expected 0..90 degrees, found {tilt}",
         )
+    _check(
+        profile.bus.health_rate_hz > 0,
+        src,
+        "$.bus.health_rate_hz",
+        f"expected > 0, found {profile.bus.health_rate_hz}",
+    )
     s = profile.safety
     _check(
         s.heartbeat_window > 0,
@@ -314,7 +320,8 @@ def from_dict(data: dict, source: str = "<profile>") -> Profile:
     try:
         profile = msgspec.convert({**data, "source": source}, Profile, strict=True)
     except msgspec.ValidationError as e:
-        raise ProfileError(f"{source}: {e}") from None
+        what, _, at = str(e).partition(" - at `")
+        raise ProfileError(f"{source}: {at.rstrip('`') or '$'}: {what}") from None
     return validate(profile)
 
 

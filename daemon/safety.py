@@ -134,10 +134,10 @@ class Safety:
         """Claim the controlling session: free, expired, or taken over with ``override``."""
         with self._lock:
             held = self.session
-            if held is not None and held.session != session and not override:
-                if not self._expired(held, now):
-                    self.refused += 1
-                    return False, f"session held by {held.client}"
+            taken = held is not None and held.session != session
+            if taken and not override and not self._expired(held, now):
+                self.refused += 1
+                return False, f"session held by {held.client}"
             if held is not None and held.session != session:
                 log.warning("session of %s preempted by %s", held.client, client)
             self.session = Session(session, client, now, override)

@@ -1,0 +1,310 @@
+"""The control role's tick: read → estimate → behave → IK → smooth → guard → write.
+
+One ``Controller`` per robot. ``tick(t, dt)`` runs on the ControlLoop's thread; the ``on_*``
+handlers run on the asyncio thread (fed by the bus) and only record what arrived, under the
+safety supervisor's lock, so a tick always sees a consistent picture. Nothing here raises
+out of ``tick``: a device error becomes FAULT, a plugin error becomes HOLD.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from daemon.kinematics import Kinematics
+from daemon.messages import (
+    BodyState,
+    EStop,
+    EstopPolicy,
+    Health,
+    Heartbeat,
+    JointCommand,
+    JointState,
+    Message,
+    Mode,
+    ModeRequest,
+    ModeState,
+    MotionCommand,
+    SessionClaim,
+)
+from daemon.motion import MotionPipeline
+from daemon.plugins import Isolated
+from daemon.profile import Profile
+from daemon.safety import Safety
+from daemon.smoothing import SmoothingError
+from drivers.base import DriverError, JointBus
+
+log = logging.getLogger("climbd.control")
+
+STAND_TOLERANCE = 0.01
+"""Joint error (rad) under which the stand is complete and the robot holds."""
+
+HEALTH_PERIOD = 0.5
+"""Seconds between Health/ModeState publications."""
+
+REST_FRACTION = 0.35
+"""Body height at rest (sitting, before torque off) as a fraction of the standing height."""
+
+
+@dataclass
+class Timed:
+    """A message and the controller-clock time it arrived."""
+
+    message: Message
+    at: float
+
+
+class Controller:
+    """Runs one robot's control tick against a JointBus under the safety supervisor."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        bus: JointBus,
+        safety: Safety,
+        now: Callable[[], float],
+        gait: Isolated | None = None,
+        publish: Callable[[Message], None] | None = None,
+        state_rate_hz: float = 100.0,
+    ) -> None:
+        self.profile = profile
+        self.bus = bus
+        self.safety = safety
+        self.now = now
+        self.gait = gait
+        self.publish = publish or (lambda message: None)
+        self.kinematics = Kinematics(profile)
+        self.motion: MotionPipeline | None = None
+        self.dt = 1.0 / profile.rate_hz
+        self.stand_q = self.kinematics.stand_joints()
+        self.mode = Mode.OFF
+        self.target: np.ndarray | None = None
+        self.measured: JointState | None = None
+        self.command: JointCommand | None = None
+        self.motion_command: Timed | None = None
+        self.features: dict[str, Timed] = {}
+        self.body = BodyState()
+        self.messages: list[str] = []
+        self.loop_stats: Callable | None = None
+        self.sit_q = self._sit_joints()
+        self.shutdown: str | None = None
+        self._health_every = max(1, round(profile.rate_hz / profile.bus.health_rate_hz))
+        self._state_every = max(1, round(profile.rate_hz / state_rate_hz))
+        self._ticks = 0
+        self._last_health_publish = -1e9
+
+    def _sit_joints(self) -> np.ndarray:
+        """Joint pose with the body lowered to rest: where a torque_off robot is switched off."""
+        feet = self.kinematics.stand_feet()
+        feet[:, 2] = -REST_FRACTION * self.profile.stand.body_height
+        q, reachable = self.kinematics.ik(feet)
+        return q if bool(np.all(reachable)) else self.stand_q
+
+    # --- shutdown (asyncio thread) ----------------------------------------------------
+
+    def begin_shutdown(self, t: float) -> None:
+        """Start the safe stop: hold (and for ``torque_off``, sit down first, then torque off)."""
+        if not self.safety.torque_on or self.safety.mode in (Mode.ESTOP, Mode.FAULT, Mode.OFF):
+            self.shutdown = "done"
+            return
+        sit = self.safety.policy == EstopPolicy.TORQUE_OFF
+        self.shutdown = "sit" if sit else "hold"
+        self.safety.hold(t, "shutdown")
+
+    @property
+    def shutdown_done(self) -> bool:
+        return self.shutdown == "done"
+
+    def finish_shutdown(self, t: float) -> None:
+        """Apply the e-stop policy now, whatever the pose (the safe-pose motion timed out)."""
+        if self.safety.policy == EstopPolicy.TORQUE_OFF:
+            self._torque(False, t)
+        self.shutdown = "done"
+
+    # --- handlers (asyncio thread) ----------------------------------------------------
+
+    def on_motion(self, cmd: MotionCommand) -> None:
+        if self.safety.accepts(cmd.session):
+            self.motion_command = Timed(cmd, self.now())
+
+    def on_mode(self, req: ModeRequest) -> None:
+        now = self.now()
+        if req.reset:
+            self.safety.reset(now, req.session)
+        else:
+            self.safety.request(req.mode, now, req.session)
+
+    def on_estop(self, msg: EStop) -> None:
+        now = self.now()
+        if msg.engage:
+            self.safety.estop(now, msg.source, msg.reason)
+
+    def on_claim(self, msg: SessionClaim) -> None:
+        now = self.now()
+        if msg.release:
+            self.safety.release(msg.session)
+        else:
+            self.safety.claim(msg.session, msg.client, now, msg.override)
+
+    def on_heartbeat(self, msg: Heartbeat) -> None:
+        self.safety.heartbeat(msg.session, self.now())
+
+    def on_feature(self, msg: Message) -> None:
+        self.features[msg.TOPIC] = Timed(msg, self.now())
+
+    # --- the tick (loop thread) -------------------------------------------------------
+
+    def tick(self, t: float, dt: float) -> None:
+        """One control cycle; never raises."""
+        self._ticks += 1
+        try:
+            state = self.bus.read()
+        except DriverError as e:
+            self._fault(t, f"joint bus read failed: {e}")
+            return
+        self.measured = state
+        q = np.asarray(state.position)
+        safety = self.safety
+        safety.check_heartbeat(t)
+        if self._ticks % self._health_every == 0:
+            try:
+                safety.judge(self.bus.health(), t)
+            except DriverError as e:
+                self._fault(t, f"joint bus health failed: {e}")
+        mode = safety.mode
+        if mode != self.mode:
+            self._enter(mode, q, t)
+        command = self._behave(t, dt, q)
+        if command is not None:
+            try:
+                self.bus.write(command)
+            except DriverError as e:
+                self._fault(t, f"joint bus write failed: {e}")
+                return
+            self.command = command
+        if self._ticks % self._state_every == 0:
+            self.publish(state)
+        if t - self._last_health_publish >= HEALTH_PERIOD:
+            self._last_health_publish = t
+            self.publish_health(t)
+
+    def _fault(self, t: float, reason: str) -> None:
+        if self.safety.mode != Mode.FAULT:
+            log.error("%s", reason)
+        self.safety.fault(t, reason)
+        self.mode = self.safety.mode
+
+    def _enter(self, mode: Mode, q: np.ndarray, t: float) -> None:
+        """Mode entry actions; the command starts from the measured state (no jump)."""
+        previous, self.mode = self.mode, mode
+        self.publish(ModeState(stamp=t, mode=mode, reason=self.safety.reason))
+        if mode == Mode.OFF or (
+            mode in (Mode.ESTOP, Mode.FAULT) and self.safety.policy == EstopPolicy.TORQUE_OFF
+        ):
+            self._torque(False, t)
+            self.target = None
+            return
+        if mode in (Mode.STAND, Mode.ACTIVE, Mode.HOLD, Mode.ESTOP, Mode.FAULT):
+            if not self.safety.torque_on:
+                self._torque(True, t)
+            self.motion = MotionPipeline(self.profile, self.dt)
+            self.motion.start(q)
+        if mode == Mode.STAND:
+            self.target = self.stand_q
+        elif mode == Mode.ACTIVE:
+            self.target = None
+            if self.gait is None:
+                self.safety.hold(t, "no gait configured")
+                return
+            self.gait.call("start", self.body, self.kinematics.fk(q))
+        else:
+            self.target = q.copy()
+        log.debug("entered %s from %s", mode.value, previous.value)
+
+    def _torque(self, on: bool, t: float) -> None:
+        try:
+            self.bus.torque(on)
+            self.safety.torque_on = on
+        except DriverError as e:
+            self._fault(t, f"torque {'on' if on else 'off'} failed: {e}")
+
+    def _behave(self, t: float, dt: float, q: np.ndarray) -> JointCommand | None:
+        mode = self.mode
+        motion = self.motion
+        if motion is None or not self.safety.torque_on:
+            return None
+        motion.set_speed_scale(self.safety.speed_scale)
+        if self.shutdown is not None and mode == Mode.HOLD:
+            return self._shutdown_step(t, q)
+        try:
+            if mode == Mode.ACTIVE:
+                feet = self.gait.call("step", t, dt, self.body, self._world(t), self._command(t))
+                if feet is None:
+                    self.safety.hold(t, f"gait {self.gait.name} failed: {self.gait.status}")
+                    return motion.joint_step(q)
+                if self.gait.plugin.done:
+                    self.safety.hold(t, f"behaviour {self.gait.name} done")
+                return motion.feet_step(feet)
+            command = motion.joint_step(self.target)
+        except SmoothingError as e:
+            self.messages.append(f"smoothing: {e}")
+            self.safety.hold(t, f"smoothing failed: {e}")
+            return None
+        if mode == Mode.STAND and self.stand_reached(q):
+            self.safety.request(Mode.HOLD, t, reason="stand complete")
+        return command
+
+    def _shutdown_step(self, t: float, q: np.ndarray) -> JointCommand | None:
+        if self.shutdown == "hold":
+            self.shutdown = "done"
+            return self.motion.joint_step(self.target)
+        if self.shutdown == "sit":
+            if self.reached(q, self.sit_q):
+                self._torque(False, t)
+                self.shutdown = "done"
+                return None
+            return self.motion.joint_step(self.sit_q)
+        return self.motion.joint_step(self.target)
+
+    @staticmethod
+    def reached(q: np.ndarray, target: np.ndarray) -> bool:
+        return bool(np.max(np.abs(q - target)) < STAND_TOLERANCE)
+
+    def stand_reached(self, q: np.ndarray) -> bool:
+        return self.reached(q, self.stand_q)
+
+    def _command(self, t: float) -> MotionCommand | None:
+        timed = self.motion_command
+        if timed is None or t - timed.at > self.profile.safety.command_timeout:
+            return None
+        return timed.message
+
+    def _world(self, t: float) -> dict[str, Message]:
+        """Features younger than the profile's limit; older ones count as absent."""
+        limit = self.profile.safety.feature_max_age
+        return {k: v.message for k, v in list(self.features.items()) if t - v.at <= limit}
+
+    def health(self, t: float) -> Health:
+        joints = []
+        try:
+            joints = self.bus.health()
+        except DriverError as e:
+            self.messages.append(str(e))
+        plugins = {self.gait.name: self.gait.status} if self.gait is not None else {}
+        return Health(
+            stamp=t,
+            role="control",
+            mode=self.safety.mode,
+            joints=joints,
+            loop=self.loop_stats() if self.loop_stats is not None else Health().loop,
+            plugins=plugins,
+            refused_commands=self.safety.refused,
+            messages=self.messages[-10:],
+        )
+
+    def publish_health(self, t: float) -> None:
+        self.publish(self.health(t))
+        self.publish(ModeState(stamp=t, mode=self.safety.mode, reason=self.safety.reason))

@@ -1,0 +1,220 @@
+"""``climbd run``: the control role of one robot — joint bus, control loop, safety, Zenoh.
+
+The asyncio main thread owns the Zenoh bus, signals and reporting; the ControlLoop runs in
+its own thread so I/O on the asyncio side never delays a tick. SIGTERM/SIGINT bring the
+robot to a safe pose under the profile's e-stop policy, then the process exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import signal
+import sys
+import threading
+
+log = logging.getLogger("climbd.run")
+
+SHUTDOWN_TIMEOUT = 5.0
+"""Seconds the safe-pose motion may take at shutdown before the policy is applied anyway."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--profile", required=True, help="robot profile (robots/*.toml)")
+    parser.add_argument(
+        "--driver",
+        help="joint bus driver (entry point in climbd.drivers; default: profile bus.kind)",
+    )
+    parser.add_argument("--port", help="joint bus port, overriding the profile (e.g. a pty)")
+    parser.add_argument("--duration", type=float, help="stop by itself after S seconds")
+    parser.add_argument("--gait", help="gait plugin for ACTIVE (default: profile default_gait)")
+    parser.add_argument("--no-stand", action="store_true", help="stay OFF instead of standing up")
+    parser.add_argument(
+        "--listen", action="append", help="Zenoh listen endpoint (repeatable; overrides profile)"
+    )
+    parser.add_argument(
+        "--connect", action="append", help="Zenoh connect endpoint (repeatable; overrides profile)"
+    )
+    parser.add_argument("--quiet", action="store_true", help="no periodic loop statistics")
+
+
+def main(args: argparse.Namespace) -> int:
+    from daemon import profile as profiles
+
+    try:
+        profile = profiles.load(args.profile)
+    except profiles.ProfileError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    try:
+        return asyncio.run(ControlRole(profile, args).run())
+    except StartupError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+
+
+class StartupError(RuntimeError):
+    """The role cannot start (device, plugin or network problem); the message says which."""
+
+
+def make_joint_bus(profile, driver: str | None, port: str | None):
+    """Open the joint bus named ``driver`` (an entry point in climbd.drivers) for ``profile``."""
+    from daemon.plugins import PluginError, load_class
+    from drivers.base import DriverError
+
+    name = driver or profile.bus.kind
+    try:
+        cls = load_class("climbd.drivers", name)
+    except PluginError as e:
+        raise StartupError(str(e)) from None
+    options = {"port": port} if port else {}
+    try:
+        bus = cls.from_profile(profile, **options)
+        bus.open()
+    except DriverError as e:
+        raise StartupError(f"joint bus {name!r}: {e}") from None
+    return bus
+
+
+def make_gait(profile, name: str | None, on_failure):
+    """The gait plugin ACTIVE runs, isolated; None when the profile configures none."""
+    from daemon.plugins import Isolated, PluginError, instantiate
+
+    specs = {spec.name: spec for spec in profile.plugins.gaits}
+    name = name or profile.plugins.default_gait or next(iter(specs), None)
+    if name is None:
+        return None
+    overrides = specs[name].config if name in specs else {}
+    try:
+        plugin = instantiate(
+            "climbd.gaits", name, overrides, profile, f"{profile.source}: gait {name}"
+        )
+    except PluginError as e:
+        raise StartupError(str(e)) from None
+    return Isolated(name, plugin, on_failure)
+
+
+class ControlRole:
+    """Wires profile, joint bus, safety, controller, loop and Zenoh together for one run."""
+
+    def __init__(self, profile, args: argparse.Namespace) -> None:
+        self.profile = profile
+        self.args = args
+
+    async def run(self) -> int:
+        from daemon import messages as m
+        from daemon import sdnotify
+        from daemon.bus import Bus, Endpoints, zenoh_config
+        from daemon.control import Controller
+        from daemon.loop import ControlLoop, MonotonicClock
+        from daemon.safety import Safety
+
+        profile, args = self.profile, self.args
+        aio = asyncio.get_running_loop()
+        clock = MonotonicClock()
+        safety = Safety(profile)
+        joint_bus = make_joint_bus(profile, args.driver, args.port)
+        endpoints = None
+        if args.listen or args.connect:
+            endpoints = Endpoints(args.listen or [], args.connect or [])
+        try:
+            bus = Bus(profile.name, zenoh_config(profile, "control", endpoints), aio)
+        except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
+            joint_bus.close()
+            raise StartupError(f"zenoh: {e}") from None
+        publishers = {t: bus.publisher(t) for t in (m.JointState, m.Health, m.ModeState)}
+
+        def publish(message: m.Message) -> None:
+            publishers[type(message)].put(message)
+
+        gait = make_gait(
+            profile, args.gait, lambda name, e: safety.hold(clock.now(), f"gait {name} failed")
+        )
+        controller = Controller(profile, joint_bus, safety, clock.now, gait, publish)
+        loop = ControlLoop(profile.rate_hz, clock, controller.tick)
+        controller.loop_stats = loop.stats
+        bus.subscribe(m.MotionCommand, controller.on_motion, latest_only=True)
+        bus.subscribe(m.ModeRequest, controller.on_mode)
+        bus.subscribe(m.EStop, controller.on_estop)
+        bus.subscribe(m.SessionClaim, controller.on_claim)
+        bus.subscribe(m.Heartbeat, controller.on_heartbeat)
+        for feature in (m.ElevationGrid, m.Joists, m.GraspablePoints, m.TrussMembers, m.Stairs):
+            bus.subscribe(feature, controller.on_feature, latest_only=True)
+        bus.alive("control")
+
+        stop = asyncio.Event()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            aio.add_signal_handler(sig, stop.set)
+        thread = threading.Thread(target=loop.run, name="control-loop", daemon=True)
+        thread.start()
+        print(
+            f"climbd: {profile.name} control role, {profile.rate_hz:g} Hz, "
+            f"{len(profile.joints)} joints, e-stop policy {safety.policy.value}",
+            flush=True,
+        )
+        if not args.no_stand:
+            safety.request(m.Mode.STAND, clock.now(), reason="start-up")
+        sdnotify.notify("READY=1")
+        await self._supervise(stop, loop, safety, sdnotify.watchdog_period())
+        await self._safe_stop(controller, safety, loop, clock)
+        loop.stop()
+        await aio.run_in_executor(None, thread.join, 2.0)
+        sdnotify.notify("STOPPING=1")
+        bus.close()
+        joint_bus.close()
+        self._report(loop, safety)
+        return 0
+
+    async def _supervise(self, stop: asyncio.Event, loop, safety, watchdog: float | None) -> None:
+        """Print mode changes and statistics, ping the watchdog while ticks advance, await stop."""
+        from daemon import sdnotify
+
+        aio = asyncio.get_running_loop()
+        end = aio.time() + self.args.duration if self.args.duration else None
+        seen = 0
+        last_ticks, last_stats, last_ping = -1, aio.time(), aio.time()
+        while not stop.is_set():
+            for tr in safety.history[seen:]:
+                print(f"mode {tr.previous.value} → {tr.mode.value}: {tr.reason}", flush=True)
+            seen = len(safety.history)
+            now = aio.time()
+            if watchdog is not None and now - last_ping >= watchdog and loop.ticks != last_ticks:
+                sdnotify.notify("WATCHDOG=1")
+                last_ticks, last_ping = loop.ticks, now
+            if not self.args.quiet and now - last_stats >= 1.0:
+                last_stats = now
+                s = loop.stats()
+                print(
+                    f"loop {s.ticks} ticks, lateness p50 {s.lateness_p50 * 1e6:.0f} µs "
+                    f"p99 {s.lateness_p99 * 1e6:.0f} µs, compute p50 {s.compute_p50 * 1e6:.0f} µs, "
+                    f"overruns {s.overruns}, mode {safety.mode.value}",
+                    flush=True,
+                )
+            if end is not None and now >= end:
+                break
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(stop.wait(), 0.05)
+
+    async def _safe_stop(self, controller, safety, loop, clock) -> None:
+        """Bring the robot to its safe pose under the profile's policy before exiting."""
+        controller.begin_shutdown(clock.now())
+        deadline = clock.now() + SHUTDOWN_TIMEOUT
+        while not controller.shutdown_done and clock.now() < deadline and not loop.stopped:
+            await asyncio.sleep(controller.dt * 5)
+        if not controller.shutdown_done:
+            log.warning(
+                "safe pose not reached in %.1f s; applying the e-stop policy", SHUTDOWN_TIMEOUT
+            )
+            controller.finish_shutdown(clock.now())
+
+    def _report(self, loop, safety) -> None:
+        s = loop.stats()
+        print(
+            f"climbd: stopped in {safety.mode.value} ({safety.reason}); {s.ticks} ticks at "
+            f"{s.rate_hz:g} Hz, lateness p50 {s.lateness_p50 * 1e6:.0f} µs p99 "
+            f"{s.lateness_p99 * 1e6:.0f} µs max {s.lateness_max * 1e6:.0f} µs, "
+            f"overruns {s.overruns}, refused commands {safety.refused}",
+            flush=True,
+        )

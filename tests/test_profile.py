@@ -1,0 +1,175 @@
+"""Robot profiles: stock ones validate; malformed ones name the field path, expected and found."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from daemon import profile as profiles
+from daemon.messages import EstopPolicy
+
+ROBOTS = Path(__file__).resolve().parent.parent / "robots"
+
+
+@pytest.mark.parametrize("name", ["widowx", "hubrobo", "qingzhui"])
+def test_stock_profile_validates(name: str) -> None:
+    p = profiles.load(ROBOTS / f"{name}.toml")
+    assert p.name == name
+    assert all(len(leg.joints) == 3 for leg in p.legs)
+
+
+def test_stock_profiles_match_the_robots() -> None:
+    widowx = profiles.load(ROBOTS / "widowx.toml")
+    assert len(widowx.legs) == 6 and sorted(j.id for j in widowx.joints) == list(range(1, 19))
+    assert widowx.rate_hz == 100 and widowx.bus.protocol == 1 and widowx.bus.model == "AX-18A"
+    assert widowx.legs[0].links == pytest.approx([0.052, 0.066, 0.133])
+    hubrobo = profiles.load(ROBOTS / "hubrobo.toml")
+    assert len(hubrobo.legs) == 4 and hubrobo.bus.protocol == 2
+    assert hubrobo.safety.estop_policy == EstopPolicy.HOLD_GRIP
+    qingzhui = profiles.load(ROBOTS / "qingzhui.toml")
+    assert qingzhui.rate_hz == 1000 and qingzhui.bus.kind == "torque"
+    assert {leg.kind for leg in qingzhui.legs} == {"abduction_thigh_shank"}
+
+
+def write(tmp_path: Path, text: str, name: str = "bad.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def base_text() -> str:
+    return (ROBOTS / "widowx.toml").read_text()
+
+
+def replace_once(text: str, old: str, new: str) -> str:
+    assert old in text, old
+    return text.replace(old, new, 1)
+
+
+MALFORMED = [
+    # (description, transform of the WidowX profile text, expected fragments of the error)
+    ("unknown top-level key", lambda t: "colour = 'red'\n" + t, ["colour", "$"]),
+    (
+        "rate as a string",
+        lambda t: replace_once(t, "rate_hz = 100.0", 'rate_hz = "fast"'),
+        ["$.rate_hz", "Expected `float`, got `str`"],
+    ),
+    (
+        "negative rate",
+        lambda t: replace_once(t, "rate_hz = 100.0", "rate_hz = -5.0"),
+        ["$.rate_hz", "expected > 0", "-5.0"],
+    ),
+    (
+        "limit min > max",
+        lambda t: replace_once(
+            t, "lower = -1.2000, upper = 1.2000", "lower = 1.5000, upper = 1.2000"
+        ),
+        ["$.legs[0].joints[0].limits", "lower < upper", "lower=1.5"],
+    ),
+    (
+        "duplicate servo id",
+        lambda t: replace_once(t, "id = 3\n", "id = 1\n"),
+        ["$.legs[0].joints[1].id", "duplicate id 1"],
+    ),
+    (
+        "leg with two joints",
+        lambda t: replace_once(
+            t,
+            '[[legs.joints]]\nname = "rf_tibia"\nid = 5\n'
+            "limits = { lower = -2.2000, upper = 2.2000, velocity = 5.0, acceleration = 40.0, "
+            "jerk = 800.0, effort = 1.8 }\n",
+            "",
+        ),
+        ["$.legs[0].joints", "expected 3 joints, found 2"],
+    ),
+    (
+        "unknown e-stop policy",
+        lambda t: replace_once(t, 'estop_policy = "torque_off"', 'estop_policy = "pray"'),
+        ["$.safety.estop_policy", "pray"],
+    ),
+    (
+        "tilt out of range",
+        lambda t: replace_once(t, "tilt_deg = 30.0", "tilt_deg = 120.0"),
+        ["$.cameras[0].mount.tilt_deg", "0..90", "120"],
+    ),
+    ("protocol 3", lambda t: replace_once(t, "protocol = 1", "protocol = 3"), ["$.bus.protocol"]),
+    (
+        "missing stand",
+        lambda t: replace_once(t, "[stand]\nbody_height = 0.10\nfoot_reach = 0.13\n", ""),
+        ["stand"],
+    ),
+    (
+        "unknown joint key",
+        lambda t: replace_once(t, 'name = "rf_coxa"\n', 'name = "rf_coxa"\ngear = 2\n'),
+        ["$.legs[0].joints[0]", "gear"],
+    ),
+    (
+        "zero velocity limit",
+        lambda t: replace_once(t, "velocity = 5.0", "velocity = 0.0"),
+        ["$.legs[0].joints[0].limits.velocity", "> 0", "0.0"],
+    ),
+    (
+        "direction 2",
+        lambda t: replace_once(t, 'name = "rf_coxa"\n', 'name = "rf_coxa"\ndirection = 2\n'),
+        ["$.legs[0].joints[0].direction"],
+    ),
+    ("bad TOML", lambda t: t + "\n[[legs\n", ["not valid TOML"]),
+]
+
+
+@pytest.mark.parametrize("desc,transform,fragments", MALFORMED, ids=[m[0] for m in MALFORMED])
+def test_malformed_profile_names_field(tmp_path: Path, desc, transform, fragments) -> None:
+    path = write(tmp_path, transform(base_text()))
+    with pytest.raises(profiles.ProfileError) as err:
+        profiles.load(path)
+    message = str(err.value)
+    assert str(path) in message
+    for fragment in fragments:
+        assert fragment in message, f"{desc}: {fragment!r} not in {message!r}"
+
+
+def test_include_overrides_only_what_differs(tmp_path: Path) -> None:
+    (tmp_path / "widowx.toml").write_text(base_text())
+    path = write(
+        tmp_path,
+        'include = "widowx.toml"\nname = "attic-bot"\n[bus]\nport = "/dev/ttyACM3"\n'
+        "[safety]\nheartbeat_window = 0.2\n",
+        "mine.toml",
+    )
+    p = profiles.load(path)
+    assert p.name == "attic-bot"
+    assert p.bus.port == "/dev/ttyACM3" and p.bus.model == "AX-18A" and p.bus.baud == 1_000_000
+    assert p.safety.heartbeat_window == 0.2 and p.safety.estop_policy == EstopPolicy.TORQUE_OFF
+    assert len(p.joints) == 18
+
+
+def test_include_missing_and_cycle(tmp_path: Path) -> None:
+    path = write(tmp_path, 'include = "nowhere.toml"\n', "a.toml")
+    with pytest.raises(profiles.ProfileError, match="include: profile file not found"):
+        profiles.load(path)
+    write(tmp_path, 'include = "c.toml"\n', "b.toml")
+    write(tmp_path, 'include = "b.toml"\n', "c.toml")
+    with pytest.raises(profiles.ProfileError, match="include cycle"):
+        profiles.load(tmp_path / "b.toml")
+
+
+def test_profile_check_command(tmp_path: Path) -> None:
+    bad = write(tmp_path, replace_once(base_text(), "id = 3\n", "id = 1\n"))
+    ok = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "profile", "check", str(ROBOTS / "widowx.toml")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert ok.returncode == 0 and "ok" in ok.stdout
+    res = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "profile", "check", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert res.returncode == 1
+    assert "$.legs[0].joints[1].id" in res.stderr and "Traceback" not in res.stderr
