@@ -1,0 +1,121 @@
+"""The safety state machine: allowed transitions, e-stop latching, sessions, heartbeats, health."""
+
+from __future__ import annotations
+
+import msgspec
+import pytest
+
+from daemon import profile as profiles
+from daemon.messages import EstopPolicy, JointHealth, Mode
+from daemon.safety import DERATE_SCALE, Safety
+
+
+@pytest.fixture()
+def safety(robots) -> Safety:
+    return Safety(profiles.load(robots / "widowx.toml"))
+
+
+def test_normal_sequence_and_refused_jumps(safety: Safety) -> None:
+    assert safety.mode == Mode.OFF
+    assert not safety.request(Mode.ACTIVE, 0.0), "OFF → ACTIVE skips the stand"
+    assert safety.request(Mode.STAND, 0.1)
+    assert safety.request(Mode.ACTIVE, 0.2)
+    assert not safety.request(Mode.OFF, 0.3), "torque off while walking would drop the robot"
+    assert safety.request(Mode.HOLD, 0.4)
+    assert safety.request(Mode.ACTIVE, 0.5)
+    assert [t.mode for t in safety.history] == [Mode.STAND, Mode.ACTIVE, Mode.HOLD, Mode.ACTIVE]
+
+
+def test_estop_latches_until_explicit_reset(safety: Safety) -> None:
+    safety.request(Mode.STAND, 0.0)
+    safety.torque_on = True
+    safety.estop(1.0, "laptop", "operator")
+    assert safety.mode == Mode.ESTOP and "laptop" in safety.reason
+    for mode in Mode:
+        assert not safety.request(mode, 1.1) or mode == Mode.ESTOP
+    assert safety.mode == Mode.ESTOP
+    assert safety.reset(2.0)
+    assert safety.mode == Mode.HOLD, "a powered robot resets into HOLD, never straight into motion"
+
+
+def test_fault_needs_reset_and_estop_wins(safety: Safety) -> None:
+    safety.request(Mode.STAND, 0.0)
+    safety.fault(1.0, "port gone")
+    assert safety.mode == Mode.FAULT
+    safety.estop(1.5, "pendant")
+    assert safety.mode == Mode.ESTOP
+    safety.fault(1.6, "another fault")
+    assert safety.mode == Mode.ESTOP, "a fault never clears a latched e-stop"
+    assert safety.reset(2.0) and safety.mode == Mode.OFF
+
+
+def test_one_session_at_a_time_and_override(safety: Safety) -> None:
+    assert safety.claim("s1", "alice", 0.0) == (True, "claimed")
+    ok, why = safety.claim("s2", "bob", 0.1)
+    assert not ok and "alice" in why
+    assert safety.accepts("s1") and not safety.accepts("s2")
+    refused = safety.refused
+    assert not safety.request(Mode.STAND, 0.2, session="s2")
+    assert safety.refused == refused + 1
+    assert safety.request(Mode.STAND, 0.2, session="s1")
+    assert safety.claim("s3", "carol", 0.3, override=True)[0]
+    assert safety.accepts("s3") and not safety.accepts("s1")
+
+
+def test_lost_heartbeat_holds_within_the_window(safety: Safety) -> None:
+    window = safety.profile.safety.heartbeat_window
+    safety.claim("s1", "alice", 0.0)
+    safety.request(Mode.STAND, 0.0, session="s1")
+    safety.request(Mode.ACTIVE, 0.0, session="s1")
+    for k in range(1, 10):
+        assert safety.heartbeat("s1", 0.1 * k)
+        safety.check_heartbeat(0.1 * k + 0.05)
+    assert safety.mode == Mode.ACTIVE
+    last = 0.9
+    safety.check_heartbeat(last + window * 0.99)
+    assert safety.mode == Mode.ACTIVE
+    safety.check_heartbeat(last + window + 0.01)
+    assert safety.mode == Mode.HOLD and "heartbeat" in safety.reason
+    assert safety.history[-1].at - last <= window + 0.011
+    assert safety.session is None, "an expired session must be claimed again"
+
+
+def test_expired_session_can_be_claimed_by_another(safety: Safety) -> None:
+    safety.claim("s1", "alice", 0.0)
+    assert safety.claim("s2", "bob", 1.0)[0]
+
+
+def joints(n: int = 18, **over) -> list[JointHealth]:
+    out = [JointHealth(name=f"j{i}", temperature=40.0, voltage=12.0) for i in range(n)]
+    for i, fields in over.items():
+        k = int(i[1:])
+        out[k] = msgspec.structs.replace(out[k], **fields)
+    return out
+
+
+def test_health_policy(safety: Safety) -> None:
+    safety.request(Mode.STAND, 0.0)
+    safety.request(Mode.ACTIVE, 0.0)
+    safety.judge(joints(j3={"temperature": 68.0}), 1.0)
+    assert safety.mode == Mode.ACTIVE and safety.speed_scale == DERATE_SCALE
+    safety.judge(joints(), 1.1)
+    assert safety.speed_scale == 1.0
+    safety.judge(joints(j5={"lost": True}), 1.2)
+    assert safety.mode == Mode.HOLD and "j5" in safety.reason
+    safety.request(Mode.ACTIVE, 1.3)
+    safety.judge(joints(j2={"voltage": 7.0}), 1.4)
+    assert safety.mode == Mode.HOLD and "voltage" in safety.reason
+    safety.judge(joints(j7={"temperature": 80.0}), 1.5)
+    assert safety.mode == Mode.FAULT and "overheat" in safety.reason
+
+
+@pytest.mark.parametrize(
+    "name,policy",
+    [
+        ("widowx", EstopPolicy.TORQUE_OFF),
+        ("hubrobo", EstopPolicy.HOLD_GRIP),
+        ("qingzhui", EstopPolicy.HOLD),
+    ],
+)
+def test_policy_comes_from_the_profile(robots, name: str, policy: EstopPolicy) -> None:
+    assert Safety(profiles.load(robots / f"{name}.toml")).policy == policy
