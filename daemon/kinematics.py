@@ -1,0 +1,249 @@
+"""Vectorised 3-DOF leg kinematics for all legs of a profile: FK, IK, Jacobian, foot forces.
+
+Frames. Body frame: x forward, y left, z up. Leg frame of leg i: origin at its ``mount``,
+x along the mount ``yaw`` (outward), z up; ``foot_body = mount + Rz(yaw) @ foot_leg``.
+
+Joint convention. Joint vectors are in profile order (leg by leg, three joints each) and in
+each joint's own convention: ``q = direction * theta + zero_offset``, where ``theta`` is the
+kinematic angle below. Position limits apply to ``q``.
+
+Kinematic angles, ``links = [l1, l2, l3]``:
+
+- ``coxa_femur_tibia`` (WidowX, HubRobo): coxa yaw ``gamma`` about z (+ counter-clockwise),
+  femur elevation ``alpha`` above the horizontal (+ up), tibia ``beta`` relative to the femur
+  (+ up). ``r = l1 + l2 cos(alpha) + l3 cos(alpha + beta)``,
+  foot = ``(r cos(gamma), r sin(gamma), l2 sin(alpha) + l3 sin(alpha + beta))``.
+  Knee "a" is the knee-up branch (``beta <= 0``), knee "b" the knee-down branch.
+- ``abduction_thigh_shank`` (Qingzhui, paper 004 eqs. 1-3): abduction ``theta_a`` about the
+  leg x axis, thigh ``theta_t`` and shank ``theta_s`` both measured (as in the paper) from the
+  outward axis, + downward; ``l1`` is the offset from the abduction joint to the thigh joint.
+  With ``rho = l2 sin(theta_t) + l3 sin(theta_s)``:
+  foot = ``(l1 + l2 cos(theta_t) + l3 cos(theta_s), rho sin(theta_a), -rho cos(theta_a))``,
+  i.e. the paper's (x, y, z) with its y pointing down and its z along our leg y. Knee "a" has
+  the knee above the foot line (``theta_s >= theta_t``), knee "b" below it.
+
+IK reports unreachable legs (outside the workspace or outside the joint limits) in a mask
+and never clamps them into another pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.profile import Profile
+
+CFT = "coxa_femur_tibia"
+ATS = "abduction_thigh_shank"
+
+
+class KinematicsError(ValueError):
+    """A profile whose geometry cannot be used (e.g. an unreachable stand pose)."""
+
+
+def rot_z(angle: np.ndarray) -> np.ndarray:
+    """Rotation matrices about z, shape (..., 3, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.zeros((*np.shape(angle), 3, 3))
+    out[..., 0, 0], out[..., 0, 1] = c, -s
+    out[..., 1, 0], out[..., 1, 1] = s, c
+    out[..., 2, 2] = 1.0
+    return out
+
+
+def rot_rpy(roll: float, pitch: float, yaw: float = 0.0) -> np.ndarray:
+    """Rotation matrix Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    return rot_z(yaw) @ ry @ rx
+
+
+def _two_link(u, w, l2, l3, knee_sign):
+    """Planar two-link IK: (first angle, relative second angle, reachable) for point (u, w)."""
+    c = (u * u + w * w - l2 * l2 - l3 * l3) / (2.0 * l2 * l3)
+    ok = np.abs(c) <= 1.0
+    rel = knee_sign * np.arccos(np.clip(c, -1.0, 1.0))
+    first = np.arctan2(w, u) - np.arctan2(l3 * np.sin(rel), l2 + l3 * np.cos(rel))
+    return first, rel, ok
+
+
+class Kinematics:
+    """FK, IK, Jacobian and foot forces of every leg of ``profile``, vectorised over legs."""
+
+    def __init__(self, profile: Profile) -> None:
+        self.profile = profile
+        legs = profile.legs
+        self.n_legs = len(legs)
+        self.n_joints = 3 * self.n_legs
+        self.leg_names = [leg.name for leg in legs]
+        self.mount = np.array([leg.mount for leg in legs], float)
+        self.yaw = np.array([leg.yaw for leg in legs], float)
+        self.rot = rot_z(self.yaw)
+        self.rot_t = np.swapaxes(self.rot, 1, 2)
+        links = np.array([leg.links for leg in legs], float)
+        self.l1, self.l2, self.l3 = links[:, 0], links[:, 1], links[:, 2]
+        joints = profile.joints
+        self.direction = np.array([j.direction for j in joints], float)
+        self.zero_offset = np.array([j.zero_offset for j in joints], float)
+        self.lower = np.array([j.limits.lower for j in joints], float)
+        self.upper = np.array([j.limits.upper for j in joints], float)
+        self.cft = np.array([leg.kind == CFT for leg in legs])
+        self.ats = ~self.cft
+        self.knee_sign = np.array(
+            [
+                (-1.0 if leg.kind == CFT else 1.0) * (1.0 if leg.knee == "a" else -1.0)
+                for leg in legs
+            ]
+        )
+
+    # --- joint <-> kinematic angles ---------------------------------------------------
+
+    def to_theta(self, q: np.ndarray) -> np.ndarray:
+        """Kinematic angles (n_legs, 3) from a joint vector in the profile's convention."""
+        q = np.asarray(q, float)
+        return ((q - self.zero_offset) * self.direction).reshape(self.n_legs, 3)
+
+    def to_q(self, theta: np.ndarray) -> np.ndarray:
+        """Joint vector (n_joints,) from kinematic angles (n_legs, 3)."""
+        return np.reshape(theta, -1) * self.direction + self.zero_offset
+
+    # --- frames -----------------------------------------------------------------------
+
+    def to_leg(self, feet: np.ndarray) -> np.ndarray:
+        """Body-frame points (n_legs, 3) into each leg's frame."""
+        return np.einsum("lij,lj->li", self.rot_t, np.asarray(feet, float) - self.mount)
+
+    def to_body(self, feet_leg: np.ndarray) -> np.ndarray:
+        """Leg-frame points (n_legs, 3) into the body frame."""
+        return np.einsum("lij,lj->li", self.rot, feet_leg) + self.mount
+
+    # --- forward kinematics -----------------------------------------------------------
+
+    def fk_leg(self, theta: np.ndarray) -> np.ndarray:
+        """Feet in their leg frames (n_legs, 3) from kinematic angles (n_legs, 3)."""
+        a, b, c = theta[:, 0], theta[:, 1], theta[:, 2]
+        l1, l2, l3 = self.l1, self.l2, self.l3
+        out = np.empty((self.n_legs, 3))
+        # coxa-femur-tibia: a = gamma, b = alpha, c = beta
+        r = l1 + l2 * np.cos(b) + l3 * np.cos(b + c)
+        cft = np.stack([r * np.cos(a), r * np.sin(a), l2 * np.sin(b) + l3 * np.sin(b + c)], 1)
+        # abduction-thigh-shank (paper 004 eqs. 1-3): a = theta_a, b = theta_t, c = theta_s
+        rho = l2 * np.sin(b) + l3 * np.sin(c)
+        ats = np.stack([l1 + l2 * np.cos(b) + l3 * np.cos(c), rho * np.sin(a), -rho * np.cos(a)], 1)
+        out[:] = np.where(self.cft[:, None], cft, ats)
+        return out
+
+    def fk(self, q: np.ndarray) -> np.ndarray:
+        """Feet in the body frame (n_legs, 3) from a joint vector (n_joints,)."""
+        return self.to_body(self.fk_leg(self.to_theta(q)))
+
+    # --- inverse kinematics -----------------------------------------------------------
+
+    def ik_leg(self, feet_leg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Kinematic angles (n_legs, 3) and a geometric-reachability mask from leg-frame feet."""
+        x, y, z = feet_leg[:, 0], feet_leg[:, 1], feet_leg[:, 2]
+        l1, l2, l3, k = self.l1, self.l2, self.l3, self.knee_sign
+        # coxa-femur-tibia
+        gamma = np.arctan2(y, x)
+        alpha, beta, ok_c = _two_link(np.hypot(x, y) - l1, z, l2, l3, k)
+        # abduction-thigh-shank: the thigh plane holds (x - l1, rho) with rho pointing down
+        theta_a = np.arctan2(y, -z)
+        theta_t, rel, ok_a = _two_link(x - l1, np.hypot(y, z), l2, l3, k)
+        theta = np.where(
+            self.cft[:, None],
+            np.stack([gamma, alpha, beta], 1),
+            np.stack([theta_a, theta_t, theta_t + rel], 1),
+        )
+        ok = np.where(self.cft, ok_c, ok_a)
+        return theta, ok
+
+    def ik(self, feet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Joint vector (n_joints,) and per-leg reachable mask from body-frame feet (n_legs, 3).
+
+        A leg is unreachable when its foot is outside the workspace (its joints are NaN) or
+        when the solution breaks a joint's position limits (its joints hold that solution).
+        """
+        theta, ok = self.ik_leg(self.to_leg(feet))
+        theta[~ok] = np.nan
+        q = self.to_q(theta)
+        inside = ((q >= self.lower) & (q <= self.upper)).reshape(self.n_legs, 3).all(1)
+        return q, ok & inside
+
+    # --- differential kinematics ------------------------------------------------------
+
+    def jacobian_leg(self, theta: np.ndarray) -> np.ndarray:
+        """d(foot_leg)/d(theta), shape (n_legs, 3, 3), columns in joint order."""
+        a, b, c = theta[:, 0], theta[:, 1], theta[:, 2]
+        l2, l3 = self.l2, self.l3
+        ca, sa = np.cos(a), np.sin(a)
+        jac = np.empty((self.n_legs, 3, 3))
+        # coxa-femur-tibia
+        r = self.l1 + l2 * np.cos(b) + l3 * np.cos(b + c)
+        z = l2 * np.sin(b) + l3 * np.sin(b + c)
+        dr_c = -l3 * np.sin(b + c)
+        cft = np.stack(
+            [
+                np.stack([-r * sa, -z * ca, dr_c * ca], 1),
+                np.stack([r * ca, -z * sa, dr_c * sa], 1),
+                np.stack(
+                    [np.zeros_like(a), l2 * np.cos(b) + l3 * np.cos(b + c), l3 * np.cos(b + c)], 1
+                ),
+            ],
+            1,
+        )
+        # abduction-thigh-shank: paper 004 eq. 4 in our leg frame and joint order
+        rho = l2 * np.sin(b) + l3 * np.sin(c)
+        tc, sc = l2 * np.cos(b), l3 * np.cos(c)
+        ats = np.stack(
+            [
+                np.stack([np.zeros_like(a), -l2 * np.sin(b), -l3 * np.sin(c)], 1),
+                np.stack([rho * ca, tc * sa, sc * sa], 1),
+                np.stack([rho * sa, -tc * ca, -sc * ca], 1),
+            ],
+            1,
+        )
+        jac[:] = np.where(self.cft[:, None, None], cft, ats)
+        return jac
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """d(foot_body)/dq per leg, shape (n_legs, 3, 3), in the joints' own convention."""
+        jac = self.rot @ self.jacobian_leg(self.to_theta(q))
+        return jac * self.direction.reshape(self.n_legs, 1, 3)
+
+    def foot_forces(self, q: np.ndarray, tau: np.ndarray, min_det: float = 1e-12) -> np.ndarray:
+        """Foot forces (n_legs, 3) in the body frame from joint torques: F = (J^T)^-1 tau.
+
+        Paper 004 eq. 5: F is the force the foot exerts on its contact (the contact pushes
+        back with -F). Legs at a singular pose (|det J| < ``min_det``) get NaN.
+        """
+        jt = np.swapaxes(self.jacobian(q), 1, 2)
+        tau = np.asarray(tau, float).reshape(self.n_legs, 3)
+        singular = np.abs(np.linalg.det(jt)) < min_det
+        jt[singular] = np.eye(3)
+        forces = np.linalg.solve(jt, tau[..., None])[..., 0]
+        forces[singular] = np.nan
+        return forces
+
+    # --- standing pose ----------------------------------------------------------------
+
+    def stand_feet(self, body_height: float | None = None) -> np.ndarray:
+        """Standing feet (n_legs, 3): ``foot_reach`` along each mount yaw, ``body_height`` down."""
+        stand = self.profile.stand
+        height = stand.body_height if body_height is None else body_height
+        feet_leg = np.zeros((self.n_legs, 3))
+        feet_leg[:, 0] = stand.foot_reach
+        feet = self.to_body(feet_leg)
+        feet[:, 2] = -height
+        return feet
+
+    def stand_joints(self) -> np.ndarray:
+        """Joint vector of the standing pose; KinematicsError if a leg cannot reach it."""
+        q, ok = self.ik(self.stand_feet())
+        if not ok.all():
+            bad = [n for n, good in zip(self.leg_names, ok, strict=True) if not good]
+            raise KinematicsError(
+                f"{self.profile.source or self.profile.name}: $.stand: legs {bad} cannot reach "
+                f"the stand pose (body_height={self.profile.stand.body_height}, "
+                f"foot_reach={self.profile.stand.foot_reach}) within their joint limits"
+            )
+        return q

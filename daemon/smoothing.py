@@ -1,0 +1,137 @@
+"""Per-joint jerk-limited smoothing of joint targets with ruckig (community edition).
+
+Every tick the smoother plans, from its current state (position, velocity, acceleration),
+a time-optimal trajectory to the target state within the profile's velocity, acceleration
+and jerk limits, and advances one period along it; a new target replans from the current
+state, so the command stays continuous up to jerk. Joints are planned independently
+(``Synchronization.No``). Ruckig's community edition ignores position limits: the guard
+clamps positions (daemon/guard.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import ruckig
+
+from daemon.profile import Profile
+
+_OK = (ruckig.Result.Working, ruckig.Result.Finished)
+_MARGIN = 0.999
+
+
+class SmoothingError(RuntimeError):
+    """Ruckig refused to plan or failed; the message names the joint where ruckig says."""
+
+
+class Smoother:
+    """Ruckig over all joints of ``profile`` at period ``dt`` (s); ``scale`` derates velocity."""
+
+    def __init__(self, profile: Profile, dt: float) -> None:
+        if not dt > 0:
+            raise ValueError(f"smoothing period must be > 0 s, got {dt}")
+        joints = profile.joints
+        self.names = [j.name for j in joints]
+        self.n = len(joints)
+        self.dt = dt
+        self.v_max = np.array([j.limits.velocity for j in joints], float)
+        self.a_max = np.array([j.limits.acceleration for j in joints], float)
+        self.j_max = np.array([j.limits.jerk for j in joints], float)
+        self._otg = ruckig.Ruckig(self.n, dt)
+        self._inp = ruckig.InputParameter(self.n)
+        self._out = ruckig.OutputParameter(self.n)
+        self._inp.synchronization = ruckig.Synchronization.No
+        self._inp.max_acceleration = self.a_max.tolist()
+        self._inp.max_jerk = self.j_max.tolist()
+        self._scale = 1.0
+        self._apply_velocity_limit()
+        self.position = np.zeros(self.n)
+        self.velocity = np.zeros(self.n)
+        self.acceleration = np.zeros(self.n)
+        self.ready = False
+
+    @property
+    def scale(self) -> float:
+        """Fraction (0, 1] of the profile's velocity limits in force (derating on overheat)."""
+        return self._scale
+
+    @scale.setter
+    def scale(self, value: float) -> None:
+        if not 0.0 < value <= 1.0:
+            raise ValueError(f"smoothing scale must be in (0, 1], got {value}")
+        self._scale = float(value)
+        self._apply_velocity_limit()
+
+    def _apply_velocity_limit(self) -> None:
+        self.v_lim = self.v_max * self._scale
+        self._inp.max_velocity = self.v_lim.tolist()
+
+    def reset(
+        self, q: np.ndarray, qd: np.ndarray | None = None, qdd: np.ndarray | None = None
+    ) -> None:
+        """Set the current state (e.g. the measured joints on entering a mode): no jump."""
+        self.position = self._vector(q, "position")
+        self.velocity = np.zeros(self.n) if qd is None else self._vector(qd, "velocity")
+        self.acceleration = np.zeros(self.n) if qdd is None else self._vector(qdd, "acceleration")
+        inp = self._inp
+        inp.current_position = self.position.tolist()
+        inp.current_velocity = self.velocity.tolist()
+        inp.current_acceleration = self.acceleration.tolist()
+        self._otg.reset()
+        self.ready = True
+
+    def _vector(self, value: np.ndarray, what: str) -> np.ndarray:
+        v = np.array(value, float).reshape(-1)
+        if v.shape != (self.n,):
+            raise SmoothingError(f"{what}: expected {self.n} joints, got {v.size}")
+        if not np.isfinite(v).all():
+            bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(v))]
+            raise SmoothingError(f"{what}: non-finite value for {', '.join(bad)}")
+        return v
+
+    def feasible_target(
+        self, target_qd: np.ndarray, target_qdd: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Clip a target velocity/acceleration into a state ruckig accepts under the limits.
+
+        The acceleration is bounded by the acceleration limit and the velocity by what can
+        still be brought to zero acceleration without passing the velocity limit.
+        """
+        a_lim = self.a_max * _MARGIN
+        qdd = np.zeros(self.n) if target_qdd is None else np.clip(target_qdd, -a_lim, a_lim)
+        v_lim = np.maximum(self.v_lim * _MARGIN - qdd * qdd / (2.0 * self.j_max), 0.0)
+        qd = np.clip(target_qd, -v_lim, v_lim)
+        return qd, qdd
+
+    def step(
+        self,
+        target_q: np.ndarray,
+        target_qd: np.ndarray | None = None,
+        target_qdd: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Advance one period towards the target state; returns the new position.
+
+        Raises SmoothingError when ruckig fails (the controller then holds).
+        """
+        if not self.ready:
+            raise SmoothingError("step() before reset(): the current joint state is unknown")
+        inp, out = self._inp, self._out
+        inp.target_position = self._vector(target_q, "target position").tolist()
+        if target_qd is None and target_qdd is None:
+            inp.target_velocity = [0.0] * self.n
+            inp.target_acceleration = [0.0] * self.n
+        else:
+            qd = np.zeros(self.n) if target_qd is None else target_qd
+            qd, qdd = self.feasible_target(qd, target_qdd)
+            inp.target_velocity = qd.tolist()
+            inp.target_acceleration = qdd.tolist()
+        try:
+            result = self._otg.update(inp, out)
+        except RuntimeError as e:
+            raise SmoothingError(f"ruckig: {str(e).strip()}") from None
+        if result not in _OK:
+            raise SmoothingError(f"ruckig: {result.name}")
+        out.pass_to_input(inp)
+        self.position = np.array(out.new_position)
+        self.velocity = np.array(out.new_velocity)
+        self.acceleration = np.array(out.new_acceleration)
+        return self.position
