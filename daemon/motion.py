@@ -11,15 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from daemon.guard import Guard
+from daemon.guard import Guard, GuardError
 from daemon.kinematics import Kinematics
 from daemon.messages import FootTargets, JointCommand
 from daemon.profile import Profile
-from daemon.smoothing import Smoother
+from daemon.smoothing import Smoother, SmoothingError
 
 
-class MotionError(ValueError):
-    """Foot targets that do not fit the profile (wrong number of legs, non-finite values)."""
+class MotionError(SmoothingError):
+    """A tick the pipeline cannot produce: foot targets that do not fit the profile, or a
+    command the guard refuses. A SmoothingError, so a controller holds on any of them."""
 
 
 class MotionPipeline:
@@ -45,6 +46,11 @@ class MotionPipeline:
         """Names of the legs whose last foot target was unreachable (for health)."""
         names = self.kinematics.leg_names
         return [n for n, bad in zip(names, self.unreachable, strict=True) if bad]
+
+    def set_speed_scale(self, scale: float) -> None:
+        """Derate the velocity limits to ``scale`` (0, 1] of the profile's (servo overheat)."""
+        if scale != self.smoother.scale:
+            self.smoother.scale = scale
 
     def start(self, measured_q: np.ndarray, measured_qd: np.ndarray | None = None) -> None:
         """Begin from the measured joint state: the first command equals it (no jump)."""
@@ -86,7 +92,10 @@ class MotionPipeline:
         return self._finish(self.smoother.step(target))
 
     def _finish(self, q: np.ndarray) -> JointCommand:
-        self.command, self.clamped = self.guard.clamp(q)
+        try:
+            self.command, self.clamped = self.guard.clamp(q)
+        except GuardError as e:
+            raise MotionError(f"guard: {e}") from None
         return JointCommand(
             position=self.command.tolist(), velocity=self.smoother.velocity.tolist()
         )
