@@ -91,6 +91,7 @@ class Controller:
         self.loop_stats: Callable | None = None
         self.sit_q = self._sit_joints()
         self.shutdown: str | None = None
+        self.sat_down = False
         self._health_every = max(1, round(profile.rate_hz / profile.bus.health_rate_hz))
         self._state_every = max(1, round(profile.rate_hz / state_rate_hz))
         self._ticks = 0
@@ -164,6 +165,8 @@ class Controller:
             state = self.bus.read()
         except DriverError as e:
             self._fault(t, f"joint bus read failed: {e}")
+            if self.safety.mode != self.mode and self.measured is not None:
+                self._enter(self.safety.mode, np.asarray(self.measured.position), t)
             return
         self.measured = state
         q = np.asarray(state.position)
@@ -195,7 +198,6 @@ class Controller:
         if self.safety.mode != Mode.FAULT:
             log.error("%s", reason)
         self.safety.fault(t, reason)
-        self.mode = self.safety.mode
 
     def _enter(self, mode: Mode, q: np.ndarray, t: float) -> None:
         """Mode entry actions; the command starts from the measured state (no jump)."""
@@ -265,6 +267,7 @@ class Controller:
             if self.reached(q, self.sit_q):
                 self._torque(False, t)
                 self.shutdown = "done"
+                self.sat_down = True
                 return None
             return self.motion.joint_step(self.sit_q)
         return self.motion.joint_step(self.target)

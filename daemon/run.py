@@ -164,21 +164,17 @@ class ControlRole:
         sdnotify.notify("STOPPING=1")
         bus.close()
         joint_bus.close()
-        self._report(loop, safety)
+        self._report(loop, safety, controller)
         return 0
 
     async def _supervise(self, stop: asyncio.Event, loop, safety, watchdog: float | None) -> None:
-        """Print mode changes and statistics, ping the watchdog while ticks advance, await stop."""
+        """Print statistics, ping the watchdog while ticks advance, await stop; modes are logged."""
         from daemon import sdnotify
 
         aio = asyncio.get_running_loop()
         end = aio.time() + self.args.duration if self.args.duration else None
-        seen = 0
         last_ticks, last_stats, last_ping = -1, aio.time(), aio.time()
         while not stop.is_set():
-            for tr in safety.history[seen:]:
-                print(f"mode {tr.previous.value} → {tr.mode.value}: {tr.reason}", flush=True)
-            seen = len(safety.history)
             now = aio.time()
             if watchdog is not None and now - last_ping >= watchdog and loop.ticks != last_ticks:
                 sdnotify.notify("WATCHDOG=1")
@@ -209,10 +205,13 @@ class ControlRole:
             )
             controller.finish_shutdown(clock.now())
 
-    def _report(self, loop, safety) -> None:
+    def _report(self, loop, safety, controller) -> None:
         s = loop.stats()
+        pose = "torque on, holding the measured pose" if safety.torque_on else "torque off"
+        if controller.sat_down:
+            pose = "sat down, then torque off"
         print(
-            f"climbd: stopped in {safety.mode.value} ({safety.reason}); {s.ticks} ticks at "
+            f"climbd: stopped in {safety.mode.value} ({safety.reason}), {pose}; {s.ticks} ticks at "
             f"{s.rate_hz:g} Hz, lateness p50 {s.lateness_p50 * 1e6:.0f} µs p99 "
             f"{s.lateness_p99 * 1e6:.0f} µs max {s.lateness_max * 1e6:.0f} µs, "
             f"overruns {s.overruns}, refused commands {safety.refused}",

@@ -119,7 +119,8 @@ class FakeJointBus:
         self.velocity = np.zeros(n)
         self.goal = self.position.copy()
         self.temperature = np.full(n, 35.0)
-        self.voltage = np.full(n, 12.0)
+        s = self.profile.safety
+        self.voltage = np.full(n, (s.min_voltage + s.max_voltage) / 2)
         self.writes = 0
         self._last = None
 

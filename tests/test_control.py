@@ -1,0 +1,189 @@
+"""The control tick on a stepped clock with the fake bus: stand, hold, e-stop policy, faults."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from daemon import profile as profiles
+from daemon.control import Controller
+from daemon.loop import ControlLoop, SteppedClock
+from daemon.messages import EStop, FootTargets, Heartbeat, Mode, ModeRequest, SessionClaim
+from daemon.plugins import GaitPlugin, Isolated
+from daemon.safety import Safety
+from drivers.base import FakeJointBus
+
+
+class StillGait(GaitPlugin):
+    """Keeps every foot where it started: the command must equal the measured state."""
+
+    def start(self, body, feet):
+        self.feet = np.array(feet)
+
+    def step(self, t, dt, body, world, command):
+        return FootTargets(stamp=t, positions=self.feet.tolist(), stance=[True] * len(self.feet))
+
+
+class FailingGait(StillGait):
+    def step(self, t, dt, body, world, command):
+        raise RuntimeError("lost its footing")
+
+
+class Rig:
+    """A controller, fake bus, safety supervisor and loop on one stepped clock."""
+
+    def __init__(self, profile, gait=None, tau: float = 0.01) -> None:
+        self.clock = SteppedClock()
+        self.profile = profile
+        self.bus = FakeJointBus(profile, tau=tau, clock=self.clock.now)
+        self.bus.open()
+        self.safety = Safety(profile)
+        self.published: list = []
+        isolated = Isolated("test", gait, lambda n, e: None) if gait else None
+        self.controller = Controller(
+            profile, self.bus, self.safety, self.clock.now, isolated, self.published.append
+        )
+        self.loop = ControlLoop(profile.rate_hz, self.clock, self.controller.tick)
+        self.commands: list[np.ndarray] = []
+        write = self.bus.write
+
+        def record(cmd):
+            self.commands.append(np.array(cmd.position))
+            write(cmd)
+
+        self.bus.write = record
+
+    def run(self, seconds: float) -> None:
+        self.loop.run(max_ticks=self.loop.ticks + int(round(seconds * self.profile.rate_hz)))
+
+    def stand(self) -> None:
+        assert self.safety.request(Mode.STAND, self.clock.now())
+        self.run(self.profile.safety.stand_time * 3)
+
+
+@pytest.fixture()
+def widowx(robots):
+    return profiles.load(robots / "widowx.toml")
+
+
+def test_stand_up_then_hold(widowx) -> None:
+    rig = Rig(widowx)
+    rig.stand()
+    assert rig.safety.mode == Mode.HOLD and rig.safety.reason == "stand complete"
+    stand_q = rig.controller.stand_q
+    assert np.max(np.abs(rig.bus.position - stand_q)) < 0.01
+    limits = np.array([[j.limits.lower, j.limits.upper] for j in widowx.joints])
+    cmds = np.array(rig.commands)
+    assert np.all(cmds >= limits[:, 0] - 1e-9) and np.all(cmds <= limits[:, 1] + 1e-9)
+    vel = np.diff(cmds, axis=0) * widowx.rate_hz
+    vmax = np.array([j.limits.velocity for j in widowx.joints])
+    assert np.all(np.abs(vel) <= vmax * 1.001), "the rise respects velocity limits"
+
+
+def test_entering_active_commands_the_measured_state(widowx) -> None:
+    rig = Rig(widowx, StillGait(profile=widowx))
+    rig.stand()
+    measured = rig.bus.position.copy()
+    n = len(rig.commands)
+    assert rig.safety.request(Mode.ACTIVE, rig.clock.now())
+    rig.run(0.5)
+    assert rig.safety.mode == Mode.ACTIVE
+    first = rig.commands[n]
+    assert np.max(np.abs(first - measured)) < 1e-6, "no jump on entering ACTIVE"
+
+
+def test_failed_gait_holds(widowx) -> None:
+    rig = Rig(widowx, FailingGait(profile=widowx))
+    rig.stand()
+    rig.safety.request(Mode.ACTIVE, rig.clock.now())
+    rig.run(0.2)
+    assert rig.safety.mode == Mode.HOLD and "lost its footing" in rig.safety.reason
+    assert rig.bus.torque_on
+
+
+@pytest.mark.parametrize(
+    "robot,torque_after",
+    [("widowx", False), ("hubrobo", True), ("qingzhui", True)],
+)
+def test_estop_follows_the_profile_policy(robots, robot: str, torque_after: bool) -> None:
+    profile = profiles.load(robots / f"{robot}.toml")
+    rig = Rig(profile)
+    rig.stand()
+    rig.controller.on_estop(EStop(engage=True, source="pendant"))
+    before = rig.bus.position.copy()
+    n = len(rig.commands)
+    rig.run(0.3)
+    assert rig.safety.mode == Mode.ESTOP
+    assert rig.bus.torque_on == torque_after
+    if torque_after:
+        held = np.array(rig.commands[n:])
+        assert held.size and np.max(np.abs(held - before)) < 1e-3, "holds the measured pose"
+    else:
+        assert len(rig.commands) == n, "no command is written with torque off"
+    rig.controller.on_mode(ModeRequest(mode=Mode.STAND))
+    rig.run(0.1)
+    assert rig.safety.mode == Mode.ESTOP, "only an explicit reset leaves ESTOP"
+
+
+def test_estop_acts_within_one_tick(widowx) -> None:
+    rig = Rig(widowx)
+    rig.stand()
+    rig.controller.on_estop(EStop(engage=True, source="pendant"))
+    rig.run(1.0 / widowx.rate_hz)
+    assert not rig.bus.torque_on
+
+
+def test_port_failure_faults_without_raising(widowx) -> None:
+    rig = Rig(widowx)
+    rig.stand()
+    rig.bus.fail_reads = 3
+    rig.run(0.1)
+    assert rig.safety.mode == Mode.FAULT and "injected read error" in rig.safety.reason
+    assert not rig.bus.torque_on, "FAULT applies the torque_off policy"
+
+
+def test_lost_heartbeat_holds_and_foreign_commands_are_refused(widowx) -> None:
+    rig = Rig(widowx, StillGait(profile=widowx))
+    rig.stand()
+    c = rig.controller
+    c.on_claim(SessionClaim(session="s1", client="alice"))
+    c.on_mode(ModeRequest(session="s2", mode=Mode.ACTIVE))
+    assert rig.safety.refused == 1 and rig.safety.mode == Mode.HOLD
+    c.on_mode(ModeRequest(session="s1", mode=Mode.ACTIVE))
+    rig.run(0.05)
+    assert rig.safety.mode == Mode.ACTIVE
+    for _ in range(10):
+        c.on_heartbeat(Heartbeat(session="s1"))
+        rig.run(0.1)
+    assert rig.safety.mode == Mode.ACTIVE
+    last = rig.clock.now()
+    rig.run(1.0)
+    assert rig.safety.mode == Mode.HOLD
+    entered = rig.safety.history[-1].at
+    assert entered - last <= widowx.safety.heartbeat_window + 1.0 / widowx.rate_hz + 1e-9
+
+
+@pytest.mark.parametrize("robot", ["widowx", "qingzhui"])
+def test_shutdown_reaches_the_safe_pose(robots, robot: str) -> None:
+    profile = profiles.load(robots / f"{robot}.toml")
+    rig = Rig(profile)
+    rig.stand()
+    rig.controller.begin_shutdown(rig.clock.now())
+    rig.run(profile.safety.stand_time * 3)
+    assert rig.controller.shutdown_done
+    if robot == "widowx":
+        assert not rig.bus.torque_on, "torque_off: sat down, then switched off"
+        assert np.max(np.abs(rig.bus.position - rig.controller.sit_q)) < 0.01
+    else:
+        assert rig.bus.torque_on and rig.safety.mode == Mode.HOLD
+
+
+def test_overheat_derates_then_faults(widowx) -> None:
+    rig = Rig(widowx)
+    rig.stand()
+    rig.bus.temperature[4] = widowx.safety.derate_temperature + 1
+    rig.run(0.5)
+    assert rig.safety.speed_scale < 1.0 and rig.safety.mode == Mode.HOLD
+    rig.bus.temperature[4] = widowx.safety.max_temperature + 1
+    rig.run(0.5)
+    assert rig.safety.mode == Mode.FAULT and "overheat" in rig.safety.reason
