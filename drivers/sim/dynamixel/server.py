@@ -1,0 +1,151 @@
+"""Serve a ServoChain on a pseudo-terminal with modelled wire timing.
+
+An instruction of n bytes starts on the wire when it arrives or when the bus frees up, ends
+n × 10 / baud later; each reply follows after its servo's return delay and its own
+bytes × 10 / baud, and is written to the pty when its last byte would have arrived. The host
+opens ``.port`` with dynamixel_sdk exactly as it opens /dev/ttyUSB0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import ctypes.util
+import logging
+import os
+import select
+import threading
+import time
+import tty
+from collections import deque
+
+from drivers.sim.dynamixel.chain import ServoChain
+from drivers.sim.dynamixel.wire import Framer
+
+log = logging.getLogger(__name__)
+
+_PR_SET_TIMERSLACK = 29
+
+
+def _tight_timer_slack() -> None:
+    """Ask Linux for 1 ns timer slack on this thread (default 50 µs) so reply times are sharp."""
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(name).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
+
+
+class DynamixelEmulator:
+    """Background thread answering for ``chain`` on a pty; ``.port`` is the slave tty path.
+
+    ``realtime_motor`` steps the servos' built-in motor models in wall-clock time before each
+    instruction (turn it off when a physics twin drives them). ``spin`` (s) busy-waits the last
+    stretch before a reply instead of sleeping, for benchmark-grade timing. ``vanish()`` makes
+    the port disappear under the host, as an unplugged USB adapter does.
+    """
+
+    def __init__(
+        self,
+        chain: ServoChain,
+        *,
+        realtime_motor: bool = True,
+        spin: float = 0.0,
+        inter_byte_timeout: float = 0.01,
+    ) -> None:
+        self.chain = chain
+        self.realtime_motor = realtime_motor
+        self.spin = spin
+        self.inter_byte_timeout = inter_byte_timeout
+        self.port = ""
+        self._master = -1
+        self._slave = -1
+        self._wake_r = self._wake_w = -1
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    def start(self) -> DynamixelEmulator:
+        """Open the pty and start serving; returns self."""
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        self.port = os.ttyname(self._slave)
+        self._wake_r, self._wake_w = os.pipe()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._serve, name="dxl-emulator", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and close the pty (idempotent)."""
+        self._stop.set()
+        if self._wake_w >= 0:
+            with contextlib.suppress(OSError):
+                os.write(self._wake_w, b"x")
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+            if fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._master = self._slave = self._wake_r = self._wake_w = -1
+
+    def vanish(self) -> None:
+        """The port disappears: the pty closes under the host (reads and writes fail with EIO)."""
+        self.stop()
+
+    def __enter__(self) -> DynamixelEmulator:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def _serve(self) -> None:
+        _tight_timer_slack()
+        chain = self.chain
+        framer = Framer(chain.protocol)
+        pending: deque[tuple[float, bytes]] = deque()
+        bus_free = last_rx = last_step = time.monotonic()
+        master, wake = self._master, self._wake_r
+        while not self._stop.is_set():
+            now = time.monotonic()
+            timeout = max(0.0, pending[0][0] - now - self.spin) if pending else 0.1
+            try:
+                ready, _, _ = select.select([master, wake], [], [], timeout)
+            except (OSError, ValueError):
+                return
+            if wake in ready:
+                return
+            now = time.monotonic()
+            if master in ready:
+                try:
+                    data = os.read(master, 4096)
+                except OSError:
+                    data = b""
+                if not data:
+                    time.sleep(0.001)  # no slave open yet: nothing to serve
+                    continue
+                if framer.buffer and now - last_rx > self.inter_byte_timeout:
+                    framer.reset()
+                last_rx = now
+                for instr in framer.feed(data):
+                    if self.realtime_motor:
+                        chain.advance(now - last_step)
+                        last_step = now
+                    t = max(now, bus_free) + chain.wire_time(instr.size)
+                    for reply in chain.handle(instr):
+                        t += reply.delay + chain.wire_time(len(reply.data))
+                        pending.append((t, reply.data))
+                    bus_free = t
+            while pending:
+                due, data = pending[0]
+                now = time.monotonic()
+                if due - now > self.spin:
+                    break
+                while time.monotonic() < due:
+                    pass
+                pending.popleft()
+                try:
+                    os.write(master, data)
+                except OSError:
+                    return
