@@ -262,9 +262,10 @@ class RealSenseCamera:
             self._recorder = rs.recorder(str(path), device)
             device = self._recorder
         sensor = self._depth_sensor(device)
-        if not device.is_playback():
+        recorded = device.is_playback()
+        if not recorded:
             self._configure(sensor)
-        profile = self._stream_profile(sensor)
+        profile = self._stream_profile(sensor, recorded)
         self._depth_scale = float(str(np.float32(sensor.get_option(rs.option.depth_units))))
         self._filters = self._make_filters()
         self._handoff.clear()
@@ -293,14 +294,15 @@ class RealSenseCamera:
         if self.model is not L515:
             _set_option(sensor, rs.option.emitter_enabled, float(c.emitter), self.where)
 
-    def _stream_profile(self, sensor: rs.sensor) -> rs.video_stream_profile:
+    def _stream_profile(self, sensor: rs.sensor, recorded: bool) -> rs.video_stream_profile:
+        """The profile's depth stream; a recording plays the depth stream it holds."""
         c = self.config
         found = []
         for p in sensor.get_stream_profiles():
             if p.stream_type() != rs.stream.depth or p.format() != rs.format.z16:
                 continue
             v = p.as_video_stream_profile()
-            if (v.width(), v.height(), v.fps()) == (c.width, c.height, c.fps):
+            if recorded or (v.width(), v.height(), v.fps()) == (c.width, c.height, c.fps):
                 return v
             found.append(f"{v.width()}x{v.height()}@{v.fps()}")
         raise DriverError(
