@@ -215,6 +215,7 @@ class RealSenseCamera:
         self._sensor: rs.sensor | None = None
         self._filters: list[rs.filter] = []
         self._depth_scale = 0.0
+        self._threshold: tuple[int, int] | None = None
         self._intrinsics: dict[tuple, Intrinsics] = {}
         self._segments = 0
 
@@ -268,6 +269,10 @@ class RealSenseCamera:
         profile = self._stream_profile(sensor, recorded)
         self._depth_scale = float(str(np.float32(sensor.get_option(rs.option.depth_units))))
         self._filters = self._make_filters()
+        self._threshold = None
+        if "threshold" in self.config.filters:
+            lo = int(np.ceil(self.config.min_range / self._depth_scale))
+            self._threshold = (lo, int(np.floor(self.config.max_range / self._depth_scale)))
         self._handoff.clear()
         sensor.open(profile)
         sensor.start(self._on_frame)
@@ -311,6 +316,11 @@ class RealSenseCamera:
         )
 
     def _make_filters(self) -> list[rs.filter]:
+        """librealsense filters in the profile's order; spatial/temporal run on disparity.
+
+        ``threshold`` is not among them: it runs last, on the raw depth units, because
+        software-device frames from pyrealsense2 2.54 carry no depth unit for it to read.
+        """
         c = self.config
         filters: list[rs.filter] = []
         smoothing = [f for f in c.filters if f in ("spatial", "temporal")]
@@ -319,8 +329,6 @@ class RealSenseCamera:
                 filters.append(rs.disparity_transform(True))
             if name == "decimation":
                 filters.append(rs.decimation_filter())
-            elif name == "threshold":
-                filters.append(rs.threshold_filter(c.min_range, c.max_range))
             elif name == "spatial":
                 filters.append(rs.spatial_filter())
             elif name == "temporal":
@@ -419,6 +427,9 @@ class RealSenseCamera:
             intrinsics = Intrinsics(i.width, i.height, i.fx, i.fy, i.ppx, i.ppy)
             self._intrinsics[key] = intrinsics
         image = np.array(depth.get_data(), dtype=np.uint16, copy=True)
+        if self._threshold is not None:
+            lo, hi = self._threshold
+            image[(image < lo) | (image > hi)] = 0
         return DepthFrame(
             depth=image.reshape(intrinsics.height, intrinsics.width),
             depth_scale=self._depth_scale,
