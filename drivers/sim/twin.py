@@ -1,0 +1,549 @@
+"""The physics twin: a robot from its profile in a world, speaking the hardware's protocols.
+
+    twin = Twin(profile, "attic", stepped=True)   # or a World, or a path to a world file
+    twin.start()                    # serves the emulated Dynamixel chain; real time unless stepped
+    bus = DynamixelBus.from_profile(profile, port=twin.port)   # the real driver, on the pty
+    twin.advance_to(t)              # stepped: physics to t (s); SteppedClock(on_advance=…)
+    twin.step(n)                    # stepped: n physics steps
+    twin.body_pose(); twin.foot_positions(); twin.foot_contacts()   # ground truth for tests
+    twin.depth_frame("front"); twin.on_depth(callback)              # ray-cast depth
+    twin.imu_sample()
+    twin.overheat("rf_femur", 80.0); twin.silence("rf_femur"); twin.unplug()   # faults
+    twin.stop()
+
+Joint-space values ``q`` are servo horn angles about the centre (rad), in profile order: the
+kinematic angle is θ = direction · (q − zero_offset), as in daemon/kinematics.py.
+Servos follow the chain's
+goal positions, torque enable, moving speed and torque limit; the twin writes back present
+position, speed, load, temperature (a thermal model) and voltage. Without a bus
+(``bus=False``, or a torque robot) ``command()`` / ``command_mit()`` set the goals in-process.
+Stepped mode is deterministic: the same inputs give the same joint logs. Real-time mode runs
+physics in a thread that follows the monotonic clock and renders depth at each camera's rate.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import logging
+import math
+import termios
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from daemon.kinematics import Kinematics
+from daemon.profile import Profile
+from daemon.profile import load as load_profile
+from drivers.base import DepthFrame, ImuSample
+from drivers.sim import servos
+from drivers.sim.depth import RayCastDepth
+from drivers.sim.model import RobotModel, build
+from drivers.sim.worlds import World
+from drivers.sim.worlds import load as load_world
+
+log = logging.getLogger("climbd.sim")
+
+DepthCallback = Callable[[str, DepthFrame], None]
+
+
+@dataclass(frozen=True)
+class JointMap:
+    """Joint space q ↔ physical hinge angles p: p = A · direction · (q − zero_offset).
+
+    ``A`` is block-diagonal per leg: identity, or for absolute shank angles (paper 004) the
+    knee hinge turns by θ_s − θ_t. Torques map by the transpose so power is preserved.
+    """
+
+    direction: np.ndarray
+    zero_offset: np.ndarray
+    a: np.ndarray
+    a_inv: np.ndarray
+
+    @classmethod
+    def from_profile(cls, profile: Profile) -> JointMap:
+        n = len(profile.joints)
+        a = np.eye(n)
+        for i, leg in enumerate(profile.legs):
+            if leg.kind == "abduction_thigh_shank":
+                a[3 * i + 2, 3 * i + 1] = -1.0
+        joints = profile.joints
+        return cls(
+            np.array([j.direction for j in joints], float),
+            np.array([j.zero_offset for j in joints], float),
+            a,
+            np.linalg.inv(a),
+        )
+
+    def hinge(self, q: np.ndarray) -> np.ndarray:
+        return self.a @ (self.direction * (np.asarray(q, float) - self.zero_offset))
+
+    def joint(self, p: np.ndarray) -> np.ndarray:
+        return self.direction * (self.a_inv @ p) + self.zero_offset
+
+    def joint_rate(self, pd: np.ndarray) -> np.ndarray:
+        return self.direction * (self.a_inv @ pd)
+
+    def hinge_torque(self, tau_q: np.ndarray) -> np.ndarray:
+        return self.a_inv.T @ (self.direction * tau_q)
+
+    def joint_torque(self, tau_p: np.ndarray) -> np.ndarray:
+        return self.direction * (self.a.T @ tau_p)
+
+
+class Twin:
+    """MuJoCo physics of ``profile`` in ``world`` with emulated devices; see the module doc."""
+
+    def __init__(
+        self,
+        profile: Profile | str | Path,
+        world: World | str | Path = "attic",
+        *,
+        stepped: bool = False,
+        timestep: float = 0.001,
+        seed: int = 0,
+        initial_joints: np.ndarray | None = None,
+        bus: bool = True,
+        bus_sync: float = 0.002,
+    ) -> None:
+        self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
+        self.world = world if isinstance(world, World) else load_world(world)
+        self.stepped = stepped
+        self.robot: RobotModel = build(self.profile, self.world, timestep)
+        self.model = self.robot.model
+        self.data = mujoco.MjData(self.model)
+        self.map = JointMap.from_profile(self.profile)
+        self.names = self.profile.joint_names
+        self.ids = {j.name: j.id for j in self.profile.joints}
+        r = self.robot
+        self.stall = r.motor_array("stall_torque")
+        self.no_load = r.motor_array("no_load_speed")
+        self.kp_servo = r.motor_array("kp")
+        self._heat = tuple(
+            r.motor_array(k) for k in ("stall_power", "thermal_resistance", "heat_capacity")
+        )
+        self.lock = threading.RLock()
+        n = r.joint_count
+        self.goal = np.zeros(n)
+        self.setpoint = np.zeros(n)
+        self.torque_on = np.zeros(n, bool)
+        self.speed_limit = self.no_load.copy()
+        self.torque_limit = self.stall.copy()
+        self.mit_rate = np.zeros(n)
+        self.mit_kp = np.zeros(n)
+        self.mit_kd = np.zeros(n)
+        self.mit_ff = np.zeros(n)
+        self.effort = np.zeros(n)
+        self.thermal = servos.ThermalState(np.full(n, 30.0), ambient=30.0)
+        self.voltage = 12.0
+        self.grip = np.zeros(len(self.profile.legs), bool)
+        self.chain = None
+        self.emulator = None
+        self.bus_sync = max(1, round(bus_sync / timestep))
+        if bus and not r.torque_legs:
+            from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
+
+            self.chain = ServoChain.from_profile(self.profile)
+            for s in self.chain.servos.values():
+                s.external = True
+            self.emulator = DynamixelEmulator(self.chain, realtime_motor=False)
+        self.cameras = {
+            cam.name: RayCastDepth(self.model, cam, r.base_body, seed=seed + k)
+            for k, cam in enumerate(self.profile.cameras)
+        }
+        self._next_frame = dict.fromkeys(self.cameras, 0.0)
+        self._depth_callbacks: list[DepthCallback] = []
+        self._render_data = mujoco.MjData(self.model)
+        sensor = self.model.sensor
+        self._gyro = self.model.sensor_adr[sensor("imu_gyro").id]
+        self._accel = self.model.sensor_adr[sensor("imu_accel").id]
+        self._steps = 0
+        self._thread: threading.Thread | None = None
+        self._camera_thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.lag = 0.0
+        self.reset(initial_joints)
+
+    # --- lifecycle ----------------------------------------------------------------------
+
+    @property
+    def port(self) -> str:
+        """The emulated Dynamixel bus's pty path (empty before ``start`` or without a bus)."""
+        return self.emulator.port if self.emulator is not None else ""
+
+    @property
+    def time(self) -> float:
+        """Simulated time (s)."""
+        return self.data.time
+
+    def start(self) -> Twin:
+        """Serve the emulated devices; in real-time mode also run physics and cameras."""
+        if self.emulator is not None and not self.emulator.port:
+            self.emulator.start()
+            self._sync_bus()
+        if not self.stepped and self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name="twin-physics", daemon=True)
+            self._thread.start()
+            if self.cameras:
+                self._camera_thread = threading.Thread(
+                    target=self._run_cameras, name="twin-cameras", daemon=True
+                )
+                self._camera_thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the threads and the emulated devices (idempotent)."""
+        self._stop.set()
+        for thread in (self._thread, self._camera_thread):
+            if thread is not None:
+                thread.join(timeout=2.0)
+        self._thread = self._camera_thread = None
+        if self.emulator is not None:
+            self.emulator.stop()
+            self.emulator.port = ""
+
+    def __enter__(self) -> Twin:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def reset(self, initial_joints: np.ndarray | None = None) -> None:
+        """Put the robot at the world's start, joints at ``initial_joints`` (q) or the rest pose."""
+        m, d, r = self.model, self.data, self.robot
+        with self.lock:
+            mujoco.mj_resetData(m, d)
+            q = self.rest_joints() if initial_joints is None else np.asarray(initial_joints, float)
+            d.qpos[:7] = r.start
+            d.qpos[r.qpos_adr] = self.map.hinge(q)
+            self._drop_onto_ground()
+            self.goal[:] = self.setpoint[:] = q
+            self.thermal.temperature[:] = self.thermal.ambient
+            if self.chain is not None:
+                with self.chain.lock:
+                    for (servo, _, _), qi in zip(self.chain.joints, q, strict=True):
+                        servo.set("goal_position", servo.tick(qi))
+            self._sync_bus()
+
+    def rest_joints(self) -> np.ndarray:
+        """The robot lying on its belly, feet on the ground at the nearest reach its limits allow.
+
+        Reaches from the stand's ``foot_reach`` outward are tried with the daemon's IK.
+        """
+        kin = Kinematics(self.profile)
+        stand = self.profile.stand
+        span = min(sum(leg.links) for leg in self.profile.legs)
+        for reach in np.linspace(stand.foot_reach, 0.95 * span, 12):
+            feet_leg = np.zeros((kin.n_legs, 3))
+            feet_leg[:, 0] = reach
+            feet = kin.to_body(feet_leg)
+            feet[:, 2] = self.robot.foot_radius - self.robot.body_half_height
+            q, ok = kin.ik(feet)
+            if ok.all():
+                return q
+        raise ValueError(
+            f"twin of {self.profile.name}: no rest pose (belly down, feet on the ground) within "
+            "the joint limits; pass initial_joints"
+        )
+
+    def _drop_onto_ground(self) -> None:
+        """Raise the base until no robot geom touches the world, then 1 mm more."""
+        m, d = self.model, self.data
+        for _ in range(400):
+            mujoco.mj_forward(m, d)
+            if not any(d.contact.dist[: d.ncon] < 0):
+                break
+            d.qpos[2] += 0.005
+        d.qpos[2] += 0.001
+        mujoco.mj_forward(m, d)
+
+    # --- physics ------------------------------------------------------------------------
+
+    def _control(self) -> None:
+        """Motor torques for this step, from the servo or MIT law in joint space."""
+        r, d = self.robot, self.data
+        p, pd = d.qpos[r.qpos_adr], d.qvel[r.dof_adr]
+        q, qd = self.map.joint(p), self.map.joint_rate(pd)
+        dt = self.model.opt.timestep
+        if r.torque_legs:
+            tau = servos.mit_torque(
+                self.goal - q,
+                self.mit_rate - qd,
+                self.mit_kp,
+                self.mit_kd,
+                self.mit_ff,
+                qd,
+                self.stall,
+                self.no_load,
+            )
+        else:
+            step = self.speed_limit * dt
+            self.setpoint += np.clip(self.goal - self.setpoint, -step, step)
+            tau = servos.servo_torque(
+                self.setpoint - q, qd, self.kp_servo, self.stall, self.no_load, self.torque_limit
+            )
+        tau = np.where(self.torque_on, tau, 0.0)
+        self.effort = tau
+        d.ctrl[r.motor_actuators] = self.map.hinge_torque(tau)
+        if len(r.gripper_actuators):
+            d.ctrl[r.gripper_actuators] = self._grip_ctrl()
+
+    def _grip_ctrl(self) -> np.ndarray:
+        """Adhesion on: the gripper is closed and its foot touches a graspable geom."""
+        d, r = self.data, self.robot
+        g1, g2 = d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon]
+        on_hold = np.concatenate(
+            [g1[np.isin(g2, r.graspable_geoms)], g2[np.isin(g1, r.graspable_geoms)]]
+        )
+        return (self.grip & np.isin(r.foot_geoms, on_hold)).astype(float)
+
+    def _physics_step(self) -> None:
+        self._control()
+        mujoco.mj_step(self.model, self.data)
+        self._steps += 1
+        self.thermal.advance(self.effort / self.stall, *self._heat, self.model.opt.timestep)
+        if self._steps % self.bus_sync == 0:
+            self._sync_bus()
+
+    def _sync_bus(self) -> None:
+        """Exchange with the emulated chain: goals in, present state out (servo horn angles, SI)."""
+        if self.chain is None:
+            return
+        r, d = self.robot, self.data
+        q = self.map.joint(d.qpos[r.qpos_adr])
+        qd = self.map.joint_rate(d.qvel[r.dof_adr])
+        with self.chain.lock:
+            for k, (servo, _, _) in enumerate(self.chain.joints):
+                self.goal[k] = servo.goal_angle
+                self.torque_on[k] = servo.torque_enabled
+                self.speed_limit[k] = servo.speed_limit
+                f = servo.spec.fields["torque_limit" if servo.spec.protocol == 1 else "pwm_limit"]
+                self.torque_limit[k] = self.stall[k] * servo.get(f.name) / f.default
+                servo.set_present(
+                    angle=q[k],
+                    velocity=qd[k],
+                    effort=self.effort[k],
+                    temperature=self.thermal.temperature[k],
+                    voltage=self.voltage,
+                )
+
+    def step(self, n: int = 1) -> None:
+        """Advance physics by ``n`` steps (stepped mode, or before ``start``)."""
+        with self.lock:
+            for _ in range(n):
+                self._physics_step()
+            self._cameras_due()
+
+    def advance_to(self, t: float, t1: float | None = None) -> None:
+        """Step physics until simulated time reaches ``t`` (s).
+
+        Also accepts ``(t0, t1)`` as SteppedClock's ``on_advance`` passes them. Waits first for
+        the emulated bus to finish the bytes the driver wrote, so goals are applied in order.
+        """
+        target = t if t1 is None else t1
+        self._settle_bus()
+        h = self.model.opt.timestep
+        with self.lock:
+            while self.data.time < target - 0.5 * h:
+                self._physics_step()
+            self._sync_bus()
+            self._cameras_due()
+
+    def _settle_bus(self) -> None:
+        """Wait until the pty holds no unread instruction bytes and the chain is idle."""
+        emu = self.emulator
+        if emu is None or emu._master < 0:
+            return
+        pending = np.zeros(1, np.int32)
+        deadline = time.monotonic() + 0.2
+        while time.monotonic() < deadline:
+            fcntl.ioctl(emu._master, termios.FIONREAD, pending)
+            before = self.chain.bytes_in
+            if pending[0] == 0:
+                time.sleep(0.0005)
+                fcntl.ioctl(emu._master, termios.FIONREAD, pending)
+                if pending[0] == 0 and self.chain.bytes_in == before:
+                    return
+            else:
+                time.sleep(0.0002)
+
+    def _run(self) -> None:
+        """Real-time mode: keep simulated time on the monotonic clock, in 2 ms batches."""
+        h = self.model.opt.timestep
+        wall0, sim0 = time.monotonic(), self.data.time
+        while not self._stop.is_set():
+            target = sim0 + time.monotonic() - wall0
+            with self.lock:
+                behind = target - self.data.time
+                if behind > 0.1:
+                    wall0 += behind
+                    self.lag += behind
+                    target = sim0 + time.monotonic() - wall0
+                while self.data.time < target - 0.5 * h:
+                    self._physics_step()
+            time.sleep(0.002)
+
+    def _run_cameras(self) -> None:
+        """Real-time mode: render every camera at its rate and hand frames to the callbacks."""
+        while not self._stop.is_set():
+            if self._depth_callbacks:
+                self._cameras_due()
+            time.sleep(0.002)
+
+    def _cameras_due(self) -> None:
+        if not self._depth_callbacks:
+            return
+        now = self.data.time
+        for name, cam in self.cameras.items():
+            if now + 1e-9 >= self._next_frame[name]:
+                self._next_frame[name] = now + cam.period
+                frame = self.depth_frame(name)
+                for callback in self._depth_callbacks:
+                    callback(name, frame)
+
+    # --- commands without a bus -------------------------------------------------------------
+
+    def command(self, positions: np.ndarray, torque: bool = True) -> None:
+        """Set servo goals (q, rad) and torque in-process, for robots run without a bus."""
+        with self.lock:
+            self.goal[:] = positions
+            self.torque_on[:] = torque
+
+    def command_mit(self, position, velocity, kp, kd, effort) -> None:
+        """Set MIT-mode targets of torque legs: q, q̇, kp, kd, τ_ff (arrays in joint order)."""
+        with self.lock:
+            self.goal[:] = position
+            self.mit_rate[:] = velocity
+            self.mit_kp[:] = kp
+            self.mit_kd[:] = kd
+            self.mit_ff[:] = effort
+            self.torque_on[:] = True
+
+    def set_grip(self, leg: int | str, closed: bool) -> None:
+        """Close or open one gripper (HubRobo); adhesion holds only on graspable geoms."""
+        i = leg if isinstance(leg, int) else [g.name for g in self.profile.legs].index(leg)
+        self.grip[i] = closed
+
+    # --- ground truth -----------------------------------------------------------------------
+
+    def body_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Base position (m, world) and orientation quaternion (w, x, y, z)."""
+        with self.lock:
+            return self.data.qpos[:3].copy(), self.data.qpos[3:7].copy()
+
+    def joint_positions(self) -> np.ndarray:
+        """Joint positions q (rad) in profile order."""
+        with self.lock:
+            return self.map.joint(self.data.qpos[self.robot.qpos_adr])
+
+    def joint_velocities(self) -> np.ndarray:
+        with self.lock:
+            return self.map.joint_rate(self.data.qvel[self.robot.dof_adr])
+
+    def joint_efforts(self) -> np.ndarray:
+        """Joint torques (N·m, joint space): the motors' output, as a torque sensor reads it."""
+        with self.lock:
+            return self.effort.copy()
+
+    def foot_positions(self) -> np.ndarray:
+        """Foot centres (m, world frame), one row per leg."""
+        with self.lock:
+            return self.data.site_xpos[self.robot.foot_sites].copy()
+
+    def foot_contacts(self) -> np.ndarray:
+        """Whether each foot touches the world now."""
+        feet = self.robot.foot_geoms
+        with self.lock:
+            d = self.data
+            touching = set(d.contact.geom1[: d.ncon]) | set(d.contact.geom2[: d.ncon])
+            return np.array([f in touching for f in feet])
+
+    def base_contacts(self) -> bool:
+        """Whether the body box touches the world (a belly landing or a fall)."""
+        base_geom = self.model.body_geomadr[self.robot.base_body]
+        with self.lock:
+            d = self.data
+            return bool(
+                np.any(d.contact.geom1[: d.ncon] == base_geom)
+                or np.any(d.contact.geom2[: d.ncon] == base_geom)
+            )
+
+    # --- devices ----------------------------------------------------------------------------
+
+    def depth_frame(self, camera: str) -> DepthFrame:
+        """Ray-cast one frame of ``camera`` at the current state (a copy of it, off the lock)."""
+        cam = self.cameras[camera]
+        with self.lock:
+            rd = self._render_data
+            rd.qpos[:] = self.data.qpos
+            rd.time = self.data.time
+        mujoco.mj_kinematics(self.model, rd)
+        return cam.render(rd, rd.time)
+
+    def on_depth(self, callback: DepthCallback) -> None:
+        """Call ``callback(camera, frame)`` at each camera's frame rate (simulated time)."""
+        self._depth_callbacks.append(callback)
+
+    def imu_sample(self) -> ImuSample:
+        """Gyro (rad/s) and specific force (m/s², gravity included) in the body frame."""
+        with self.lock:
+            sd = self.data.sensordata
+            return ImuSample(
+                self.data.time,
+                sd[self._gyro : self._gyro + 3].copy(),
+                sd[self._accel : self._accel + 3].copy(),
+            )
+
+    # --- faults -----------------------------------------------------------------------------
+
+    def _servo(self, joint: str):
+        if self.chain is None:
+            raise ValueError(f"twin of {self.profile.name}: no emulated bus to inject faults on")
+        if joint not in self.ids:
+            raise ValueError(f"twin of {self.profile.name}: no joint {joint!r}")
+        return self.chain.servo(self.ids[joint])
+
+    def overheat(self, joint: str, temperature: float) -> None:
+        """Heat one winding to ``temperature`` (°C); it cools by the thermal model."""
+        self._servo(joint)
+        with self.lock:
+            self.thermal.temperature[self.names.index(joint)] = temperature
+            self._sync_bus()
+
+    def brownout(self, voltage: float) -> None:
+        """Set the supply voltage every servo reports (V), e.g. a sagging battery."""
+        with self.lock:
+            self.voltage = voltage
+            self._sync_bus()
+
+    def overload(self, joint: str, on: bool = True) -> None:
+        """Raise (or clear) one servo's overload condition."""
+        self._servo(joint).inject_overload(on)
+
+    def silence(self, joint: str, on: bool = True) -> None:
+        """One servo stops (or resumes) answering, as with a loose cable."""
+        self._servo(joint)
+        self.chain.silence(self.ids[joint], on)
+
+    def corrupt(self, joint: str, count: int | None = 1) -> None:
+        """The next ``count`` replies of one servo carry a bad checksum."""
+        self._servo(joint)
+        self.chain.corrupt(self.ids[joint], count)
+
+    def unplug(self) -> None:
+        """The bus adapter disappears: the pty closes under the driver."""
+        if self.emulator is not None:
+            self.emulator.vanish()
+
+    # --- measures ---------------------------------------------------------------------------
+
+    def fallen(self, stand_height: float, tolerance: float = 0.5) -> bool:
+        """Whether the body is below ``tolerance`` × its stand height or tilted past 45°."""
+        pos, quat = self.body_pose()
+        up = 1.0 - 2.0 * (quat[1] ** 2 + quat[2] ** 2)
+        return bool(pos[2] < tolerance * stand_height or up < math.cos(math.radians(45)))

@@ -1,0 +1,272 @@
+"""Worlds of the twin as data: the schema of worlds/*.toml, loading, and the PCD terrain.
+
+A world is a floor plus any of: rows of joists (paper 000's attic), stairs (paper 004),
+a slope of climbing holds tiled from a real point cloud (paper 001) and a truss of cylinder
+members with linkers (paper 003). Lengths in metres, angles in degrees as written in the
+file. ``load("attic")`` reads a stock world; a path reads any file; keyword overrides
+replace top-level tables, e.g. ``load("slope", gravity=9.80665 / 6)``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+HERE = Path(__file__).resolve().parent
+INCH = 0.0254
+
+
+class WorldError(ValueError):
+    """A world file that cannot be used; the message names the file and the field."""
+
+
+class Floor(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The ground plane: half-size (m), friction coefficient, colour (RGBA)."""
+
+    size: float = 5.0
+    friction: float = 0.9
+    rgba: list[float] = msgspec.field(default_factory=lambda: [0.55, 0.5, 0.45, 1.0])
+
+
+class JoistRow(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A row of ``count`` parallel joists, the first ``distance`` ahead of the start (centre line).
+
+    ``spacing`` is centre to centre (16 in in U.S. attics); ``yaw_deg`` turns the row about
+    the first joist's centre (paper 000's ψ, eq. 2); ``height`` is the joist's depth.
+    """
+
+    height: float
+    distance: float
+    count: int = 1
+    spacing: float = 16 * INCH
+    width: float = 1.5 * INCH
+    length: float = 2.4
+    yaw_deg: float = 0.0
+    offset: float = 0.0
+    rgba: list[float] = msgspec.field(default_factory=lambda: [0.85, 0.7, 0.45, 1.0])
+
+
+class Staircase(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``count`` steps of ``rise`` × ``tread`` (paper 004: 130 × 300 mm), ``distance`` ahead.
+
+    ``landing`` is the depth of the top platform; ``yaw_deg`` turns the flight about its foot.
+    """
+
+    rise: float = 0.13
+    tread: float = 0.30
+    count: int = 3
+    distance: float = 0.8
+    width: float = 1.2
+    landing: float = 1.0
+    yaw_deg: float = 0.0
+    rgba: list[float] = msgspec.field(default_factory=lambda: [0.7, 0.7, 0.72, 1.0])
+
+
+class HoldsSlope(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Climbing holds from a point cloud, tiled into a height field on a slope of ``incline_deg``.
+
+    ``cloud`` is a PCD path, relative to the world file. The cloud's regression plane becomes
+    the slope's surface; ``tiles`` copies it (mirrored, so edges meet) along and across
+    it; ``resolution`` is the height-field cell (m).
+    Holds are graspable; the slope rises along +x from ``distance`` ahead of the start.
+    """
+
+    cloud: str
+    incline_deg: float = 30.0
+    tiles: list[int] = msgspec.field(default_factory=lambda: [3, 3])
+    resolution: float = 0.01
+    distance: float = -0.6
+    friction: float = 1.0
+    rgba: list[float] = msgspec.field(default_factory=lambda: [0.6, 0.45, 0.35, 1.0])
+
+
+class TrussMember(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """One member of a truss: node indices of its ends."""
+
+    a: int
+    b: int
+
+
+class Truss(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Cylinder members between nodes (m, world frame) with a cubic linker at every node."""
+
+    nodes: list[list[float]]
+    members: list[TrussMember]
+    radius: float = 0.025
+    linker: float = 0.07
+    rgba: list[float] = msgspec.field(default_factory=lambda: [0.75, 0.75, 0.8, 1.0])
+
+
+class Start(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Where the robot starts: position on the floor (m) and heading (deg)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    yaw_deg: float = 0.0
+
+
+class World(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A whole world file."""
+
+    name: str
+    gravity: float = 9.80665
+    floor: Floor = msgspec.field(default_factory=Floor)
+    start: Start = msgspec.field(default_factory=Start)
+    joists: list[JoistRow] = []
+    stairs: list[Staircase] = []
+    holds: HoldsSlope | None = None
+    truss: Truss | None = None
+    source: str = ""
+
+
+def stock_worlds() -> dict[str, Path]:
+    """The worlds shipped with climbd, by name."""
+    return {p.stem: p for p in sorted(HERE.glob("*.toml"))}
+
+
+def _check(world: World) -> World:
+    src = world.source or world.name
+
+    def need(cond: bool, field: str, message: str) -> None:
+        if not cond:
+            raise WorldError(f"{src}: {field}: {message}")
+
+    need(world.gravity > 0, "$.gravity", f"expected > 0 m/s², found {world.gravity}")
+    for i, row in enumerate(world.joists):
+        at = f"$.joists[{i}]"
+        need(row.height > 0, f"{at}.height", f"expected > 0 m, found {row.height}")
+        need(row.count >= 1, f"{at}.count", f"expected >= 1, found {row.count}")
+        need(row.spacing > row.width, f"{at}.spacing", f"expected > width {row.width}")
+    for i, st in enumerate(world.stairs):
+        at = f"$.stairs[{i}]"
+        need(st.count >= 1, f"{at}.count", f"expected >= 1, found {st.count}")
+        need(st.rise > 0 and st.tread > 0, f"{at}", "expected rise > 0 and tread > 0")
+    if world.holds is not None:
+        h = world.holds
+        need(
+            0 <= h.incline_deg < 90, "$.holds.incline_deg", f"expected 0..90, found {h.incline_deg}"
+        )
+        need(
+            len(h.tiles) == 2 and min(h.tiles) >= 1,
+            "$.holds.tiles",
+            f"expected [along, across] >= 1, found {h.tiles}",
+        )
+    if world.truss is not None:
+        n = len(world.truss.nodes)
+        for i, m in enumerate(world.truss.members):
+            need(
+                0 <= m.a < n and 0 <= m.b < n and m.a != m.b,
+                f"$.truss.members[{i}]",
+                f"expected two distinct node indices < {n}, found a={m.a} b={m.b}",
+            )
+    return world
+
+
+def load(name_or_path: str | Path, **overrides: object) -> World:
+    """Load a stock world by name or a world file by path; ``overrides`` replace top-level keys."""
+    stock = stock_worlds()
+    path = stock.get(str(name_or_path)) or Path(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise WorldError(
+            f"world {str(name_or_path)!r}: no such file and no stock world; stock: {sorted(stock)}"
+        ) from None
+    except tomllib.TOMLDecodeError as e:
+        raise WorldError(f"{path}: not valid TOML: {e}") from None
+    data.update(overrides)
+    try:
+        world = msgspec.convert({**data, "source": str(path)}, World)
+    except msgspec.ValidationError as e:
+        raise WorldError(f"{path}: {e}") from None
+    return _check(world)
+
+
+def read_pcd(path: str | Path) -> np.ndarray:
+    """The x, y, z columns (m) of a PCD file (ascii or binary, float fields) as an N×3 array."""
+    path = Path(path)
+    raw = path.read_bytes()
+    header: dict[str, list[str]] = {}
+    offset = 0
+    for line in raw.split(b"\n"):
+        offset += len(line) + 1
+        parts = line.decode("ascii", "replace").strip().split()
+        if not parts or parts[0].startswith("#"):
+            continue
+        header[parts[0].upper()] = parts[1:]
+        if parts[0].upper() == "DATA":
+            break
+    fields = header.get("FIELDS", [])
+    if not {"x", "y", "z"} <= set(fields):
+        raise WorldError(f"{path}: FIELDS: expected x y z, found {fields}")
+    n = int(header["POINTS"][0])
+    sizes = [int(s) for s in header["SIZE"]]
+    counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
+    kind = header["DATA"][0]
+    if kind == "ascii":
+        table = np.loadtxt(raw[offset:].decode().splitlines(), ndmin=2)[:n]
+    elif kind == "binary":
+        if any(s != 4 for s in sizes) or set(header["TYPE"]) != {"F"}:
+            raise WorldError(f"{path}: binary PCD: only 4-byte float fields are supported")
+        width = sum(counts)
+        table = np.frombuffer(raw, "<f4", count=n * width, offset=offset).reshape(n, width)
+    else:
+        raise WorldError(f"{path}: DATA: expected ascii or binary, found {kind}")
+    cols = np.cumsum([0, *counts])
+    xyz = np.stack([table[:, cols[fields.index(k)]] for k in "xyz"], axis=1).astype(float)
+    return xyz[np.isfinite(xyz).all(axis=1)]
+
+
+def holds_heightfield(holds: HoldsSlope, base: Path) -> tuple[np.ndarray, float, float]:
+    """Height field (rows along the slope, metres above the lowest cell) of the tiled cloud.
+
+    Returns (heights, length along, width across). The cloud's regression plane (SVD) is
+    the slope surface; empty cells take the nearest measured height.
+    """
+    from scipy.interpolate import NearestNDInterpolator
+
+    path = Path(holds.cloud)
+    if not path.is_absolute():
+        path = (base / path).resolve()
+    if not path.exists():
+        raise WorldError(f"$.holds.cloud: point cloud not found: {path}")
+    pts = read_pcd(path)
+    centre = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
+    normal = vt[2] if vt[2] @ (-centre) > 0 else -vt[2]
+    along, across = vt[0], np.cross(normal, vt[0])
+    local = (pts - centre) @ np.stack([along, across, normal], axis=1)
+    res = holds.resolution
+    lo = local[:, :2].min(axis=0)
+    shape = np.ceil((local[:, :2].max(axis=0) - lo) / res).astype(int) + 1
+    idx = np.floor((local[:, :2] - lo) / res).astype(int)
+    tile = np.full(shape, -np.inf)
+    np.maximum.at(tile, (idx[:, 0], idx[:, 1]), local[:, 2])
+    known = np.isfinite(tile)
+    if not known.all():
+        fill = NearestNDInterpolator(np.argwhere(known), tile[known])
+        empty = np.argwhere(~known)
+        tile[~known] = fill(empty)
+    strip = np.concatenate(
+        [tile if k % 2 == 0 else tile[:, ::-1] for k in range(holds.tiles[1])], axis=1
+    )
+    field = np.concatenate(
+        [strip if k % 2 == 0 else strip[::-1, :] for k in range(holds.tiles[0])], axis=0
+    )
+    field -= field.min()
+    return field, field.shape[0] * res, field.shape[1] * res
+
+
+def yaw_matrix(yaw_deg: float) -> np.ndarray:
+    """2-D rotation by ``yaw_deg`` degrees."""
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    return np.array([[c, -s], [s, c]])
