@@ -6,14 +6,16 @@ read, bulk read, fast bulk read and bulk write. It honours status return level (
 1: ping and reads, 2: all) and returns each reply with the return delay its servo waits first,
 so the server can model wire timing. Fault injection: ``silence`` (a servo stops answering),
 ``corrupt`` (its replies carry a bad checksum/CRC), plus the servo's own ``set_present`` /
-``inject_overload`` for overheat, voltage and overload conditions.
+``inject_overload`` for overheat, voltage and overload conditions. With ``clock`` set, each
+servo an instruction addresses first steps its motor model up to ``clock()`` (lazily: a
+servo nobody talks to costs nothing).
 """
 
 from __future__ import annotations
 
 import threading
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +62,7 @@ class ServoChain:
         self.counts: Counter[int] = Counter()
         self.bytes_in = 0
         self.bytes_out = 0
+        self.clock: Callable[[], float] | None = None
 
     @classmethod
     def from_profile(cls, profile, baud: int | None = None, **servo_options) -> ServoChain:
@@ -129,7 +132,11 @@ class ServoChain:
 
     def _alive(self, ident: int) -> EmulatedServo | None:
         s = self.servos.get(ident)
-        return None if s is None or ident in self.silenced else s
+        if s is None or ident in self.silenced:
+            return None
+        if self.clock is not None:
+            s.advance_to(self.clock())
+        return s
 
     def _status(self, s: EmulatedServo, error: int, params: bytes = b"") -> Reply:
         if self.protocol == 1:
@@ -224,11 +231,8 @@ class ServoChain:
 
     def _broadcast2(self, inst: int, p: bytes) -> list[Reply]:
         if inst == PING:
-            return [
-                self._status(s, 0, _ping_params(s))
-                for ident, s in sorted(self.servos.items())
-                if ident not in self.silenced
-            ]
+            alive = [self._alive(ident) for ident in sorted(self.servos)]
+            return [self._status(s, 0, _ping_params(s)) for s in alive if s is not None]
         if inst == ACTION:
             for s in self.servos.values():
                 if s.ident not in self.silenced:

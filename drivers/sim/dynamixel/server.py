@@ -39,10 +39,15 @@ def _tight_timer_slack() -> None:
 class DynamixelEmulator:
     """Background thread answering for ``chain`` on a pty; ``.port`` is the slave tty path.
 
-    ``realtime_motor`` steps the servos' built-in motor models in wall-clock time before each
-    instruction (turn it off when a physics twin drives them). ``spin`` (s) busy-waits the last
-    stretch before a reply instead of sleeping, for benchmark-grade timing. ``vanish()`` makes
-    the port disappear under the host, as an unplugged USB adapter does.
+    ``realtime_motor`` steps the built-in motor model of each servo an instruction addresses
+    up to wall-clock time (turn it off when a physics twin drives them). ``spin`` (s) busy-waits
+    the last stretch before a reply instead of sleeping, for benchmark-grade timing.
+    ``vanish()`` makes the port disappear under the host, as an unplugged USB adapter does.
+
+    In the host's process, a client that busy-polls the port (dynamixel_sdk's stock
+    PortHandler) starves this thread of the GIL for tens of ms: select(0) releases and retakes
+    it before the waiter runs. Clients that block in select (drivers.dynamixel.bus.LatencyPort)
+    are served at once; for a busy-polling client run ``python -m drivers.sim.dynamixel``.
     """
 
     def __init__(
@@ -103,9 +108,11 @@ class DynamixelEmulator:
     def _serve(self) -> None:
         _tight_timer_slack()
         chain = self.chain
+        if self.realtime_motor:
+            chain.clock = time.monotonic
         framer = Framer(chain.protocol)
         pending: deque[tuple[float, bytes]] = deque()
-        bus_free = last_rx = last_step = time.monotonic()
+        bus_free = last_rx = time.monotonic()
         master, wake = self._master, self._wake_r
         while not self._stop.is_set():
             now = time.monotonic()
@@ -129,9 +136,6 @@ class DynamixelEmulator:
                     framer.reset()
                 last_rx = now
                 for instr in framer.feed(data):
-                    if self.realtime_motor:
-                        chain.advance(now - last_step)
-                        last_step = now
                     t = max(now, bus_free) + chain.wire_time(instr.size)
                     for reply in chain.handle(instr):
                         t += reply.delay + chain.wire_time(len(reply.data))

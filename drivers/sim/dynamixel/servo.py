@@ -52,6 +52,7 @@ class EmulatedServo:
         self.tau = tau
         self.external = False
         self.pending: tuple[int, bytes] | None = None
+        self.t: float | None = None
         self.state = MotorState(angle=angle)
         self.memory = bytearray(spec.table_size)
         for f in spec.fields.values():
@@ -192,6 +193,12 @@ class EmulatedServo:
             self._sync_present()
 
     # --- motor model ------------------------------------------------------------------
+
+    def advance_to(self, t: float) -> None:
+        """Step the motor model from the last call's time to ``t`` (s, any monotonic clock)."""
+        last, self.t = self.t, t
+        if last is not None:
+            self.step(t - last)
 
     def step(self, dt: float) -> None:
         """Advance the built-in motor model by ``dt`` seconds (no-op when driven externally)."""

@@ -1,0 +1,423 @@
+"""Dynamixel joint bus on dynamixel_sdk: Protocol 1.0 (AX-18A) and 2.0 (X series).
+
+Per cycle: one sync write of goal positions; reads of position, speed and load — on 2.0 one
+(fast) sync read, on 1.0 (no sync read on the AX) one READ of the contiguous block per servo.
+Every ``round(rate_hz / health_rate_hz)`` reads the same transaction reads a longer block that
+also holds voltage and temperature (2.0 adds a sync read of Hardware Error Status).
+A servo that misses ``lost_after`` reads in a row is marked lost, skipped, probed on health
+cycles and re-admitted when it answers. Every device problem is a DriverError naming the port.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import select
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import dynamixel_sdk as sdk
+import numpy as np
+
+from daemon.messages import JointCommand, JointHealth, JointState
+from daemon.profile import Profile
+from drivers.base import DriverError
+from drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
+from drivers.dynamixel.units import JointMap, little_endian
+
+log = logging.getLogger(__name__)
+
+STATUS_RETURN_ALL = 2
+
+
+class LatencyPort(sdk.PortHandler):
+    """The SDK's port with packet timeouts sized for our adapter latency, not a fixed 16 ms.
+
+    The SDK waits ``bytes × tx time + 2 × 16 ms + 2 ms`` for a reply, assuming the FTDI default
+    latency timer; we set the timer to ``latency_ms``, so a silent servo costs ~4 ms, not 34.
+    Waiting blocks in select() rather than busy-polling: no core burnt on a Raspberry Pi, and
+    other threads of the process (an in-process emulator, Zenoh callbacks) get the GIL.
+    """
+
+    def __init__(self, name: str, latency_ms: float, margin_ms: float = 2.0) -> None:
+        super().__init__(name)
+        self.latency_ms = latency_ms
+        self.margin_ms = margin_ms
+
+    def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 - SDK override
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = (
+            self.tx_time_per_byte * packet_length + 2.0 * self.latency_ms + self.margin_ms
+        )
+
+    def readPort(self, length: int) -> bytes:  # noqa: N802 - SDK override
+        """Wait in select() for bytes until the packet deadline instead of spinning a core."""
+        remaining = (self.packet_timeout - self.getTimeSinceStart()) / 1000.0
+        if remaining > 0 and not self.ser.in_waiting:
+            select.select([self.ser.fd], [], [], remaining)
+        return self.ser.read(length)
+
+
+def set_latency_timer(port: str, latency_ms: int) -> None:
+    """Set a USB serial adapter's latency timer (sysfs); a pty or native UART is skipped."""
+    tty = Path(os.path.realpath(port)).name
+    path = Path("/sys/bus/usb-serial/devices") / tty / "latency_timer"
+    if not path.exists():
+        log.debug("%s: not a USB serial device, no latency timer to set", port)
+        return
+    try:
+        if int(path.read_text().strip()) != latency_ms:
+            path.write_text(f"{latency_ms}\n")
+    except (OSError, ValueError) as e:
+        log.warning(
+            "%s: cannot set latency timer to %d ms (%s); loops will crawl. "
+            "Fix: echo %d | sudo tee %s",
+            port,
+            latency_ms,
+            e,
+            latency_ms,
+            path,
+        )
+
+
+class DynamixelBus:
+    """The joints of a profile on one Dynamixel bus, in profile order and SI units."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        port: str | None = None,
+        baud: int | None = None,
+        lost_after: int | None = None,
+        fast_sync_read: bool | None = None,
+        timeout_margin_ms: float = 2.0,
+    ) -> None:
+        bus = profile.bus
+        try:
+            self.model: Model = model(bus.model)
+        except KeyError as e:
+            raise DriverError(f"{profile.source or profile.name}: bus.model: {e.args[0]}") from None
+        if self.model.protocol != bus.protocol:
+            raise DriverError(
+                f"{profile.source or profile.name}: bus.model {self.model.name} speaks protocol "
+                f"{self.model.protocol}, bus.protocol is {bus.protocol}"
+            )
+        self.profile = profile
+        self.port_name = port or bus.port
+        self.baud = baud or bus.baud
+        self.lost_after = lost_after or bus.lost_after
+        self.fast_sync_read = fast_sync_read
+        self.timeout_margin_ms = timeout_margin_ms
+        joints = profile.joints
+        self.names = [j.name for j in joints]
+        self.ids = [j.id for j in joints]
+        self.map = JointMap(self.model, joints)
+        self.speed_caps = self.map.speed_ticks(np.array([j.limits.velocity for j in joints]))
+        self.health_every = max(1, round(profile.rate_hz / bus.health_rate_hz))
+        n = len(joints)
+        self.position = np.zeros(n)
+        self.velocity = np.zeros(n)
+        self.effort = np.zeros(n)
+        self.temperature = np.full(n, np.nan)
+        self.voltage = np.full(n, np.nan)
+        self.errors = np.zeros(n, np.int64)
+        self.misses = np.zeros(n, np.int64)
+        self.lost = np.zeros(n, bool)
+        self.reads = 0
+        self.port: LatencyPort | None = None
+        self.ph = sdk.PacketHandler(float(self.model.protocol))
+        self._groups: dict[int, sdk.GroupSyncRead] = {}
+        self._group_ids: tuple[int, ...] = ()
+        self._error_group: sdk.GroupSyncRead | None = None
+
+    @classmethod
+    def from_profile(cls, profile: Profile, **options) -> DynamixelBus:
+        """A bus for ``profile``; options: port, baud, lost_after, fast_sync_read."""
+        return cls(profile, **options)
+
+    # --- errors ---------------------------------------------------------------------------
+
+    def _where(self, k: int | None = None) -> str:
+        if k is None:
+            return f"dynamixel bus {self.port_name} ({self.model.name})"
+        return f"{self.port_name}: id {self.ids[k]} ({self.names[k]}, {self.model.name})"
+
+    @contextlib.contextmanager
+    def _device(self, what: str) -> Iterator[None]:
+        """Turn anything the SDK or the serial port raises into a DriverError naming the port."""
+        if self.port is None:
+            raise DriverError(f"{self._where()}: {what} before open()")
+        try:
+            yield
+        except DriverError:
+            raise
+        except Exception as e:  # pyserial, termios, OSError, SDK index errors on short packets
+            raise DriverError(f"{self._where()}: {what} failed: {type(e).__name__}: {e}") from None
+
+    # --- bring-up -------------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Open the port, ping and check every servo, configure it for a fast loop, first read."""
+        bus = self.profile.bus
+        port = LatencyPort(self.port_name, bus.latency_timer_ms, self.timeout_margin_ms)
+        try:
+            opened = port.openPort()
+        except Exception as e:
+            raise DriverError(f"{self._where()}: cannot open port: {e}") from None
+        if not opened or not port.setBaudRate(self.baud):
+            with contextlib.suppress(Exception):
+                port.closePort()
+            raise DriverError(f"{self._where()}: cannot set {self.baud} baud on this port")
+        self.port = port
+        set_latency_timer(self.port_name, bus.latency_timer_ms)
+        try:
+            with self._device("bring-up"):
+                self._check_models()
+                self._configure(self.model.status_return_level, STATUS_RETURN_ALL)
+                self._configure(self.model.return_delay_time, bus.return_delay_us // 2)
+                self._sync_write(self.model.speed_limit, self.speed_caps)
+                self._choose_read_mode()
+            self.read_health()
+        except DriverError:
+            self.close()
+            raise
+
+    def _check_models(self) -> None:
+        problems = []
+        for k, ident in enumerate(self.ids):
+            number, result, _ = self.ph.ping(self.port, ident)
+            if result != sdk.COMM_SUCCESS:
+                problems.append(f"id {ident} ({self.names[k]}) does not answer")
+            elif number != self.model.model_number:
+                found = MODEL_NAMES.get(number, f"model number {number}")
+                problems.append(
+                    f"id {ident} ({self.names[k]}) is {found}, profile expects "
+                    f"{self.model.name} ({self.model.model_number})"
+                )
+        if problems:
+            raise DriverError(f"{self._where()}: " + "; ".join(problems))
+
+    def _configure(self, item: Item, value: int, attempts: int = 3) -> None:
+        """Write ``item`` where it differs, answered or not, and verify by reading it back."""
+        for k, ident in enumerate(self.ids):
+            for _ in range(attempts):
+                current, result, _ = self.ph.read1ByteTxRx(self.port, ident, item.address)
+                if result == sdk.COMM_SUCCESS and current == value:
+                    break
+                level, result, _ = self.ph.read1ByteTxRx(
+                    self.port, ident, self.model.status_return_level.address
+                )
+                if result == sdk.COMM_SUCCESS and level >= STATUS_RETURN_ALL:
+                    self.ph.write1ByteTxRx(self.port, ident, item.address, value)
+                else:
+                    self.ph.write1ByteTxOnly(self.port, ident, item.address, value)
+                time.sleep(self.port.packet_timeout / 1000.0)  # let a late status drain
+            else:
+                raise DriverError(
+                    f"{self._where(k)}: cannot set address {item.address} to {value} "
+                    f"({self.ph.getTxRxResult(result)}, reads {current})"
+                )
+
+    def _choose_read_mode(self) -> None:
+        if self.model.protocol == 1:
+            return
+        if self.fast_sync_read is None:
+            need = self.model.fast_sync_read_firmware
+            versions = [
+                self.ph.read1ByteTxRx(self.port, i, self.model.firmware_version.address)[0]
+                for i in self.ids
+            ]
+            self.fast_sync_read = need is not None and min(versions) >= need
+        log.debug("%s: fast sync read %s", self._where(), "on" if self.fast_sync_read else "off")
+
+    # --- per-cycle I/O ----------------------------------------------------------------------
+
+    def _sync_write(self, item: Item, values: np.ndarray, only: np.ndarray | None = None) -> None:
+        group = sdk.GroupSyncWrite(self.port, self.ph, item.address, item.size)
+        for k, ident in enumerate(self.ids):
+            if only is None or only[k]:
+                group.addParam(ident, list(int(values[k]).to_bytes(item.size, "little")))
+        result = group.txPacket()
+        if result != sdk.COMM_SUCCESS:
+            raise DriverError(
+                f"{self._where()}: sync write of address {item.address} failed: "
+                f"{self.ph.getTxRxResult(result)}"
+            )
+
+    def read(self) -> JointState:
+        """Present position, velocity, effort of every joint; lost joints keep their last value."""
+        self.reads += 1
+        health = self.reads % self.health_every == 0
+        with self._device("read"):
+            self._read_blocks(health)
+        return JointState(
+            names=self.names,
+            position=self.position.tolist(),
+            velocity=self.velocity.tolist(),
+            effort=self.effort.tolist(),
+        )
+
+    def read_health(self) -> None:
+        """A read cycle including voltage, temperature and error status (bring-up, tests)."""
+        with self._device("health read"):
+            self._read_blocks(True)
+
+    def _read_blocks(self, health: bool) -> None:
+        m = self.model
+        item = m.health if health else m.state
+        want = ~self.lost | health  # lost servos are probed on health cycles only
+        blocks = self._read_each(item, want) if m.protocol == 1 else self._read_sync(item, want)
+        got = np.array([b is not None for b in blocks])
+        self._account(got, want)
+        if not got.any():
+            return
+        idx = np.flatnonzero(got)
+        rows = np.frombuffer(b"".join(blocks[k] for k in idx), np.uint8).reshape(idx.size, -1)
+        self._decode(rows, idx)
+        if health:
+            base = m.state.address
+            self.voltage[idx] = little_endian(rows, m.voltage.address - base, m.voltage.size) / 10.0
+            self.temperature[idx] = rows[:, m.temperature.address - base]
+            if m.protocol == 2:
+                self._read_hardware_errors(idx)
+
+    def _decode(self, rows: np.ndarray, idx: np.ndarray) -> None:
+        m = self.model
+        size = m.goal_position.size
+        full = np.zeros(len(self.ids), np.int64)
+        full[idx] = little_endian(rows, m.position_offset, size)
+        self.position[idx] = self.map.position(full)[idx]
+        full[idx] = little_endian(rows, m.velocity_offset, size)
+        self.velocity[idx] = self.map.velocity(full)[idx]
+        full[idx] = little_endian(rows, m.load_offset, 2)
+        self.effort[idx] = self.map.effort(full)[idx]
+
+    def _read_each(self, item: Item, want: np.ndarray) -> list[bytes | None]:
+        """Protocol 1.0: one READ of the block per servo; keeps the status error byte."""
+        out: list[bytes | None] = []
+        for k, ident in enumerate(self.ids):
+            if not want[k]:
+                out.append(None)
+                continue
+            data, result, error = self.ph.readTxRx(self.port, ident, item.address, item.size)
+            if result == sdk.COMM_SUCCESS and len(data) == item.size:
+                self.errors[k] = error
+                out.append(bytes(data))
+            else:
+                out.append(None)
+        return out
+
+    def _group(self, item: Item, ids: tuple[int, ...]) -> sdk.GroupSyncRead:
+        if ids != self._group_ids:
+            self._groups.clear()
+            self._group_ids = ids
+        group = self._groups.get(item.size)
+        if group is None:
+            group = sdk.GroupSyncRead(self.port, self.ph, item.address, item.size)
+            for ident in ids:
+                group.addParam(ident)
+            self._groups[item.size] = group
+        return group
+
+    def _sync_read(self, group: sdk.GroupSyncRead) -> int:
+        return group.fastSyncRead() if self.fast_sync_read else group.txRxPacket()
+
+    def _read_sync(self, item: Item, want: np.ndarray) -> list[bytes | None]:
+        """Protocol 2.0: one (fast) sync read of the answering servos; on failure, each alone."""
+        out: list[bytes | None] = [None] * len(self.ids)
+        active = [k for k in range(len(self.ids)) if want[k] and not self.lost[k]]
+        if active:
+            group = self._group(item, tuple(self.ids[k] for k in active))
+            if self._sync_read(group) == sdk.COMM_SUCCESS:
+                for k in active:
+                    out[k] = bytes(group.data_dict[self.ids[k]])
+                active = []
+        for k in range(len(self.ids)):
+            if want[k] and (self.lost[k] or k in active):
+                data, result, _ = self.ph.readTxRx(self.port, self.ids[k], item.address, item.size)
+                if result == sdk.COMM_SUCCESS and len(data) == item.size:
+                    out[k] = bytes(data)
+        return out
+
+    def _read_hardware_errors(self, idx: np.ndarray) -> None:
+        item = self.model.hardware_error_status
+        ids = tuple(self.ids[k] for k in idx)
+        group = sdk.GroupSyncRead(self.port, self.ph, item.address, item.size)
+        for ident in ids:
+            group.addParam(ident)
+        if self._sync_read(group) == sdk.COMM_SUCCESS:
+            for k in idx:
+                self.errors[k] = group.data_dict[self.ids[k]][0]
+
+    def _account(self, got: np.ndarray, want: np.ndarray) -> None:
+        """Count consecutive misses; mark lost after ``lost_after``; re-admit on an answer."""
+        back = got & self.lost
+        for k in np.flatnonzero(back):
+            log.warning("%s: answers again, re-admitted", self._where(k))
+        self.lost &= ~got
+        self.misses[got] = 0
+        missed = want & ~got
+        self.misses[missed] += 1
+        newly = missed & ~self.lost & (self.misses >= self.lost_after)
+        for k in np.flatnonzero(newly):
+            log.error("%s: lost after %d missed reads", self._where(k), self.misses[k])
+        self.lost |= newly
+
+    def write(self, command: JointCommand) -> None:
+        """One sync write of goal positions (rad, profile order) to every servo not lost."""
+        q = np.asarray(command.position, float)
+        if q.shape != (len(self.ids),):
+            raise DriverError(
+                f"{self._where()}: command has {q.size} positions, bus has {len(self.ids)} joints"
+            )
+        if not np.all(np.isfinite(q)):
+            bad = [self.names[k] for k in np.flatnonzero(~np.isfinite(q))]
+            raise DriverError(f"{self._where()}: non-finite goal for {', '.join(bad)}")
+        with self._device("write"):
+            self._sync_write(self.model.goal_position, self.map.goal_ticks(q), ~self.lost)
+
+    def torque(self, on: bool) -> None:
+        """Torque on (goal = present position first, so nothing jumps) or off, all joints."""
+        with self._device(f"torque {'on' if on else 'off'}"):
+            if on:
+                self._read_blocks(False)
+                ticks = self.map.goal_ticks(self.position)
+                self._sync_write(self.model.goal_position, ticks, ~self.lost)
+            self._sync_write(self.model.torque_enable, np.full(len(self.ids), int(on)), ~self.lost)
+            refused = []
+            for k, ident in enumerate(self.ids):
+                if self.lost[k]:
+                    continue
+                value, result, _ = self.ph.read1ByteTxRx(
+                    self.port, ident, self.model.torque_enable.address
+                )
+                if result == sdk.COMM_SUCCESS and value != int(on):
+                    refused.append(f"id {ident} ({self.names[k]})")
+            if refused:
+                raise DriverError(
+                    f"{self._where()}: torque {'on' if on else 'off'} refused by "
+                    + ", ".join(refused)
+                )
+
+    def health(self) -> list[JointHealth]:
+        """Temperature, voltage, error bits (decoded) and lost flag of every joint."""
+        return [
+            JointHealth(
+                name=name,
+                temperature=float(self.temperature[k]),
+                voltage=float(self.voltage[k]),
+                error=int(self.errors[k]),
+                errors=error_names(self.model, int(self.errors[k])),
+                lost=bool(self.lost[k]),
+            )
+            for k, name in enumerate(self.names)
+        ]
+
+    def close(self) -> None:
+        """Close the port (idempotent); torque is left as it is — the e-stop policy decides."""
+        if self.port is not None:
+            with contextlib.suppress(Exception):
+                self.port.closePort()
+            self.port = None
