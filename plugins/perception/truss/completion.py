@@ -1,0 +1,171 @@
+"""The paper's completion: sliding bounding boxes (eq. 2), projection on the axis (eq. 3), the
+gap rule for new end points (steps 1-8, Algorithm 1), and merging split pieces of one member.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from plugins.perception.truss.cylinders import Cylinder, Segment, perpendicular_basis
+
+
+@dataclass(frozen=True)
+class Member:
+    """A modelled member: its cylinder, axial extent [t0, t1] from ``cylinder.point``, and the
+    indices of the points supporting it (segment points plus completion points)."""
+
+    cylinder: Cylinder
+    t0: float
+    t1: float
+    indices: np.ndarray
+    pieces: int = 1
+
+    @property
+    def p0(self) -> np.ndarray:
+        return self.cylinder.point + self.t0 * self.cylinder.axis
+
+    @property
+    def p1(self) -> np.ndarray:
+        return self.cylinder.point + self.t1 * self.cylinder.axis
+
+    @property
+    def length(self) -> float:
+        return self.t1 - self.t0
+
+
+def from_segment(segment: Segment) -> Member:
+    """A member exactly as RANSAC segmented it (the initial model, before completion)."""
+    return Member(segment.cylinder, segment.t0, segment.t1, segment.indices)
+
+
+def _box_coordinates(points: np.ndarray, cylinder: Cylinder) -> np.ndarray:
+    """Points in the member's frame: (along the axis, along u, along v)."""
+    u, v = perpendicular_basis(cylinder.axis)
+    w = points - cylinder.point
+    return np.column_stack([w @ cylinder.axis, w @ u, w @ v])
+
+
+def gap_reach(distances: np.ndarray, gap: float) -> tuple[float, bool]:
+    """Steps 2-7: from the end e, walk the points projected on the axis in order of their
+    distance D_j to e; the member stops before the first gap G_j >= ``gap`` (G_0 = D_min).
+
+    Returns the distance from e to the new end point and whether no such gap was found.
+    """
+    d = np.sort(distances)
+    gaps = np.diff(d, prepend=0.0)
+    big = np.flatnonzero(gaps >= gap)
+    if len(big) == 0:
+        return (float(d[-1]) if len(d) else 0.0), True
+    first = big[0]
+    return (float(d[first - 1]) if first > 0 else 0.0), False
+
+
+def complete(
+    segment: Segment,
+    points: np.ndarray,
+    *,
+    slide_lambda: float,
+    gap: float,
+    margin: float,
+    max_slides: int,
+) -> Member:
+    """Slide the segment's bounding box along its axis both ways and extend it to the new ends.
+
+    The box Θ spans the segment's points, padded by ``margin``; each new box Θ_new has the same
+    cross-section and ``slide_lambda`` times the segment's length (eq. 2, λ ≈ 2.5), starting at
+    the end it slides from. Points in Θ_new are projected on the axis (eq. 3) and the gap rule
+    places the new end; if the points run on to the far face of Θ_new, it slides again.
+    """
+    cylinder = segment.cylinder
+    local = _box_coordinates(points, cylinder)
+    own = local[segment.indices]
+    lo, hi = own[:, 1:].min(axis=0) - margin, own[:, 1:].max(axis=0) + margin
+    in_section = np.flatnonzero(((local[:, 1:] >= lo) & (local[:, 1:] <= hi)).all(axis=1))
+    t_section = local[in_section, 0]
+    length = segment.t1 - segment.t0
+    ends = {+1: segment.t1, -1: segment.t0}
+    for sign in (+1, -1):
+        for _ in range(max_slides):
+            e = ends[sign]
+            depth = slide_lambda * length
+            distances = (t_section - e) * sign
+            inside = (distances > 0) & (distances <= depth)
+            reach, open_ended = gap_reach(distances[inside], gap)
+            ends[sign] = e + sign * reach
+            if not open_ended or depth - reach >= gap:
+                break
+    t0, t1 = ends[-1], ends[+1]
+    within = in_section[(t_section >= t0) & (t_section <= t1)]
+    support = np.union1d(segment.indices, within)
+    return Member(cylinder, t0, t1, support)
+
+
+def _aligned_ends(a: Member, b: Member) -> tuple[np.ndarray, np.ndarray]:
+    """b's end points ordered to face a's (p0 with p0)."""
+    if a.cylinder.axis @ b.cylinder.axis >= 0:
+        return b.p0, b.p1
+    return b.p1, b.p0
+
+
+def _on_axis(a: Member, b: Member, distance: float) -> bool:
+    """Both of b's end points lie within ``distance`` of a's axis line, and their extents
+    overlap or meet along a's axis."""
+    axis, origin = a.cylinder.axis, a.cylinder.point
+    ends = np.array([b.p0, b.p1]) - origin
+    t = ends @ axis
+    off = np.linalg.norm(ends - np.outer(t, axis), axis=1)
+    return bool(off.max() < distance and t.max() >= a.t0 - distance and t.min() <= a.t1 + distance)
+
+
+def same_member(a: Member, b: Member, distance: float, angle_deg: float, line: float) -> bool:
+    """The merging criterion: parallel axes and both pairs of end points within ``distance``
+    (the paper's single Euclidean criterion), or one piece lying on the other's axis within
+    ``line`` (ours: a piece whose completion stopped at an occlusion)."""
+    cos = abs(a.cylinder.axis @ b.cylinder.axis)
+    if cos < np.cos(np.radians(angle_deg)):
+        return False
+    b0, b1 = _aligned_ends(a, b)
+    if np.linalg.norm(a.p0 - b0) < distance and np.linalg.norm(a.p1 - b1) < distance:
+        return True
+    return _on_axis(a, b, line) or _on_axis(b, a, line)
+
+
+def merge_members(
+    members: list[Member], *, distance: float, angle_deg: float, line: float
+) -> list[Member]:
+    """Merge pieces of one member (split by RANSAC) into one: the larger piece's axis, end points
+    at the outermost projections of the pieces' completed ends, the union of their points."""
+    members = list(members)
+    i = 0
+    while i < len(members):
+        partner = next(
+            (
+                j
+                for j in range(i + 1, len(members))
+                if same_member(members[i], members[j], distance, angle_deg, line)
+            ),
+            None,
+        )
+        if partner is None:
+            i += 1
+            continue
+        a, b = members[i], members.pop(partner)
+        base = a if len(a.indices) >= len(b.indices) else b
+        t = (np.array([a.p0, a.p1, b.p0, b.p1]) - base.cylinder.point) @ base.cylinder.axis
+        support = np.union1d(a.indices, b.indices)
+        members[i] = Member(base.cylinder, t.min(), t.max(), support, a.pieces + b.pieces)
+    return members
+
+
+def suppress_duplicates(members: list[Member], shared: float = 0.5) -> list[Member]:
+    """Drop a member whose points are mostly (> ``shared``) already claimed by a larger one."""
+    kept, claimed = [], np.empty(0, np.int64)
+    for member in sorted(members, key=lambda m: len(m.indices), reverse=True):
+        overlap = np.isin(member.indices, claimed, assume_unique=True).mean()
+        if overlap > shared:
+            continue
+        kept.append(member)
+        claimed = np.union1d(claimed, member.indices)
+    return kept

@@ -1,0 +1,201 @@
+"""Initial truss modelling: RANSAC cylinder segmentation with normals (paper 003 II-A, eq. 1).
+
+Each hypothesis comes from two oriented points near each other (axis = n1 x n2, centre where
+the normal lines meet); hypotheses are scored on a random probe of the cloud; the best is
+refined by Gauss-Newton on the geometric residual |distance to axis| - r (fitting r, not r^2,
+so noise on a half-visible tube does not bias the radius). A segment is the longest run of
+inliers along the axis: occlusions and linkers cut a member into several segments, which is
+the incompleteness the sliding bounding box later repairs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """An infinite cylinder: a point on the axis, the unit axis, the radius (m)."""
+
+    point: np.ndarray
+    axis: np.ndarray
+    radius: float
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A segmented piece of a member, C = {A, B, r} (eq. 1): cylinder, axial extent, its points."""
+
+    cylinder: Cylinder
+    t0: float
+    t1: float
+    indices: np.ndarray
+
+    @property
+    def a(self) -> np.ndarray:
+        return self.cylinder.point + self.t0 * self.cylinder.axis
+
+    @property
+    def b(self) -> np.ndarray:
+        return self.cylinder.point + self.t1 * self.cylinder.axis
+
+
+def perpendicular_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing ``axis`` to a right-handed orthonormal frame."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u)
+    return u, np.cross(axis, u)
+
+
+def surface_fit(
+    points: np.ndarray, normals: np.ndarray, cylinder: Cylinder
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per point: |distance to axis - r| (m) and |cos| of its normal to the radial direction."""
+    w = points - cylinder.point
+    radial = w - np.outer(w @ cylinder.axis, cylinder.axis)
+    distance = np.linalg.norm(radial, axis=1)
+    cos = np.abs(np.einsum("ij,ij->i", radial, normals)) / np.maximum(distance, 1e-12)
+    return np.abs(distance - cylinder.radius), cos
+
+
+def refine(points: np.ndarray, cylinder: Cylinder, iterations: int = 10) -> Cylinder:
+    """Least-squares cylinder on the geometric residual d_i - r (Gauss-Newton, 5 parameters)."""
+    point, axis, radius = cylinder.point.copy(), cylinder.axis.copy(), cylinder.radius
+    for _ in range(iterations):
+        point = point + axis * ((points - point) @ axis).mean()
+        u, v = perpendicular_basis(axis)
+        w = points - point
+        t = w @ axis
+        radial = w - np.outer(t, axis)
+        distance = np.maximum(np.linalg.norm(radial, axis=1), 1e-12)
+        ru, rv = (radial @ u) / distance, (radial @ v) / distance
+        jacobian = np.column_stack([-ru, -rv, -t * ru, -t * rv, -np.ones_like(t)])
+        step, *_ = np.linalg.lstsq(jacobian, radius - distance, rcond=None)
+        point = point + step[0] * u + step[1] * v
+        axis = axis + step[2] * u + step[3] * v
+        axis /= np.linalg.norm(axis)
+        radius += step[4]
+        if np.abs(step).max() < 1e-7:
+            break
+    return Cylinder(point, axis, float(radius))
+
+
+def hypotheses(
+    p1: np.ndarray, n1: np.ndarray, p2: np.ndarray, n2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cylinders through pairs of oriented points: centres, axes, radii, and a validity mask."""
+    axes = np.cross(n1, n2)
+    norm = np.linalg.norm(axes, axis=1)
+    valid = norm > np.sin(np.radians(10.0))
+    axes = axes / np.maximum(norm, 1e-12)[:, None]
+    # centre c = p1 + s n1 = p2 + q n2 (+ k axis): solve the 2x2 normal equations of s, q
+    d = p2 - p1
+    b = np.einsum("ij,ij->i", n1, n2)
+    e1, e2 = np.einsum("ij,ij->i", d, n1), np.einsum("ij,ij->i", d, n2)
+    det = np.maximum(1.0 - b * b, 1e-12)
+    s = (e1 - b * e2) / det
+    q = (b * e1 - e2) / det
+    centres = p1 + s[:, None] * n1
+    radii = 0.5 * (np.abs(s) + np.abs(q))
+    return centres, axes, radii, valid
+
+
+def _axial_runs(t: np.ndarray, gap: float) -> list[np.ndarray]:
+    """Indices (into t) of runs of axial coordinates without a gap above ``gap``."""
+    order = np.argsort(t)
+    breaks = np.flatnonzero(np.diff(t[order]) > gap) + 1
+    return np.split(order, breaks)
+
+
+def segment_cylinders(
+    points: np.ndarray,
+    normals: np.ndarray,
+    tree: cKDTree,
+    rng: np.random.Generator,
+    *,
+    radius_min: float,
+    radius_max: float,
+    distance: float,
+    angle_deg: float,
+    min_points: int,
+    min_length: float,
+    segment_gap: float,
+    hypotheses_per_round: int,
+    probe: int,
+    max_failures: int,
+    max_segments: int,
+) -> list[Segment]:
+    """Extract cylinder segments one by one until no hypothesis yields a long enough run."""
+    cos_limit = np.cos(np.radians(angle_deg))
+    active = np.ones(len(points), bool)
+    segments: list[Segment] = []
+    failures = 0
+    while failures < max_failures and len(segments) < max_segments:
+        pool = np.flatnonzero(active)
+        if len(pool) < min_points:
+            break
+        seeds = rng.choice(pool, size=hypotheses_per_round)
+        balls = tree.query_ball_point(points[seeds], r=2.0 * radius_max)
+        partners = np.array([ball[rng.integers(len(ball))] for ball in balls])
+        centres, axes, radii, valid = hypotheses(
+            points[seeds], normals[seeds], points[partners], normals[partners]
+        )
+        valid &= (radii >= radius_min) & (radii <= radius_max) & active[partners]
+        if not valid.any():
+            failures += 1
+            continue
+        sample = rng.choice(pool, size=min(probe, len(pool)), replace=False)
+        w = points[sample][None, :, :] - centres[valid][:, None, :]
+        along = np.einsum("hnj,hj->hn", w, axes[valid])
+        radial = w - along[..., None] * axes[valid][:, None, :]
+        dist = np.linalg.norm(radial, axis=2)
+        cos = np.abs(np.einsum("hnj,nj->hn", radial, normals[sample])) / np.maximum(dist, 1e-12)
+        score = ((np.abs(dist - radii[valid][:, None]) < distance) & (cos > cos_limit)).sum(1)
+        best = int(np.argmax(score))
+        cylinder = Cylinder(centres[valid][best], axes[valid][best], float(radii[valid][best]))
+        segment = _grow(points, normals, pool, cylinder, distance, cos_limit, segment_gap)
+        if (
+            segment is None
+            or len(segment.indices) < min_points
+            or segment.t1 - segment.t0 < min_length
+            or not radius_min <= segment.cylinder.radius <= radius_max
+        ):
+            failures += 1
+            continue
+        failures = 0
+        active[segment.indices] = False
+        segments.append(segment)
+    return segments
+
+
+def _grow(
+    points: np.ndarray,
+    normals: np.ndarray,
+    pool: np.ndarray,
+    cylinder: Cylinder,
+    distance: float,
+    cos_limit: float,
+    segment_gap: float,
+) -> Segment | None:
+    """Refine a hypothesis on its inliers twice, then keep the longest gap-free run along it."""
+    for _ in range(2):
+        off, cos = surface_fit(points[pool], normals[pool], cylinder)
+        inliers = pool[(off < distance) & (cos > cos_limit)]
+        if len(inliers) < 8:
+            return None
+        cylinder = refine(points[inliers], cylinder)
+    off, cos = surface_fit(points[pool], normals[pool], cylinder)
+    inliers = pool[(off < distance) & (cos > cos_limit)]
+    if len(inliers) < 8:
+        return None
+    t = (points[inliers] - cylinder.point) @ cylinder.axis
+    run = inliers[max(_axial_runs(t, segment_gap), key=len)]
+    if len(run) < 8:
+        return None
+    cylinder = refine(points[run], cylinder)
+    t = (points[run] - cylinder.point) @ cylinder.axis
+    return Segment(cylinder, float(t.min()), float(t.max()), run)

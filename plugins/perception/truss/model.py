@@ -1,0 +1,189 @@
+"""Truss environment modelling (TEM, paper 003 Fig. 2): a pure object from a cloud to members.
+
+Dense cloud -> voxel downsampling -> isolated-point removal -> normals -> plane removal ->
+RANSAC cylinder segments (the initial model) -> sliding-box completion -> merging of split
+pieces -> a final refit of each member on all its surface points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import msgspec
+import numpy as np
+from scipy.spatial import cKDTree
+
+from plugins.perception.truss.cloud import estimate_normals, neighbourhoods, voxel_downsample
+from plugins.perception.truss.completion import (
+    Member,
+    complete,
+    from_segment,
+    merge_members,
+    suppress_duplicates,
+)
+from plugins.perception.truss.cylinders import Segment, refine, segment_cylinders, surface_fit
+from plugins.perception.truss.planes import remove_planes
+
+
+class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Truss modelling parameters (m, deg). ``slide_lambda`` is the paper's λ ≈ 2.5 (eq. 2);
+    ``gap`` is the gap-rule threshold of step 7; the rest are ours, for a Kinect-2-like cloud."""
+
+    voxel: float = 0.01
+    max_range: float = 4.5
+    normal_neighbours: int = 12
+    outlier_radius: float = 0.03
+    outlier_neighbours: int = 4
+    plane_distance: float = 0.02
+    plane_angle_deg: float = 20.0
+    plane_min_points: int = 300
+    plane_min_width: float = 0.3
+    max_planes: int = 3
+    radius_min: float = 0.01
+    radius_max: float = 0.08
+    cylinder_distance: float = 0.008
+    cylinder_angle_deg: float = 25.0
+    min_member_points: int = 40
+    min_member_length: float = 0.15
+    segment_gap: float = 0.03
+    hypotheses: int = 64
+    probe: int = 2000
+    max_failures: int = 4
+    max_segments: int = 64
+    slide_lambda: float = 2.5
+    gap: float = 0.12
+    box_margin: float = 0.01
+    max_slides: int = 3
+    merge_distance: float = 0.1
+    merge_angle_deg: float = 5.0
+    merge_line: float = 0.03
+    completion_passes: int = 2
+    seed: int = 0
+    model_every: int = 1
+
+    def __post_init__(self) -> None:
+        if not 0 < self.radius_min < self.radius_max:
+            raise ValueError(
+                f"truss: radius_min ({self.radius_min}) must be > 0 and < radius_max "
+                f"({self.radius_max})"
+            )
+        if self.slide_lambda < 1.0:
+            raise ValueError(
+                f"truss: slide_lambda must be >= 1 (paper: about 2.5), got {self.slide_lambda}"
+            )
+        for name in ("voxel", "gap", "cylinder_distance", "plane_distance", "segment_gap"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"truss: {name} must be > 0, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
+class TrussModel:
+    """Members after completion and merging, the initial RANSAC-only members, the cloud used."""
+
+    members: list[Member]
+    initial: list[Member]
+    points: np.ndarray
+
+
+class TrussModeller:
+    """Builds the truss model of a dense cloud (odometry frame); deterministic for ``seed``."""
+
+    def __init__(self, config: TrussConfig | None = None) -> None:
+        self.config = config or TrussConfig()
+
+    def model(self, cloud: np.ndarray) -> TrussModel:
+        """Members of the truss in ``cloud`` (N x 3, m), with the RANSAC-only initial model."""
+        c = self.config
+        cloud = np.asarray(cloud, dtype=float)
+        if cloud.ndim != 2 or cloud.shape[1] != 3:
+            raise ValueError(f"truss: cloud must be N x 3, got shape {cloud.shape}")
+        cloud = cloud[np.isfinite(cloud).all(axis=1)]
+        rng = np.random.default_rng(c.seed)
+        points = voxel_downsample(cloud, c.voxel) if len(cloud) else cloud
+        if len(points) <= c.normal_neighbours:
+            return TrussModel([], [], points)
+        _, distances, indices = neighbourhoods(points, c.normal_neighbours)
+        normals = estimate_normals(points, indices)
+        keep = distances[:, c.outlier_neighbours] <= c.outlier_radius
+        keep[keep] = remove_planes(
+            points[keep],
+            normals[keep],
+            rng,
+            distance=c.plane_distance,
+            angle_deg=c.plane_angle_deg,
+            min_points=c.plane_min_points,
+            min_width=c.plane_min_width,
+            max_planes=c.max_planes,
+        )
+        points, normals = points[keep], normals[keep]
+        if len(points) < c.min_member_points:
+            return TrussModel([], [], points)
+        segments = segment_cylinders(
+            points,
+            normals,
+            cKDTree(points),
+            rng,
+            radius_min=c.radius_min,
+            radius_max=c.radius_max,
+            distance=c.cylinder_distance,
+            angle_deg=c.cylinder_angle_deg,
+            min_points=c.min_member_points,
+            min_length=c.min_member_length,
+            segment_gap=c.segment_gap,
+            hypotheses_per_round=c.hypotheses,
+            probe=c.probe,
+            max_failures=c.max_failures,
+            max_segments=c.max_segments,
+        )
+        completed = [self._complete(s, points, normals) for s in segments]
+        merged = merge_members(
+            completed,
+            distance=c.merge_distance,
+            angle_deg=c.merge_angle_deg,
+            line=c.merge_line,
+        )
+        members = suppress_duplicates([self._refit(m, points, normals) for m in merged])
+        return TrussModel(members, [from_segment(s) for s in segments], points)
+
+    def _complete(self, segment: Segment, points: np.ndarray, normals: np.ndarray) -> Member:
+        """Complete a segment; between passes refit its axis on the points the completion found."""
+        c = self.config
+        for _ in range(c.completion_passes):
+            member = complete(
+                segment,
+                points,
+                slide_lambda=c.slide_lambda,
+                gap=c.gap,
+                margin=c.box_margin,
+                max_slides=c.max_slides,
+            )
+            refitted = self._refit(member, points, normals)
+            surface = self._surface(refitted, points, normals)
+            segment = Segment(refitted.cylinder, refitted.t0, refitted.t1, surface)
+        return member
+
+    def _surface(self, member: Member, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """The member's supporting points that lie on its cylinder surface."""
+        c = self.config
+        support = member.indices
+        off, cos = surface_fit(points[support], normals[support], member.cylinder)
+        cos_limit = np.cos(np.radians(c.cylinder_angle_deg))
+        return support[(off < c.cylinder_distance) & (cos > cos_limit)]
+
+    def _refit(self, member: Member, points: np.ndarray, normals: np.ndarray) -> Member:
+        """Refit the member's cylinder on all its surface points and re-project its end points."""
+        surface = self._surface(member, points, normals)
+        if len(surface) < self.config.min_member_points:
+            return member
+        cylinder = refine(points[surface], member.cylinder)
+        t = (np.array([member.p0, member.p1]) - cylinder.point) @ cylinder.axis
+        return Member(cylinder, float(t.min()), float(t.max()), member.indices, member.pieces)
+
+
+def coverage(member: Member, points: np.ndarray, bin_size: float) -> float:
+    """Fraction of the member's length covered by its points, in bins of ``bin_size``: a
+    confidence that the member is real and its end points are supported."""
+    t = (points[member.indices] - member.cylinder.point) @ member.cylinder.axis
+    bins = max(1, int(np.ceil(member.length / bin_size)))
+    occupied = np.unique(np.clip(((t - member.t0) / bin_size).astype(int), 0, bins - 1))
+    return len(occupied) / bins

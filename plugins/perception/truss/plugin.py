@@ -1,0 +1,69 @@
+"""The truss perception plugin: accumulate body-frame clouds in the odometry frame, model them."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from daemon.messages import BodyState, TrussMember, TrussMembers
+from daemon.plugins import PerceptionPlugin
+from plugins.perception.truss.cloud import VoxelMap, body_to_odometry
+from plugins.perception.truss.completion import Member
+from plugins.perception.truss.model import TrussConfig, TrussModeller, coverage
+
+
+def to_message(member: Member, points: np.ndarray, bin_size: float) -> TrussMember:
+    """A modelled member as the wire TrussMember (odometry frame, axis from p0 to p1)."""
+    return TrussMember(
+        p0=member.p0.tolist(),
+        p1=member.p1.tolist(),
+        radius=float(member.cylinder.radius),
+        axis=member.cylinder.axis.tolist(),
+        confidence=round(coverage(member, points, bin_size), 3),
+    )
+
+
+class TrussPerception(PerceptionPlugin):
+    """Builds the truss model from every frame so far (the paper's dense SLAM cloud, here our
+    odometry poses) and publishes its members every ``model_every`` frames."""
+
+    name: ClassVar[str] = "truss"
+    Config: ClassVar[type[TrussConfig]] = TrussConfig
+
+    def __init__(self, config: TrussConfig | None = None, profile: Any = None) -> None:
+        super().__init__(config, profile)
+        self.modeller = TrussModeller(self.config)
+        self.map = VoxelMap(self.config.voxel)
+        self.frames = 0
+
+    def reset(self) -> None:
+        """Forget the accumulated cloud (e.g. after the odometry frame was reset)."""
+        self.map = VoxelMap(self.config.voxel)
+        self.frames = 0
+
+    def process_cloud(
+        self, points: np.ndarray, body: BodyState, stamp: float
+    ) -> TrussMembers | None:
+        """Add body-frame points (N x 3, m) seen at ``body``'s pose; model when it is time."""
+        points = np.asarray(points, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"truss: points must be N x 3 (m), got shape {points.shape}")
+        if len(body.position) != 3 or len(body.orientation) != 4:
+            raise ValueError(
+                "truss: BodyState needs position (x, y, z) and orientation (w, x, y, z)"
+            )
+        points = points[np.isfinite(points).all(axis=1)]
+        points = points[np.linalg.norm(points, axis=1) <= self.config.max_range]
+        if len(points):
+            self.map.add(body_to_odometry(points, body))
+        self.frames += 1
+        if self.frames % self.config.model_every:
+            return None
+        model = self.modeller.model(self.map.points)
+        bin_size = 2 * self.config.voxel
+        return TrussMembers(
+            stamp=stamp,
+            frame_stamp=stamp,
+            members=[to_message(m, model.points, bin_size) for m in model.members],
+        )
