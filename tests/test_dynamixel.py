@@ -1,0 +1,229 @@
+"""The Dynamixel joint bus through dynamixel_sdk against the byte-level emulator on a pty.
+
+Ground truth comes from the e-Manual resolutions written here (AX-18A: 300° over 0–1023,
+centre 512; X series: 4096 ticks a turn, centre 2048) and from the emulated servos' own
+control tables, never from the driver's tables.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import msgspec
+import numpy as np
+import pytest
+
+from daemon.messages import JointCommand, Mode
+from daemon.profile import load
+from daemon.safety import Safety
+from drivers.base import DriverError, JointBus
+from drivers.dynamixel.bus import DynamixelBus
+from drivers.sim.dynamixel import DynamixelEmulator, EmulatedServo, ServoChain
+from drivers.sim.dynamixel.tables import XM430_W350
+
+RESOLUTION = {1: (math.radians(300) / 1023, 512), 2: (2 * math.pi / 4096, 2048)}
+MARGIN_MS = 10.0  # packet-timeout margin: tolerates a loaded CI machine
+
+
+def _profile(name: str, **bus):
+    """A stock profile with some joints turned round and offset, to exercise the mapping."""
+    p = load(f"robots/{name}.toml")
+    legs = []
+    for i, leg in enumerate(p.legs):
+        joints = [
+            msgspec.structs.replace(j, zero_offset=0.1 * (k - 1), direction=-1 if i % 2 else 1)
+            for k, j in enumerate(leg.joints)
+        ]
+        legs.append(msgspec.structs.replace(leg, joints=joints))
+    return msgspec.structs.replace(
+        p, legs=legs, bus=msgspec.structs.replace(p.bus, **bus) if bus else p.bus
+    )
+
+
+@pytest.fixture(params=["widowx", "hubrobo"])
+def rig(request):
+    profile = _profile(request.param)
+    chain = ServoChain.from_profile(profile)
+    with DynamixelEmulator(chain) as emu:
+        bus = DynamixelBus.from_profile(profile, port=emu.port, timeout_margin_ms=MARGIN_MS)
+        bus.open()
+        yield profile, chain, emu, bus
+        bus.close()
+
+
+def _settle(bus: DynamixelBus, q: np.ndarray, tol: float, seconds: float = 3.0) -> np.ndarray:
+    """Read until every joint is within ``tol`` of ``q`` (or the deadline); the last reading."""
+    deadline = time.monotonic() + seconds
+    while True:
+        measured = np.array(bus.read().position)
+        if np.max(np.abs(measured - q)) <= tol or time.monotonic() > deadline:
+            return measured
+
+
+def test_implements_joint_bus(rig):
+    assert isinstance(rig[3], JointBus)
+
+
+def test_goals_reach_servos_within_resolution(rig):
+    profile, chain, _, bus = rig
+    joints = profile.joints
+    rng = np.random.default_rng(3)
+    lo = np.array([j.limits.lower for j in joints])
+    hi = np.array([j.limits.upper for j in joints])
+    q = rng.uniform(lo, hi) * 0.8
+    bus.torque(True)
+    bus.write(JointCommand(position=q.tolist()))
+    rad_per_tick, center = RESOLUTION[profile.bus.protocol]
+    measured = _settle(bus, q, rad_per_tick / 2 + 1e-9)
+    for j, qj in zip(joints, q, strict=True):
+        servo = chain.servo(j.id)
+        expected = round(center + (j.zero_offset + j.direction * qj) / rad_per_tick)
+        assert servo.get("goal_position") == expected, j.name
+    assert np.max(np.abs(measured - q)) <= rad_per_tick / 2 + 1e-9
+    assert np.max(np.abs(chain.joint_goals() - q)) <= rad_per_tick / 2 + 1e-9
+
+
+def test_bring_up_sets_return_delay_and_status_level(rig):
+    profile, chain, _, _ = rig
+    for s in chain.servos.values():
+        assert s.get("return_delay_time") == profile.bus.return_delay_us // 2
+        assert s.get("status_return_level") == 2
+        limit = next(j for j in profile.joints if j.id == s.ident).limits.velocity
+        assert s.speed_limit == pytest.approx(limit, rel=0.05)
+
+
+def test_bring_up_from_status_level_one():
+    profile = _profile("widowx")
+    chain = ServoChain.from_profile(profile)
+    chain.servo(5).set("status_return_level", 1)
+    with DynamixelEmulator(chain) as emu:
+        bus = DynamixelBus.from_profile(profile, port=emu.port, timeout_margin_ms=MARGIN_MS)
+        bus.open()
+        bus.close()
+    assert chain.servo(5).get("status_return_level") == 2
+    assert chain.servo(5).get("return_delay_time") == 0
+
+
+def test_one_transaction_per_servo_or_one_sync_read_per_cycle(rig):
+    profile, chain, _, bus = rig
+    n = len(profile.joints)
+    q = np.zeros(n)
+    every = bus.health_every
+    while (bus.reads + 1) % every == 0 or (bus.reads + 2) % every == 0:
+        bus.read()  # the next two reads are ordinary cycles
+    before = dict(chain.counts)
+    bus.read()
+    bus.write(JointCommand(position=q.tolist()))
+    bus.read()  # a round trip: the emulator has handled the broadcast sync write before it
+    delta = {k: v - before.get(k, 0) for k, v in chain.counts.items() if v != before.get(k, 0)}
+    if profile.bus.protocol == 1:
+        assert delta == {0x02: 2 * n, 0x83: 1}  # a READ per servo per cycle, one SYNC WRITE
+    else:
+        assert delta == {0x8A: 2, 0x83: 1}  # one FAST SYNC READ per cycle, one SYNC WRITE
+
+
+def test_missing_id_wrong_model_and_missing_port_are_named():
+    profile = _profile("hubrobo")
+    chain = ServoChain.from_profile(profile)
+    chain.silence(7)
+    wrong = ServoChain(
+        [EmulatedServo(XM430_W350, j.id) for j in profile.joints], 2, profile.bus.baud
+    )
+    with DynamixelEmulator(chain) as emu:
+        bus = DynamixelBus.from_profile(profile, port=emu.port)
+        with pytest.raises(DriverError, match=rf"{emu.port}.*id 7 \(lr_coxa\) does not answer"):
+            bus.open()
+    with DynamixelEmulator(wrong) as emu:
+        bus = DynamixelBus.from_profile(profile, port=emu.port)
+        with pytest.raises(DriverError, match=r"id 1 \(rf_coxa\) is XM430-W350.*XL430-W250"):
+            bus.open()
+    with pytest.raises(DriverError, match="/dev/nonexistent-dxl.*cannot open port"):
+        DynamixelBus.from_profile(profile, port="/dev/nonexistent-dxl").open()
+
+
+def test_servo_lost_mid_run_and_readmitted(rig):
+    profile, chain, _, bus = rig
+    joints = profile.joints
+    victim = joints[4]
+    bus.torque(True)
+    chain.silence(victim.id)
+    for _ in range(bus.lost_after + bus.health_every):
+        bus.read()
+    lost = [h.name for h in bus.health() if h.lost]
+    assert lost == [victim.name]
+    q = np.zeros(len(joints))
+    q[0] = 0.3 * joints[0].limits.upper
+    bus.write(JointCommand(position=q.tolist()))
+    measured = _settle(bus, np.where(np.arange(len(joints)) == 4, bus.position, q), 0.01)
+    assert abs(measured[0] - q[0]) < 0.01  # the other joints keep being served
+    safety = Safety(profile)
+    safety.request(Mode.STAND, 0.0)
+    safety.judge(bus.health(), 0.1)
+    assert safety.mode == Mode.HOLD and victim.name in safety.reason
+    chain.silence(victim.id, on=False)
+    for _ in range(bus.health_every):
+        bus.read()
+    assert not any(h.lost for h in bus.health())
+
+
+def test_overheat_derates_then_stops(rig):
+    profile, chain, _, bus = rig
+    s = profile.safety
+    servo = chain.servo(profile.joints[2].id)
+    safety = Safety(profile)
+    safety.request(Mode.STAND, 0.0)
+    servo.set_present(temperature=s.derate_temperature + 1)
+    bus.read_health()
+    health = bus.health()
+    assert health[2].temperature == s.derate_temperature + 1
+    safety.judge(health, 0.1)
+    assert safety.speed_scale < 1.0 and safety.mode == Mode.STAND
+    servo.set_present(temperature=s.max_temperature + 5)
+    bus.read_health()
+    health = bus.health()
+    assert "overheat" in health[2].errors
+    safety.judge(health, 0.2)
+    assert safety.mode == Mode.FAULT
+
+
+def test_overload_bit_is_reported(rig):
+    profile, chain, _, bus = rig
+    chain.servo(profile.joints[1].id).inject_overload()
+    bus.read_health()
+    assert bus.health()[1].errors == ["overload"]
+    assert all(not h.errors for k, h in enumerate(bus.health()) if k != 1)
+
+
+def test_corrupt_replies_are_misses_not_crashes(rig):
+    profile, chain, _, bus = rig
+    ident = profile.joints[0].id
+    chain.corrupt(ident, count=2)
+    for _ in range(3):
+        bus.read()
+    assert not bus.health()[0].lost
+    chain.corrupt(ident, count=None)
+    for _ in range(bus.lost_after + bus.health_every):
+        bus.read()
+    assert [h.name for h in bus.health() if h.lost] == [profile.joints[0].name]
+    chain.corrupt(ident, count=0)
+
+
+def test_port_vanishing_is_a_driver_error(rig):
+    _, _, emu, bus = rig
+    emu.vanish()
+    with pytest.raises(DriverError, match=emu.port):
+        for _ in range(3):
+            bus.read()
+    with pytest.raises(DriverError, match=emu.port):
+        bus.write(JointCommand(position=[0.0] * len(bus.ids)))
+
+
+def test_bad_commands_are_refused(rig):
+    _, _, _, bus = rig
+    with pytest.raises(DriverError, match="command has 2 positions"):
+        bus.write(JointCommand(position=[0.0, 0.0]))
+    q = [0.0] * len(bus.ids)
+    q[3] = math.nan
+    with pytest.raises(DriverError, match=bus.names[3]):
+        bus.write(JointCommand(position=q))
