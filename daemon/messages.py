@@ -224,7 +224,13 @@ class ElevationGrid(Message):
 
 
 class Joist(msgspec.Struct, kw_only=True):
-    """A joist (paper 000): distance along the direction of motion, yaw ψ (eq. 2), height (m)."""
+    """A joist (paper 000): distance along the direction of motion, yaw ψ (eq. 2), height (m).
+
+    ``yaw`` is signed: the yaw of the joist's normal pointing away from the robot, positive
+    counter-clockwise (eq. 2 gives its absolute value); turning by it squares the robot to the
+    joist. ``height`` is the top above the floor beside it; ``endpoints`` are two (x, y, z)
+    body-frame points on its near top edge; ``confidence`` in [0, 1].
+    """
 
     distance: float
     yaw: float

@@ -97,14 +97,14 @@ def rotation_of(body: BodyState) -> np.ndarray:
     )
 
 
-INPAINT_UNIT = 1e-4
+INPAINT_UNIT = 1e-5
 
 
 def fill_holes(heights: np.ndarray, radius_cells: int) -> np.ndarray:
     """Telea inpainting (paper 000, ref. [11]) of the NaN cells, on float32 heights.
 
     OpenCV's float Telea leaves a ripple of about one unit in filled cells, so heights are
-    inpainted in units of 0.1 mm (``INPAINT_UNIT``) and the ripple stays below 0.1 mm.
+    inpainted in units of 0.01 mm (``INPAINT_UNIT``) and the ripple stays well below 0.1 mm.
     """
     holes = np.isnan(heights)
     if not holes.any():

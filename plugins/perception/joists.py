@@ -39,7 +39,7 @@ class JoistConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     merge_gap: float = 0.30
     edge_bias: float = 0.5
     ed_gradient_threshold: int = 20
-    ed_anchor_threshold: int = 4
+    ed_anchor_threshold: int = 0
     ed_min_line_length: int = 10
     ed_sigma: float = 1.0
 
@@ -131,7 +131,8 @@ class EdgeStep:
 
     ``rising`` is True when the high side lies along +normal; ``crossing`` is the offset
     (cells, along +normal) where the step passes half height; ``observed`` is the fraction of
-    cells beside the line that were measured rather than inpainted, on its less-seen side.
+    samples along the line with a measured (not inpainted) cell beside them, on its less-seen
+    side.
     """
 
     floor: float
@@ -185,8 +186,10 @@ def edge_step(
     cols = base[:, 1][None, :] + offsets[:, None] * n[1]
     prof = bilinear(filled, rows, cols)
     seen = bilinear(observed.astype(np.float32), rows, cols)
-    seen_minus = float(seen[: far - near + 1].mean())
-    seen_plus = float(seen[far + near :].mean())
+    # A side counts as measured at a sample when some cell across it there was seen: far-range
+    # floor comes in sparse rows, an inpainted area beyond the field of view has none.
+    seen_minus = float(np.mean(seen[: far - near + 1].max(axis=0) >= 0.5))
+    seen_plus = float(np.mean(seen[far + near :].max(axis=0) >= 0.5))
     profile = np.median(prof, axis=1)
     minus = prof[: far - near + 1]
     plus = prof[far + near :]
@@ -279,7 +282,11 @@ class JoistDetector:
         return list(groups.values())
 
     def _joist(self, grid: Grid, group: list[tuple[Segment, EdgeStep]]) -> Joist | None:
-        """One joist from a group of segments: near edge, ψ, height, extent, confidence."""
+        """One joist from a group of segments: near edge, ψ, height, extent, confidence.
+
+        Confidence = support × coverage of the near edge: the fraction of it where the step
+        exceeds ``min_height``, times the fraction measured (not inpainted) on both sides.
+        """
         c = self.config
         res = grid.resolution
         weights = np.array([s.length for s, _ in group])
