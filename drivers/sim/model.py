@@ -30,6 +30,8 @@ from drivers.sim.worlds import World, holds_heightfield, yaw_matrix
 
 GRIP_FORCE = 9.0
 """Maximum grip force of a HubRobo spine gripper (N, paper 001)."""
+GRIP_REACH = 0.005
+"""Spine depth (m): how far from the surface a closed gripper still holds (ClimbLab: 5 mm)."""
 
 WORLD_GROUP, BODY_GROUP, LEG_GROUP = 0, 1, 2
 AXES = {
@@ -37,6 +39,8 @@ AXES = {
     "abduction_thigh_shank": ("1 0 0", "0 1 0", "0 1 0"),
 }
 """Hinge axes per leg kind, matching daemon/kinematics.py: femur/tibia + up, thigh/shank + down."""
+FOOT_MASS = 0.005
+"""Rubber foot tip (kg)."""
 BRACKET_MASS = 0.012
 """Frame and brackets carried with each servo (kg)."""
 
@@ -74,7 +78,7 @@ class RobotModel:
 
 
 def _fmt(values) -> str:
-    return " ".join(f"{float(v):.6g}" for v in values)
+    return " ".join(f"{float(v):.10g}" for v in values)
 
 
 def _quat_z(yaw: float) -> list[float]:
@@ -240,7 +244,7 @@ def _add_robot(
         name="base",
         type="box",
         size=_fmt([*half, hz]),
-        mass=f"{profile.mass - masses.sum():.6g}",
+        mass=f"{profile.mass - masses.sum() - FOOT_MASS * len(profile.legs):.6g}",
         rgba="0.2 0.2 0.22 1",
         contype="1",
         conaffinity="0",
@@ -297,20 +301,25 @@ def _add_robot(
                     sensors, "jointactuatorfrc", name=f"{joint.name}_torque", joint=joint.name
                 )
             parent, pos, j = body, _fmt([length, 0, 0]), j + 1
-        ET.SubElement(
+        foot = ET.SubElement(
             parent,
             "geom",
             name=f"{leg.name}_foot",
             type="sphere",
             pos=pos,
             size=_fmt([r_foot]),
-            mass="0.005",
+            mass=f"{FOOT_MASS:.6g}",
             friction="0.8 0.005 0.0001",
             rgba="0.1 0.1 0.1 1",
             contype="1",
             conaffinity="0",
             group=str(LEG_GROUP),
         )
+        if grippers:
+            # Spines engage within GRIP_REACH: contacts exist there (margin) but push only on
+            # touch (gap), so adhesion can pull a foot that starts to lift.
+            foot.set("margin", _fmt([GRIP_REACH]))
+            foot.set("gap", _fmt([GRIP_REACH]))
         ET.SubElement(parent, "site", name=f"{leg.name}_foot", pos=pos, size=_fmt([r_foot]))
         if grippers:
             ET.SubElement(

@@ -140,7 +140,7 @@ def _check(world: World) -> World:
         if not cond:
             raise WorldError(f"{src}: {field}: {message}")
 
-    need(world.gravity > 0, "$.gravity", f"expected > 0 m/s², found {world.gravity}")
+    need(world.gravity >= 0, "$.gravity", f"expected >= 0 m/s², found {world.gravity}")
     for i, row in enumerate(world.joists):
         at = f"$.joists[{i}]"
         need(row.height > 0, f"{at}.height", f"expected > 0 m, found {row.height}")
