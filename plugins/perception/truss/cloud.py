@@ -22,11 +22,15 @@ def _voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     """One point per occupied voxel: the centroid of the points in it (the cloud's resolution)."""
-    keys = _voxel_keys(points, voxel)
-    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    sums = np.zeros((len(counts), 3))
-    np.add.at(sums, inverse, points)
-    return sums / counts[:, None]
+    _, inverse, counts = np.unique(
+        _voxel_keys(points, voxel), return_inverse=True, return_counts=True
+    )
+    return _sums(inverse, points, len(counts)) / counts[:, None]
+
+
+def _sums(inverse: np.ndarray, values: np.ndarray, bins: int) -> np.ndarray:
+    """Per-bin sums of the rows of ``values`` (N x 3) given each row's bin."""
+    return np.column_stack([np.bincount(inverse, values[:, k], bins) for k in range(3)])
 
 
 class VoxelMap:
@@ -45,14 +49,11 @@ class VoxelMap:
         """Fold odometry-frame points into the map."""
         keys = np.concatenate([self._keys, _voxel_keys(points, self.voxel)])
         uniq, inverse = np.unique(keys, return_inverse=True)
-        sums = np.zeros((len(uniq), 3))
-        counts = np.zeros(len(uniq), np.int64)
-        n_old = len(self._keys)
-        np.add.at(sums, inverse[:n_old], self._sums)
-        np.add.at(counts, inverse[:n_old], self._counts)
-        np.add.at(sums, inverse[n_old:], points)
-        np.add.at(counts, inverse[n_old:], 1)
-        self._keys, self._sums, self._counts = uniq, sums, counts
+        values = np.concatenate([self._sums, points])
+        weights = np.concatenate([self._counts, np.ones(len(points), np.int64)])
+        self._sums = _sums(inverse, values, len(uniq))
+        self._counts = np.bincount(inverse, weights, len(uniq)).astype(np.int64)
+        self._keys = uniq
 
     @property
     def points(self) -> np.ndarray:

@@ -4,12 +4,13 @@ Each hypothesis comes from two oriented points near each other (axis = n1 x n2, 
 the normal lines meet); hypotheses are scored on a random probe of the cloud; the best is
 refined by Gauss-Newton on the geometric residual |distance to axis| - r (fitting r, not r^2,
 so noise on a half-visible tube does not bias the radius). A segment is the longest run of
-inliers along the axis: occlusions and linkers cut a member into several segments, which is
-the incompleteness the sliding bounding box later repairs.
+inliers along the axis: occlusions and linkers cut a member short, which is the
+incompleteness the sliding bounding box repairs.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,10 +46,11 @@ class Segment:
 
 def perpendicular_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing ``axis`` to a right-handed orthonormal frame."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u)
-    return u, np.cross(axis, u)
+    x, y, z = axis
+    u = np.array([0.0, z, -y]) if abs(x) < 0.9 else np.array([-z, 0.0, x])
+    u /= np.sqrt(u @ u)
+    v = np.array([y * u[2] - z * u[1], z * u[0] - x * u[2], x * u[1] - y * u[0]])
+    return u, v
 
 
 def surface_fit(
@@ -62,25 +64,28 @@ def surface_fit(
     return np.abs(distance - cylinder.radius), cos
 
 
-def refine(points: np.ndarray, cylinder: Cylinder, iterations: int = 10) -> Cylinder:
+def refine(points: np.ndarray, cylinder: Cylinder, iterations: int = 8) -> Cylinder:
     """Least-squares cylinder on the geometric residual d_i - r (Gauss-Newton, 5 parameters)."""
     point, axis, radius = cylinder.point.copy(), cylinder.axis.copy(), cylinder.radius
     for _ in range(iterations):
-        point = point + axis * ((points - point) @ axis).mean()
         u, v = perpendicular_basis(axis)
         w = points - point
         t = w @ axis
-        radial = w - np.outer(t, axis)
-        distance = np.maximum(np.linalg.norm(radial, axis=1), 1e-12)
-        ru, rv = (radial @ u) / distance, (radial @ v) / distance
+        t -= t.mean()
+        pu, pv = w @ u, w @ v
+        distance = np.maximum(np.hypot(pu, pv), 1e-12)
+        ru, rv = pu / distance, pv / distance
         jacobian = np.column_stack([-ru, -rv, -t * ru, -t * rv, -np.ones_like(t)])
-        step, *_ = np.linalg.lstsq(jacobian, radius - distance, rcond=None)
+        normal = jacobian.T @ jacobian
+        normal[np.diag_indices(5)] *= 1.0 + 1e-9
+        step = np.linalg.lstsq(normal, jacobian.T @ (radius - distance), rcond=None)[0]
         point = point + step[0] * u + step[1] * v
         axis = axis + step[2] * u + step[3] * v
-        axis /= np.linalg.norm(axis)
+        axis /= np.sqrt(axis @ axis)
         radius += step[4]
-        if np.abs(step).max() < 1e-7:
+        if np.abs(step).max() < 1e-6:
             break
+    point = point + axis * ((points - point) @ axis).mean()
     return Cylinder(point, axis, float(radius))
 
 
@@ -119,6 +124,7 @@ def segment_cylinders(
     *,
     radius_min: float,
     radius_max: float,
+    partner_radius: float,
     distance: float,
     angle_deg: float,
     min_points: int,
@@ -128,8 +134,13 @@ def segment_cylinders(
     probe: int,
     max_failures: int,
     max_segments: int,
+    claim: Callable[[Segment], np.ndarray] | None = None,
 ) -> list[Segment]:
-    """Extract cylinder segments one by one until no hypothesis yields a long enough run."""
+    """Extract cylinder segments one by one until no hypothesis yields a long enough run.
+
+    ``claim(segment)`` returns the indices leaving the pool with a segment (default: its own
+    points); the modeller completes each segment at once and claims the whole member.
+    """
     cos_limit = np.cos(np.radians(angle_deg))
     active = np.ones(len(points), bool)
     segments: list[Segment] = []
@@ -139,7 +150,7 @@ def segment_cylinders(
         if len(pool) < min_points:
             break
         seeds = rng.choice(pool, size=hypotheses_per_round)
-        balls = tree.query_ball_point(points[seeds], r=2.0 * radius_max)
+        balls = tree.query_ball_point(points[seeds], r=partner_radius)
         partners = np.array([ball[rng.integers(len(ball))] for ball in balls])
         centres, axes, radii, valid = hypotheses(
             points[seeds], normals[seeds], points[partners], normals[partners]
@@ -167,7 +178,7 @@ def segment_cylinders(
             failures += 1
             continue
         failures = 0
-        active[segment.indices] = False
+        active[segment.indices if claim is None else claim(segment)] = False
         segments.append(segment)
     return segments
 

@@ -1,8 +1,9 @@
 """Truss environment modelling (TEM, paper 003 Fig. 2): a pure object from a cloud to members.
 
-Dense cloud -> voxel downsampling -> isolated-point removal -> normals -> plane removal ->
-RANSAC cylinder segments (the initial model) -> sliding-box completion -> merging of split
-pieces -> a final refit of each member on all its surface points.
+Dense cloud -> voxel downsampling -> plane removal -> isolated-point removal -> normals ->
+RANSAC cylinder segments (the initial model), each completed by the sliding boxes as soon as
+it is found (its member's points then leave the RANSAC pool) -> merging of split pieces -> a
+final refit of each member on all its surface points.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from plugins.perception.truss.completion import (
     suppress_duplicates,
 )
 from plugins.perception.truss.cylinders import Segment, refine, segment_cylinders, surface_fit
-from plugins.perception.truss.planes import remove_planes
+from plugins.perception.truss.planes import find_planes, plane_heights, refine_plane
 
 
 class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -36,18 +37,21 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     outlier_neighbours: int = 4
     plane_distance: float = 0.02
     plane_angle_deg: float = 20.0
-    plane_min_points: int = 300
+    plane_voxel: float = 0.05
+    plane_min_points: int = 30
+    plane_min_fill: float = 0.2
     plane_min_width: float = 0.3
     max_planes: int = 3
     radius_min: float = 0.01
     radius_max: float = 0.08
+    partner_radius: float = 0.05
     cylinder_distance: float = 0.008
     cylinder_angle_deg: float = 25.0
     min_member_points: int = 40
     min_member_length: float = 0.15
     segment_gap: float = 0.03
-    hypotheses: int = 64
-    probe: int = 2000
+    hypotheses: int = 32
+    probe: int = 1000
     max_failures: int = 4
     max_segments: int = 64
     slide_lambda: float = 2.5
@@ -102,22 +106,15 @@ class TrussModeller:
         points = voxel_downsample(cloud, c.voxel) if len(cloud) else cloud
         if len(points) <= c.normal_neighbours:
             return TrussModel([], [], points)
-        _, distances, indices = neighbourhoods(points, c.normal_neighbours)
-        normals = estimate_normals(points, indices)
-        keep = distances[:, c.outlier_neighbours] <= c.outlier_radius
-        keep[keep] = remove_planes(
-            points[keep],
-            normals[keep],
-            rng,
-            distance=c.plane_distance,
-            angle_deg=c.plane_angle_deg,
-            min_points=c.plane_min_points,
-            min_width=c.plane_min_width,
-            max_planes=c.max_planes,
-        )
-        points, normals = points[keep], normals[keep]
+        points, normals = self._without_planes(points, rng)
         if len(points) < c.min_member_points:
             return TrussModel([], [], points)
+        completed: list[Member] = []
+
+        def claim(segment: Segment) -> np.ndarray:
+            completed.append(self._complete(segment, points, normals))
+            return np.union1d(segment.indices, self._surface(completed[-1], points, normals))
+
         segments = segment_cylinders(
             points,
             normals,
@@ -125,6 +122,7 @@ class TrussModeller:
             rng,
             radius_min=c.radius_min,
             radius_max=c.radius_max,
+            partner_radius=c.partner_radius,
             distance=c.cylinder_distance,
             angle_deg=c.cylinder_angle_deg,
             min_points=c.min_member_points,
@@ -134,8 +132,8 @@ class TrussModeller:
             probe=c.probe,
             max_failures=c.max_failures,
             max_segments=c.max_segments,
+            claim=claim,
         )
-        completed = [self._complete(s, points, normals) for s in segments]
         merged = merge_members(
             completed,
             distance=c.merge_distance,
@@ -144,6 +142,47 @@ class TrussModeller:
         )
         members = suppress_duplicates([self._refit(m, points, normals) for m in merged])
         return TrussModel(members, [from_segment(s) for s in segments], points)
+
+    def _without_planes(
+        self, points: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Remove planes (found on a coarse copy) and isolated points; normals of the rest."""
+        c = self.config
+        coarse = voxel_downsample(points, c.plane_voxel)
+        planes: list = []
+        if len(coarse) > c.normal_neighbours:
+            _, _, indices = neighbourhoods(coarse, c.normal_neighbours)
+            planes = find_planes(
+                coarse,
+                estimate_normals(coarse, indices),
+                rng,
+                distance=c.plane_distance,
+                angle_deg=c.plane_angle_deg,
+                min_points=c.plane_min_points,
+                min_width=c.plane_min_width,
+                min_fill=c.plane_min_fill,
+                cell=c.plane_voxel,
+                max_planes=c.max_planes,
+            )
+        planes = [refine_plane(points, p, c.plane_distance) for p in planes]
+        height, nearest = plane_heights(points, planes)
+        points, height, nearest = (
+            points[height >= c.plane_distance],
+            height[height >= c.plane_distance],
+            nearest[height >= c.plane_distance],
+        )
+        if len(points) <= c.normal_neighbours:
+            return points, np.zeros_like(points)
+        _, distances, indices = neighbourhoods(points, c.normal_neighbours)
+        normals = estimate_normals(points, indices)
+        keep = distances[:, c.outlier_neighbours] <= c.outlier_radius
+        if planes:
+            plane_normals = np.array([n for n, _ in planes])[nearest]
+            along = np.abs(np.einsum("ij,ij->i", normals, plane_normals))
+            keep &= ~(
+                (height < 2 * c.plane_distance) & (along > np.cos(np.radians(c.plane_angle_deg)))
+            )
+        return points[keep], normals[keep]
 
     def _complete(self, segment: Segment, points: np.ndarray, normals: np.ndarray) -> Member:
         """Complete a segment; between passes refit its axis on the points the completion found."""
