@@ -19,6 +19,16 @@ from drivers.realsense.camera import RealSenseCamera
 from drivers.realsense.models import model
 
 
+def rs_intrinsics(intrinsics: Intrinsics) -> rs.intrinsics:
+    """Our pinhole Intrinsics as pyrealsense2's (no distortion), e.g. for rs2_deproject_pixel."""
+    i = rs.intrinsics()
+    i.width, i.height = intrinsics.width, intrinsics.height
+    i.fx, i.fy, i.ppx, i.ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
+    i.model = rs.distortion.none
+    i.coeffs = [0.0] * 5
+    return i
+
+
 class SoftwareSource:
     """Makes a fresh ``rs.software_device`` with one Z16 depth stream on every (re)connect."""
 
@@ -48,21 +58,10 @@ class SoftwareSource:
             device = rs.software_device()
             sensor = device.add_sensor("Depth")
             i = self.intrinsics
-            ri = rs.intrinsics()
-            ri.width, ri.height, ri.fx, ri.fy, ri.ppx, ri.ppy = (
-                i.width,
-                i.height,
-                i.fx,
-                i.fy,
-                i.ppx,
-                i.ppy,
-            )
-            ri.model = rs.distortion.none
-            ri.coeffs = [0.0] * 5
             stream = rs.video_stream()
             stream.type, stream.index, stream.uid = rs.stream.depth, 0, 0
             stream.width, stream.height, stream.fps = i.width, i.height, self.fps
-            stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, ri
+            stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, rs_intrinsics(i)
             profile = sensor.add_video_stream(stream).as_video_stream_profile()
             sensor.add_read_only_option(rs.option.depth_units, self.depth_scale)
             device.register_info(rs.camera_info.name, f"Intel RealSense {self.model.name}")
