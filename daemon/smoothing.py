@@ -48,6 +48,8 @@ class Smoother:
         self.velocity = np.zeros(self.n)
         self.acceleration = np.zeros(self.n)
         self.ready = False
+        self.fallbacks = 0
+        self._next: tuple[list, list, list] | None = None
 
     @property
     def scale(self) -> float:
@@ -77,7 +79,13 @@ class Smoother:
         inp.current_velocity = self.velocity.tolist()
         inp.current_acceleration = self.acceleration.tolist()
         self._otg.reset()
+        self._next = (inp.current_position, inp.current_velocity, inp.current_acceleration)
         self.ready = True
+
+    @staticmethod
+    def _first_line(error: Exception) -> str:
+        lines = [ln for ln in str(error).splitlines() if ln.strip()]
+        return lines[0].strip() if lines else type(error).__name__
 
     def _vector(self, value: np.ndarray, what: str) -> np.ndarray:
         v = np.array(value, float).reshape(-1)
@@ -126,12 +134,31 @@ class Smoother:
             inp.target_acceleration = qdd.tolist()
         try:
             result = self._otg.update(inp, out)
-        except RuntimeError as e:
-            raise SmoothingError(f"ruckig: {str(e).strip()}") from None
-        if result not in _OK:
-            raise SmoothingError(f"ruckig: {result.name}")
+        except ruckig.RuckigError as e:
+            result, error = None, e
+        if result is None or result not in _OK:
+            return self._continue_plan(result, error if result is None else None)
+        self._next = out.trajectory.at_time(out.time + self.dt)
         out.pass_to_input(inp)
         self.position = np.array(out.new_position)
         self.velocity = np.array(out.new_velocity)
         self.acceleration = np.array(out.new_acceleration)
+        return self.position
+
+    def _continue_plan(self, result, error: Exception | None) -> np.ndarray:
+        """Ruckig found no plan this tick: follow the last plan one more tick, or raise.
+
+        Ruckig's solver can fail on near-degenerate states (distances of ~1e-8 rad at high
+        jerk limits); the last plan's next sample is within the limits, and the next tick
+        replans from it. Two ticks in a row without a plan raise.
+        """
+        why = self._first_line(error) if error is not None else result.name
+        self.fallbacks += 1
+        if self._next is None:
+            raise SmoothingError(f"ruckig: {why}")
+        p, v, a = self._next
+        self._next = None
+        inp = self._inp
+        inp.current_position, inp.current_velocity, inp.current_acceleration = p, v, a
+        self.position, self.velocity, self.acceleration = np.array(p), np.array(v), np.array(a)
         return self.position
