@@ -30,6 +30,7 @@ from drivers.dynamixel.units import JointMap, little_endian
 log = logging.getLogger(__name__)
 
 STATUS_RETURN_ALL = 2
+BRING_UP_MARGIN_MS = 50.0  # bring-up is not time-critical: wait long, never misread a late reply
 
 
 class LatencyPort(sdk.PortHandler):
@@ -174,12 +175,14 @@ class DynamixelBus:
         set_latency_timer(self.port_name, bus.latency_timer_ms)
         try:
             with self._device("bring-up"):
+                port.margin_ms = max(self.timeout_margin_ms, BRING_UP_MARGIN_MS)
                 self._check_models()
                 self._configure(self.model.status_return_level, STATUS_RETURN_ALL)
                 self._configure(self.model.return_delay_time, bus.return_delay_us // 2)
                 self._sync_write(self.model.speed_limit, self.speed_caps)
                 self._choose_read_mode()
-            self.read_health()
+                self._read_blocks(True)
+                port.margin_ms = self.timeout_margin_ms
         except DriverError:
             self.close()
             raise
@@ -187,7 +190,11 @@ class DynamixelBus:
     def _check_models(self) -> None:
         problems = []
         for k, ident in enumerate(self.ids):
-            number, result, _ = self.ph.ping(self.port, ident)
+            for _ in range(3):  # a servo just powered up may miss the first packet
+                number, result, _ = self.ph.ping(self.port, ident)
+                if result == sdk.COMM_SUCCESS:
+                    break
+                time.sleep(self.port.packet_timeout / 1000.0)  # let a late status drain
             if result != sdk.COMM_SUCCESS:
                 problems.append(f"id {ident} ({self.names[k]}) does not answer")
             elif number != self.model.model_number:

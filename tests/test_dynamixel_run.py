@@ -1,0 +1,57 @@
+"""Acceptance: ``climbd run --driver dynamixel --port <pty>`` stands each robot up through
+dynamixel_sdk against the emulated servo chain; the servos end at the stand pose."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from daemon.kinematics import Kinematics
+from daemon.profile import load
+from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
+
+ROOT = Path(__file__).resolve().parent.parent
+RESOLUTION = {1: np.radians(300) / 1023, 2: 2 * np.pi / 4096}
+
+
+@pytest.mark.parametrize("robot", ["widowx", "hubrobo"])
+def test_climbd_run_stands_up_on_the_emulated_bus(robot: str, endpoint: str) -> None:
+    profile = load(ROOT / "robots" / f"{robot}.toml")
+    chain = ServoChain.from_profile(profile)
+    with DynamixelEmulator(chain) as emu:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "daemon.cli", "run", "--profile", str(profile.source)]
+            + ["--driver", "dynamixel", "--port", emu.port, "--listen", endpoint, "--quiet"],
+            cwd=ROOT,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        log: list[str] = []
+        reader = threading.Thread(target=lambda: log.extend(proc.stderr), daemon=True)
+        reader.start()
+        try:
+            end = time.monotonic() + 60
+            while not any("stand complete" in line for line in log):
+                assert proc.poll() is None and time.monotonic() < end, "".join(log)
+                time.sleep(0.05)
+            time.sleep(0.5)  # HOLD: the servos settle on the last goal
+            goals = chain.joint_goals()
+            present = chain.joint_positions()
+            torque = [s.torque_enabled for s in chain.servos.values()]
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+            reader.join(5)
+    stand = Kinematics(profile).stand_joints()
+    assert all(torque)
+    assert np.max(np.abs(present - goals)) <= RESOLUTION[profile.bus.protocol]
+    assert np.max(np.abs(goals - stand)) < 0.01 + RESOLUTION[profile.bus.protocol]
+    assert proc.returncode == 0, "".join(log)
+    assert "Traceback" not in "".join(log)
