@@ -37,7 +37,12 @@ class Limits(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 
 class Joint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """One joint: its name, device id on the bus, zero offset (rad) and direction (±1)."""
+    """One joint: name, device id on the bus, zero offset (rad), direction (±1), limits.
+
+    A joint's position ``q`` is its actuator's output angle about the actuator's centre (rad),
+    as drivers report it; the kinematic angle is ``direction · (q − zero_offset)``
+    (daemon/kinematics.py). Limits apply to ``q``.
+    """
 
     name: str
     id: int
@@ -62,8 +67,27 @@ class Leg(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     knee: Literal["a", "b"] = "a"
 
 
+class ActuatorRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Ranges of an MIT-mode actuator's packed fields (SI, at the output shaft).
+
+    The firmware maps each range onto 16 bits (position) or 12 bits (the others); they must
+    match the actuator's firmware. Defaults are the common mini-cheetah/AK-series values.
+    """
+
+    position: float = 12.5
+    velocity: float = 45.0
+    kp: float = 500.0
+    kd: float = 5.0
+    torque: float = 18.0
+
+
 class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """The joint bus: driver kind and its transport settings."""
+    """The joint bus: driver kind and its transport settings.
+
+    Torque legs (``kind = "torque"``) use the CAN fields, the actuator ranges, and the
+    default position gains ``kp`` (N·m/rad) and ``kd`` (N·m·s/rad) for commands without gains;
+    ``can_channels`` spreads the legs over several CAN buses (leg i on channel i mod n).
+    """
 
     kind: str = "fake"
     port: str = "/dev/ttyUSB0"
@@ -76,6 +100,12 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     lost_after: int = 5
     can_interface: str = "socketcan"
     can_channel: str = "can0"
+    can_channels: list[str] = []
+    master_id: int = 0
+    reply_timeout: float = 0.0005
+    actuator: ActuatorRanges = msgspec.field(default_factory=ActuatorRanges)
+    kp: float = 60.0
+    kd: float = 1.5
 
 
 class CameraMount(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

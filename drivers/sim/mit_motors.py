@@ -1,0 +1,164 @@
+"""Emulated MIT-mode actuators answering CAN frames on a python-can bus (``virtual`` in tests).
+
+Each motor behaves as the firmware does: special frames enter/leave motor mode or zero the
+encoder; every command frame is answered with the motor's state; commands act only in motor
+mode. A built-in rigid-rotor model (inertia, viscous damping, torque limit) moves the motors
+between frames unless an external model (the physics twin) sets their state instead:
+
+    chain = MitMotorChain([1, 2, 3], ranges, channel="qz")   # serves in a thread
+    chain.start()
+    chain.motors[1].command          # last Command received (for the twin's actuator)
+    chain.set_state(1, position=.., velocity=.., torque=..)  # from the twin, each step
+    chain.silence(2); chain.corrupt(3); chain.bus_off()      # fault injection
+    chain.stop()
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import can
+
+from daemon.profile import ActuatorRanges
+from drivers.torque.mit import (
+    CAN_ERR_BUSOFF,
+    ENTER_MOTOR_MODE,
+    EXIT_MOTOR_MODE,
+    SET_ZERO,
+    Command,
+    Reply,
+    pack_reply,
+    unpack_command,
+)
+
+
+@dataclass
+class EmulatedMotor:
+    """One actuator: state at the output shaft (SI), mode, last command, injected faults."""
+
+    motor: int
+    position: float = 0.0
+    velocity: float = 0.0
+    torque: float = 0.0
+    inertia: float = 0.02
+    damping: float = 0.05
+    load: float = 0.0
+    motor_mode: bool = False
+    command: Command | None = None
+    silent: bool = False
+    corrupt: bool = False
+    frames: int = 0
+    last_step: float | None = field(default=None, repr=False)
+
+    def step(self, dt: float, limit: float) -> None:
+        """Advance the built-in rotor model by ``dt`` under the impedance law."""
+        c = self.command
+        tau = 0.0
+        if self.motor_mode and c is not None:
+            tau = c.kp * (c.position - self.position) + c.kd * (c.velocity - self.velocity)
+            tau = max(-limit, min(limit, tau + c.torque))
+        self.torque = tau
+        n = max(1, int(dt / 2e-4))
+        h = dt / n
+        for _ in range(n):
+            acc = (tau - self.damping * self.velocity - self.load) / self.inertia
+            self.velocity += acc * h
+            self.position += self.velocity * h
+
+
+class MitMotorChain:
+    """A set of emulated MIT-mode motors on one CAN channel, served by a background thread."""
+
+    def __init__(
+        self,
+        motors: list[int],
+        ranges: ActuatorRanges,
+        channel: str,
+        interface: str = "virtual",
+        master_id: int = 0,
+        external_model: bool = False,
+    ) -> None:
+        self.ranges = ranges
+        self.channel = channel
+        self.interface = interface
+        self.master_id = master_id
+        self.external_model = external_model
+        self.motors = {m: EmulatedMotor(m) for m in motors}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._bus: can.BusABC | None = None
+
+    def start(self) -> MitMotorChain:
+        self._bus = can.Bus(interface=self.interface, channel=self.channel)
+        self._thread = threading.Thread(target=self._serve, name=f"mit-{self.channel}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2)
+        if self._bus is not None:
+            self._bus.shutdown()
+
+    # --- in-process API for the twin and tests ----------------------------------------
+
+    def set_state(self, motor: int, position: float, velocity: float, torque: float) -> None:
+        """Set a motor's measured state from an external model (the physics twin)."""
+        with self._lock:
+            m = self.motors[motor]
+            m.position, m.velocity, m.torque = position, velocity, torque
+
+    def silence(self, motor: int, silent: bool = True) -> None:
+        """The motor stops (or resumes) answering."""
+        self.motors[motor].silent = silent
+
+    def corrupt(self, motor: int, corrupt: bool = True) -> None:
+        """The motor answers with a truncated (5-byte) reply."""
+        self.motors[motor].corrupt = corrupt
+
+    def bus_off(self) -> None:
+        """Put an error frame with the bus-off class on the bus, as a SocketCAN controller does."""
+        self._bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, dlc=8))
+
+    # --- the wire ---------------------------------------------------------------------
+
+    def _serve(self) -> None:
+        bus = self._bus
+        while not self._stop.is_set():
+            msg = bus.recv(timeout=0.05)
+            if msg is None or msg.is_error_frame or msg.arbitration_id not in self.motors:
+                continue
+            reply = self._handle(self.motors[msg.arbitration_id], bytes(msg.data))
+            if reply is not None:
+                bus.send(
+                    can.Message(arbitration_id=self.master_id, data=reply, is_extended_id=False)
+                )
+
+    def _handle(self, m: EmulatedMotor, data: bytes) -> bytes | None:
+        now = time.monotonic()
+        with self._lock:
+            m.frames += 1
+            if not self.external_model and m.last_step is not None:
+                m.step(min(now - m.last_step, 0.05), self.ranges.torque)
+            m.last_step = now
+            if data == ENTER_MOTOR_MODE:
+                m.motor_mode = True
+            elif data == EXIT_MOTOR_MODE:
+                m.motor_mode = False
+                m.command = None
+            elif data == SET_ZERO:
+                m.position = 0.0
+            elif len(data) == 8:
+                command = unpack_command(data, self.ranges)
+                if m.motor_mode:
+                    m.command = command
+            else:
+                return None
+            if m.silent:
+                return None
+            reply = pack_reply(Reply(m.motor, m.position, m.velocity, m.torque), self.ranges)
+        return reply[:5] if m.corrupt else reply

@@ -1,0 +1,208 @@
+"""JointBus for torque-controlled legs: MIT-mode actuators on one or more CAN buses (python-can).
+
+Per joint the command is position, velocity, feed-forward torque, kp and kd; the state back
+is position, velocity and the measured torque, all at the actuator's output shaft about its
+encoder zero (the joint convention of every driver; daemon/kinematics.py maps it to the
+leg's kinematic angles with the profile's zero offsets and directions). A tick writes one
+frame per motor; each answers once, and ``read`` collects the answers to the last write
+(polling with zero-gain frames, which motors out of motor mode ignore, when torque is off).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import can
+import numpy as np
+
+from daemon.messages import JointCommand, JointHealth, JointState
+from daemon.profile import Profile
+from drivers.base import DriverError
+from drivers.torque.mit import (
+    CAN_ERR_BUSOFF,
+    ENTER_MOTOR_MODE,
+    EXIT_MOTOR_MODE,
+    Command,
+    ProtocolError,
+    pack_command,
+    unpack_reply,
+)
+
+log = logging.getLogger("climbd.torque")
+
+OPEN_TIMEOUT = 0.1
+"""Seconds every motor has to answer at open() before it is reported missing."""
+
+
+class MitJointBus:
+    """The joints of a torque-controlled robot, behind MIT-mode actuators on CAN."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        channels: list[str] | None = None,
+        interface: str | None = None,
+    ) -> None:
+        cfg = profile.bus
+        self.profile = profile
+        self.ranges = cfg.actuator
+        self.interface = interface or cfg.can_interface
+        legs_channels = channels or cfg.can_channels or [cfg.can_channel]
+        joints = profile.joints
+        self.names = [j.name for j in joints]
+        self.ids = np.array([j.id for j in joints])
+        self.channel_of = [legs_channels[i // 3 % len(legs_channels)] for i in range(len(joints))]
+        self.index = {int(m): i for i, m in enumerate(self.ids)}
+        n = len(joints)
+        self.position = np.zeros(n)
+        self.velocity = np.zeros(n)
+        self.effort = np.zeros(n)
+        self.missed = np.zeros(n, int)
+        self.errors: list[list[str]] = [[] for _ in range(n)]
+        self.lost_after = cfg.lost_after
+        self.reply_timeout = cfg.reply_timeout
+        self.kp, self.kd = cfg.kp, cfg.kd
+        self.master_id = cfg.master_id
+        self.buses: dict[str, can.BusABC] = {}
+        self.torque_on = False
+        self._answered = np.zeros(n, bool)
+        self._expecting = False
+        self._last_frames: list[bytes] | None = None
+
+    @classmethod
+    def from_profile(cls, profile: Profile, port: str | None = None, **options) -> MitJointBus:
+        """``port`` names one CAN channel for all legs (e.g. a vcan or a virtual channel)."""
+        return cls(profile, [port] if port else None, **options)
+
+    # --- lifecycle --------------------------------------------------------------------
+
+    def open(self) -> None:
+        for channel in dict.fromkeys(self.channel_of):
+            try:
+                self.buses[channel] = can.Bus(interface=self.interface, channel=channel)
+            except (can.CanError, OSError, ValueError) as e:
+                self.close()
+                raise DriverError(
+                    f"cannot open CAN {self.interface} channel {channel!r}: {e}"
+                ) from e
+        self._send_all([self._zero_gain(i) for i in range(len(self.names))])
+        self._collect(OPEN_TIMEOUT)
+        self._expecting = False
+        if not self._answered.all():
+            missing = ", ".join(
+                f"motor {self.ids[i]} ({self.names[i]}) on {self.channel_of[i]}"
+                for i in np.flatnonzero(~self._answered)
+            )
+            self.close()
+            raise DriverError(f"no reply within {OPEN_TIMEOUT * 1e3:.0f} ms from {missing}")
+
+    def close(self) -> None:
+        for bus in self.buses.values():
+            bus.shutdown()
+        self.buses.clear()
+
+    def torque(self, on: bool) -> None:
+        """Enter (on) or leave (off) motor mode on every actuator."""
+        frame = ENTER_MOTOR_MODE if on else EXIT_MOTOR_MODE
+        self._send_all([frame] * len(self.names))
+        self.torque_on = on
+        self._last_frames = None
+
+    # --- cycle ------------------------------------------------------------------------
+
+    def _zero_gain(self, i: int) -> bytes:
+        return pack_command(Command(position=float(self.position[i])), self.ranges)
+
+    def write(self, command: JointCommand) -> None:
+        n = len(self.names)
+        if len(command.position) != n:
+            raise DriverError(f"command has {len(command.position)} positions, bus has {n} joints")
+        p = np.asarray(command.position, float)
+        v = np.asarray(command.velocity, float) if command.velocity else np.zeros(n)
+        t = np.asarray(command.effort, float) if command.effort else np.zeros(n)
+        kp = np.asarray(command.kp, float) if command.kp else np.full(n, self.kp)
+        kd = np.asarray(command.kd, float) if command.kd else np.full(n, self.kd)
+        frames = [
+            pack_command(Command(p[i], v[i], kp[i], kd[i], t[i]), self.ranges) for i in range(n)
+        ]
+        self._send_all(frames)
+        self._last_frames = frames
+
+    def read(self) -> JointState:
+        if not self.buses:
+            raise DriverError("torque joint bus: read before open()")
+        if not self._expecting:
+            frames = self._last_frames if self.torque_on and self._last_frames else None
+            self._send_all(frames or [self._zero_gain(i) for i in range(len(self.names))])
+        self._collect(self.reply_timeout)
+        self.missed = np.where(self._answered, 0, self.missed + 1)
+        self._expecting = False
+        return JointState(
+            stamp=time.monotonic(),
+            names=self.names,
+            position=self.position.tolist(),
+            velocity=self.velocity.tolist(),
+            effort=self.effort.tolist(),
+        )
+
+    def health(self) -> list[JointHealth]:
+        return [
+            JointHealth(
+                name=name,
+                error=len(self.errors[i]),
+                errors=list(self.errors[i]),
+                lost=bool(self.missed[i] >= self.lost_after),
+            )
+            for i, name in enumerate(self.names)
+        ]
+
+    # --- wire -------------------------------------------------------------------------
+
+    def _send_all(self, frames: list[bytes]) -> None:
+        self._answered[:] = False
+        for i, data in enumerate(frames):
+            msg = can.Message(arbitration_id=int(self.ids[i]), data=data, is_extended_id=False)
+            try:
+                self.buses[self.channel_of[i]].send(msg)
+            except can.CanError as e:
+                raise DriverError(
+                    f"CAN send to motor {self.ids[i]} on {self.channel_of[i]}: {e}"
+                ) from e
+        self._expecting = True
+
+    def _collect(self, timeout: float) -> None:
+        """Take every reply waiting, then wait up to ``timeout`` for the missing ones."""
+        deadline = time.monotonic() + timeout
+        for channel, bus in self.buses.items():
+            while True:
+                wait = 0.0 if self._answered.all() else max(0.0, deadline - time.monotonic())
+                msg = bus.recv(timeout=wait)
+                if msg is None:
+                    break
+                self._take(channel, msg)
+
+    def _take(self, channel: str, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                raise DriverError(f"CAN bus-off on {self.interface} channel {channel!r}")
+            return
+        if msg.arbitration_id != self.master_id:
+            return
+        data = bytes(msg.data)
+        i = self.index.get(data[0]) if data else None
+        if i is None:
+            log.warning("reply from unknown motor %s on %s", data[:1].hex(), channel)
+            return
+        try:
+            reply = unpack_reply(data, self.ranges)
+        except ProtocolError as e:
+            self.errors[i] = [f"bad reply: {e}"]
+            return
+        r = self.ranges
+        saturated = abs(reply.position) >= r.position or abs(reply.velocity) >= r.velocity
+        self.errors[i] = ["range"] if saturated else []
+        self.position[i] = reply.position
+        self.velocity[i] = reply.velocity
+        self.effort[i] = reply.torque
+        self._answered[i] = True
