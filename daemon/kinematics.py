@@ -32,6 +32,9 @@ import numpy as np
 
 from daemon.profile import Profile
 
+LIMIT_TOLERANCE = 1e-9
+"""Rounding (rad) allowed past a joint limit before IK calls a target unreachable."""
+
 CFT = "coxa_femur_tibia"
 ATS = "abduction_thigh_shank"
 
@@ -166,7 +169,8 @@ class Kinematics:
         theta, ok = self.ik_leg(self.to_leg(feet))
         theta[~ok] = np.nan
         q = self.to_q(theta)
-        inside = ((q >= self.lower) & (q <= self.upper)).reshape(self.n_legs, 3).all(1)
+        tol = LIMIT_TOLERANCE
+        inside = ((q >= self.lower - tol) & (q <= self.upper + tol)).reshape(self.n_legs, 3).all(1)
         return q, ok & inside
 
     # --- differential kinematics ------------------------------------------------------
