@@ -173,7 +173,12 @@ class RoleEndpoints(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 
 class AuthConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """Who may command: TLS files or a user/password file, and the authorised peers."""
+    """Who may command: TLS files or a user/password file, and the authorised peers.
+
+    Paths are relative to the profile file; ``{role}`` in a path or in ``user`` becomes the
+    role's name. ``commanders`` are the certificate CNs or user names allowed on ``cmd/**``;
+    ``telemetry_listen`` endpoints serve peers without credentials read-only (docs/access.md).
+    """
 
     tls_root_ca: str = ""
     tls_certificate: str = ""
@@ -182,6 +187,7 @@ class AuthConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     password: str = ""
     credentials_file: str = ""
     commanders: list[str] = []
+    telemetry_listen: list[str] = []
 
 
 class NetworkConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
