@@ -27,7 +27,7 @@ MARGIN_MS = 10.0  # packet-timeout margin: tolerates a loaded CI machine
 
 
 def _profile(name: str, **bus):
-    """A stock profile with some joints turned round and offset, to exercise the mapping."""
+    """A stock profile with joints turned round and offset: kinematic data the bus must ignore."""
     p = load(f"robots/{name}.toml")
     legs = []
     for i, leg in enumerate(p.legs):
@@ -78,7 +78,7 @@ def test_goals_reach_servos_within_resolution(rig):
     measured = _settle(bus, q, rad_per_tick / 2 + 1e-9)
     for j, qj in zip(joints, q, strict=True):
         servo = chain.servo(j.id)
-        expected = round(center + (j.zero_offset + j.direction * qj) / rad_per_tick)
+        expected = round(center + qj / rad_per_tick)
         assert servo.get("goal_position") == expected, j.name
     assert np.max(np.abs(measured - q)) <= rad_per_tick / 2 + 1e-9
     assert np.max(np.abs(chain.joint_goals() - q)) <= rad_per_tick / 2 + 1e-9

@@ -1,7 +1,8 @@
 """Raw Dynamixel units ↔ SI joint units, vectorised over the joints of a bus.
 
-Servo horn angle (rad about the centre tick) = zero_offset + direction × joint angle; speed
-and load flip sign with direction too. This module is the only place where device units exist.
+A joint's position is its servo horn angle about the centre tick (rad), the joint convention
+of every driver (daemon/profile.py ``Joint``): zero offsets and directions belong to the leg's
+kinematics, not to the bus. This module is the only place where device units exist.
 """
 
 from __future__ import annotations
@@ -13,23 +14,22 @@ from drivers.dynamixel.models import Model
 
 
 class JointMap:
-    """Per-joint zero offsets and directions of one bus, with the model's unit scales."""
+    """Tick ↔ radian conversions of one bus, with the model's unit scales."""
 
     def __init__(self, model: Model, joints: list[Joint]) -> None:
         self.model = model
-        self.zero = np.array([j.zero_offset for j in joints], float)
-        self.direction = np.array([j.direction for j in joints], float)
+        self.n = len(joints)
 
     def goal_ticks(self, q: np.ndarray) -> np.ndarray:
         """Goal position ticks for joint angles ``q`` (rad), clipped to the servo's range."""
         m = self.model
-        ticks = np.rint(m.center_tick + (self.zero + self.direction * q) / m.rad_per_tick)
+        ticks = np.rint(m.center_tick + np.asarray(q) / m.rad_per_tick)
         return np.clip(ticks, 0, m.max_tick).astype(np.int64)
 
     def position(self, ticks: np.ndarray) -> np.ndarray:
         """Joint angles (rad) from present position ticks."""
         m = self.model
-        return self.direction * ((ticks - m.center_tick) * m.rad_per_tick - self.zero)
+        return (np.asarray(ticks) - m.center_tick) * m.rad_per_tick
 
     def speed_ticks(self, speed: np.ndarray) -> np.ndarray:
         """Moving speed / profile velocity units for speed caps (rad/s); at least 1 (0 = none)."""
@@ -37,11 +37,11 @@ class JointMap:
 
     def velocity(self, raw: np.ndarray) -> np.ndarray:
         """Joint velocities (rad/s) from present speed/velocity fields."""
-        return self.direction * _signed(self.model, raw, 4) * self.model.velocity_unit
+        return _signed(self.model, raw, 4) * self.model.velocity_unit
 
     def effort(self, raw: np.ndarray) -> np.ndarray:
         """Joint efforts (N·m) from present load/current fields."""
-        return self.direction * _signed(self.model, raw, 2) * self.model.effort_unit
+        return _signed(self.model, raw, 2) * self.model.effort_unit
 
 
 def _signed(model: Model, raw: np.ndarray, size: int) -> np.ndarray:

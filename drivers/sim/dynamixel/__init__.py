@@ -6,7 +6,7 @@ In-process API (for tests and the physics twin)::
     with DynamixelEmulator(chain) as emu:             # pty + background thread
         bus = DynamixelBus.from_profile(profile, port=emu.port)   # or any dynamixel_sdk client
         ...
-        chain.joint_goals()          # goal positions, joint frame (zero offset, direction applied)
+        chain.joint_goals()          # goal positions: horn angles about the centre, profile order
         chain.set_joint_state(q, dq, tau)  # physics writes present state (joint frame, SI)
         chain.servo(3).set_present(temperature=80.0)   # → overheat bit / shutdown
         chain.servo(3).inject_overload()               # → overload bit / shutdown

@@ -58,7 +58,7 @@ class ServoChain:
             self.servos[s.ident] = s
         self.silenced: set[int] = set()
         self.corrupting: dict[int, int | None] = {}
-        self.joints: list[tuple[EmulatedServo, float, int]] = []
+        self.joints: list[EmulatedServo] = []
         self.counts: Counter[int] = Counter()
         self.bytes_in = 0
         self.bytes_out = 0
@@ -66,7 +66,7 @@ class ServoChain:
 
     @classmethod
     def from_profile(cls, profile, baud: int | None = None, **servo_options) -> ServoChain:
-        """One servo per profile joint (model ``profile.bus.model``), joints at angle 0."""
+        """One servo per profile joint (model ``profile.bus.model``), at kinematic zero."""
         model = model_spec(profile.bus.model)
         if model.protocol != profile.bus.protocol:
             raise ValueError(
@@ -76,9 +76,7 @@ class ServoChain:
         joints = profile.joints
         servos = [EmulatedServo(model, j.id, angle=j.zero_offset, **servo_options) for j in joints]
         chain = cls(servos, model.protocol, baud or profile.bus.baud)
-        chain.joints = [
-            (s, j.zero_offset, j.direction) for s, j in zip(servos, joints, strict=True)
-        ]
+        chain.joints = servos
         return chain
 
     def servo(self, ident: int) -> EmulatedServo:
@@ -91,21 +89,21 @@ class ServoChain:
     # --- joint-space view for a physics twin ------------------------------------------------
 
     def joint_goals(self) -> np.ndarray:
-        """Goal positions in profile joint order and joint frame (rad)."""
-        return np.array([d * (s.goal_angle - z) for s, z, d in self.joints])
+        """Goal horn angles about the centre (rad) in profile joint order: joint positions."""
+        return np.array([s.goal_angle for s in self.joints])
 
     def joint_positions(self) -> np.ndarray:
-        """Present horn positions in joint frame (rad), as the servos hold them."""
-        return np.array([d * (s.state.angle - z) for s, z, d in self.joints])
+        """Present horn angles about the centre (rad) in profile joint order."""
+        return np.array([s.state.angle for s in self.joints])
 
     def set_joint_state(self, position, velocity=None, effort=None) -> None:
-        """Set present position/velocity/effort (joint frame, profile order) from physics."""
+        """Set present horn angle/velocity/effort (profile order) from physics."""
         n = len(self.joints)
         velocity = np.zeros(n) if velocity is None else velocity
         effort = np.zeros(n) if effort is None else effort
         with self.lock:
-            for (s, z, d), q, dq, tau in zip(self.joints, position, velocity, effort, strict=True):
-                s.set_present(angle=z + d * q, velocity=d * dq, effort=d * tau)
+            for s, q, dq, tau in zip(self.joints, position, velocity, effort, strict=True):
+                s.set_present(angle=q, velocity=dq, effort=tau)
 
     def advance(self, dt: float) -> None:
         """Step every servo's built-in motor model by ``dt`` s (skips externally driven ones)."""
