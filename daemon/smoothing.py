@@ -17,6 +17,8 @@ from daemon.profile import Profile
 
 _OK = (ruckig.Result.Working, ruckig.Result.Finished)
 _MARGIN = 0.999
+SNAP_VELOCITY = 1e-4
+SNAP_ACCELERATION = 0.1
 
 
 class SmoothingError(RuntimeError):
@@ -79,7 +81,8 @@ class Smoother:
         inp.current_velocity = self.velocity.tolist()
         inp.current_acceleration = self.acceleration.tolist()
         self._otg.reset()
-        self._next = (inp.current_position, inp.current_velocity, inp.current_acceleration)
+        at_rest = not (self.velocity.any() or self.acceleration.any())
+        self._next = (inp.current_position, [0.0] * self.n, [0.0] * self.n) if at_rest else None
         self.ready = True
 
     @staticmethod
@@ -132,12 +135,11 @@ class Smoother:
             qd, qdd = self.feasible_target(qd, target_qdd)
             inp.target_velocity = qd.tolist()
             inp.target_acceleration = qdd.tolist()
-        try:
-            result = self._otg.update(inp, out)
-        except ruckig.RuckigError as e:
-            result, error = None, e
-        if result is None or result not in _OK:
-            return self._continue_plan(result, error if result is None else None)
+        result, error = self._update()
+        if result not in _OK:
+            result, error = self._retry_from_rest()
+        if result not in _OK:
+            return self._continue_plan(result, error)
         self._next = out.trajectory.at_time(out.time + self.dt)
         out.pass_to_input(inp)
         self.position = np.array(out.new_position)
@@ -145,15 +147,37 @@ class Smoother:
         self.acceleration = np.array(out.new_acceleration)
         return self.position
 
+    def _update(self) -> tuple[ruckig.Result | None, Exception | None]:
+        try:
+            return self._otg.update(self._inp, self._out), None
+        except ruckig.RuckigError as e:
+            return None, e
+
+    def _retry_from_rest(self) -> tuple[ruckig.Result | None, Exception | None]:
+        """Replan with rounding-level motion (|v| < SNAP_VELOCITY, |a| < SNAP_ACCELERATION) zeroed.
+
+        Ruckig's step-1 solver can fail on near-degenerate states (a ~1e-8 rad move with
+        ~1e-5 rad/s left, at high jerk limits); from rest those joints plan fine. The change
+        is far inside one tick of jerk (at 100 Hz: < 0.01 + 10 rad/s^3 of finite-difference jerk).
+        """
+        self.fallbacks += 1
+        inp = self._inp
+        v = np.array(inp.current_velocity)
+        a = np.array(inp.current_acceleration)
+        tiny = (np.abs(v) < SNAP_VELOCITY) & (np.abs(a) < SNAP_ACCELERATION)
+        if not tiny.any():
+            return self._update()
+        inp.current_velocity = np.where(tiny, 0.0, v).tolist()
+        inp.current_acceleration = np.where(tiny, 0.0, a).tolist()
+        return self._update()
+
     def _continue_plan(self, result, error: Exception | None) -> np.ndarray:
         """Ruckig found no plan this tick: follow the last plan one more tick, or raise.
 
-        Ruckig's solver can fail on near-degenerate states (distances of ~1e-8 rad at high
-        jerk limits); the last plan's next sample is within the limits, and the next tick
-        replans from it. Two ticks in a row without a plan raise.
+        The last plan's next sample is within the limits, and the next tick replans from it.
+        Two ticks in a row without a plan raise SmoothingError.
         """
         why = self._first_line(error) if error is not None else result.name
-        self.fallbacks += 1
         if self._next is None:
             raise SmoothingError(f"ruckig: {why}")
         p, v, a = self._next
