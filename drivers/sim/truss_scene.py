@@ -250,6 +250,29 @@ def scaffold(
     return assemble(tubes)
 
 
+def to_mjcf(geometry: TrussGeometry, name: str = "truss") -> str:
+    """The geometry as a MuJoCo model (static geoms: floor plane, tube cylinders, coupler boxes),
+    for a physics-twin world or to ray-cast it with ``mujoco.mj_multiRay``."""
+    geoms = [
+        f'<geom name="floor" type="plane" size="{geometry.floor_half_size} '
+        f'{geometry.floor_half_size} 0.1"/>'
+    ]
+    for i, tube in enumerate(geometry.tubes):
+        ends = " ".join(f"{x:.6f}" for x in (*tube.p0, *tube.p1))
+        geoms.append(
+            f'<geom name="member{i}" type="cylinder" size="{tube.radius:.6f}" fromto="{ends}"/>'
+        )
+    for i, block in enumerate(geometry.couplers):
+        quat = Rotation.from_matrix(block.rotation).as_quat(scalar_first=True)
+        geoms.append(
+            f'<geom name="coupler{i}" type="box" size="{" ".join(f"{h:.6f}" for h in block.half)}"'
+            f' pos="{" ".join(f"{x:.6f}" for x in block.centre)}"'
+            f' quat="{" ".join(f"{q:.9f}" for q in quat)}"/>'
+        )
+    body = "\n    ".join(geoms)
+    return f'<mujoco model="{name}">\n  <worldbody>\n    {body}\n  </worldbody>\n</mujoco>\n'
+
+
 def look_at_pose(eye, target) -> np.ndarray:
     """4x4 body pose at ``eye`` with body x towards ``target`` and body z as upright as possible."""
     eye, target = np.asarray(eye, float), np.asarray(target, float)
