@@ -22,7 +22,7 @@ def _floor_points(n: int, rng: np.random.Generator, sigma: float) -> np.ndarray:
     return np.column_stack([x, y, z]).astype(np.float32)
 
 
-def test_cells_hold_top_count_and_variance_of_their_points():
+def test_cells_hold_top_and_count_of_their_points():
     rng = np.random.default_rng(1)
     pts = _floor_points(200_000, rng, sigma=0.002)
     box = np.array([[0.505, 0.105, 0.07], [0.505, 0.105, 0.10]], np.float32)
@@ -35,7 +35,22 @@ def test_cells_hold_top_count_and_variance_of_their_points():
     # Top of ~17 points of σ = 2 mm noise: about +1.7σ above the floor, never a centimetre.
     assert np.nanmedian(floor) == pytest.approx(0.0034, abs=0.0015)
     assert grid.count.sum() == pytest.approx(len(pts) + 2)
-    assert np.median(grid.variance[grid.count > 5]) == pytest.approx(0.002**2, rel=0.3)
+
+
+def test_variance_is_the_spread_of_a_cells_height_over_frames():
+    """One point per cell per frame, σ = 3 mm: after 10 frames the variance is about σ²."""
+    rng = np.random.default_rng(4)
+    rows, cols = np.mgrid[0:100, 0:120]
+    x = (0.1 + (rows.ravel() + 0.5) * 0.01).astype(np.float32)
+    y = (-0.6 + (cols.ravel() + 0.5) * 0.01).astype(np.float32)
+    emap = ElevationMap()
+    for _ in range(10):
+        z = rng.normal(0.05, 0.003, x.size).astype(np.float32)
+        emap.integrate(np.column_stack([x, y, z]), body_state())
+    grid = emap.crop(body_state(), fill=False)
+    assert np.median(grid.variance) == pytest.approx(0.9 * 0.003**2, rel=0.15)
+    assert np.median(grid.heights) == pytest.approx(0.05, abs=0.001)
+    assert (grid.count == 10).all()
 
 
 def test_the_map_holds_still_while_the_robot_walks_and_turns():

@@ -7,7 +7,9 @@ the body) and its holes are filled by Telea inpainting on the float heights.
 
 Cell (row, col) of a grid covers x ∈ [origin_x + row·res, origin_x + (row+1)·res) and likewise
 y with col; a cell's height is the fused top of the points that fell in it (per-frame maximum,
-averaged over frames), so the face of a joist seen from below its top still reads its top.
+averaged over the last ``memory_frames`` frames), so the face of a joist seen from below its
+top still reads its top. Each cell also keeps how many points fell in it and the variance of
+its per-frame top over frames (the uncertainty of its height).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ class ElevationConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     z_min: float = -0.1
     z_max: float = 0.3
     memory_frames: float = 10.0
-    inpaint_radius: float = 0.03
+    inpaint_radius: float = 0.01
     margin: float = 0.5
 
     def __post_init__(self) -> None:
@@ -45,7 +47,8 @@ class ElevationConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 @dataclass
 class Grid:
-    """A crop-box grid in the robot's yaw frame: heights (m, NaN unknown), point count, variance.
+    """A crop-box grid in the robot's yaw frame: heights (m, NaN unknown), point count, variance
+    of the height over frames (m²).
 
     ``filled`` is ``heights`` with holes inpainted (Telea); ``observed`` marks measured cells.
     """
@@ -99,6 +102,9 @@ def rotation_of(body: BodyState) -> np.ndarray:
 
 INPAINT_UNIT = 1e-5
 
+HEIGHT, WEIGHT, COUNT, VARIANCE = range(4)
+"""Layers of the odometry-frame map, in one float32 array so a crop is a single warp."""
+
 
 def fill_holes(heights: np.ndarray, radius_cells: int) -> np.ndarray:
     """Telea inpainting (paper 000, ref. [11]) of the NaN cells, on float32 heights.
@@ -133,13 +139,15 @@ class ElevationMap:
 
     def reset(self) -> None:
         """Forget everything seen so far."""
-        shape = (self.side, self.side)
-        self._height = np.full(shape, np.nan, np.float32)
-        self._weight = np.zeros(shape, np.float32)
-        self._count = np.zeros(shape, np.float32)
-        self._variance = np.zeros(shape, np.float32)
+        self._layers = self._empty()
         self._origin: np.ndarray | None = None
         self._centre = np.zeros(2)
+
+    def _empty(self) -> np.ndarray:
+        """Odometry-window layers: height (NaN unknown), frame weight, point count, variance."""
+        layers = np.zeros((self.side, self.side, 4), np.float32)
+        layers[..., HEIGHT] = np.nan
+        return layers
 
     def _recentre(self, centre: np.ndarray) -> None:
         """Move the odometry window so ``centre`` (x, y) sits in its middle; keep the overlap."""
@@ -150,17 +158,15 @@ class ElevationMap:
             self._origin = new_origin
             return
         shift = np.round((new_origin - self._origin) / res).astype(int)
-        for name in ("_height", "_weight", "_count", "_variance"):
-            old = getattr(self, name)
-            new = np.full_like(old, np.nan) if name == "_height" else np.zeros_like(old)
-            sr, sc = shift
-            src_r = slice(max(sr, 0), self.side + min(sr, 0))
-            dst_r = slice(max(-sr, 0), self.side + min(-sr, 0))
-            src_c = slice(max(sc, 0), self.side + min(sc, 0))
-            dst_c = slice(max(-sc, 0), self.side + min(-sc, 0))
-            if src_r.start < src_r.stop and src_c.start < src_c.stop:
-                new[dst_r, dst_c] = old[src_r, src_c]
-            setattr(self, name, new)
+        new = self._empty()
+        sr, sc = shift
+        src_r = slice(max(sr, 0), self.side + min(sr, 0))
+        dst_r = slice(max(-sr, 0), self.side + min(-sr, 0))
+        src_c = slice(max(sc, 0), self.side + min(sc, 0))
+        dst_c = slice(max(-sc, 0), self.side + min(-sc, 0))
+        if src_r.start < src_r.stop and src_c.start < src_c.stop:
+            new[dst_r, dst_c] = self._layers[src_r, src_c]
+        self._layers = new
         self._origin = self._origin + shift * res
 
     def integrate(self, points: np.ndarray, body: BodyState) -> None:
@@ -215,31 +221,22 @@ class ElevationMap:
             return
         top = np.full(size + 1, -np.inf, np.float32)
         np.maximum.at(top, flat, zs)
-        s1 = np.bincount(flat, weights=zs, minlength=size + 1)[:size]
-        s2 = np.bincount(flat, weights=zs.astype(np.float64) ** 2, minlength=size + 1)[:size]
-        top = top[:size]
-        seen = count > 0
-        n = count[seen]
-        mean = s1[seen] / n
-        var = np.maximum(s2[seen] / n - mean * mean, 0.0)
+        seen = np.flatnonzero(count)
+        top = top[seen]
 
-        win = (slice(r0, r1), slice(c0, c1))
-        weight = self._weight[win].reshape(-1)
-        height = self._height[win].reshape(-1)
-        variance = self._variance[win].reshape(-1)
-        counts = self._count[win].reshape(-1)
-        w_old = weight[seen]
-        h_old = np.where(w_old > 0, height[seen], 0.0)
-        w_new = np.minimum(w_old + 1.0, c.memory_frames)
+        win = self._layers[r0:r1, c0:c1].reshape(-1, 4)[seen]
+        w_old = win[:, WEIGHT]
+        h_old = np.where(w_old > 0, win[:, HEIGHT], top)
+        w_new = np.minimum(w_old + 1.0, np.float32(c.memory_frames))
         alpha = 1.0 / w_new
-        height[seen] = h_old + alpha * (top[seen] - h_old)
-        variance[seen] = variance[seen] + alpha * (var - variance[seen])
-        weight[seen] = w_new
-        counts[seen] += n
-        self._height[win] = height.reshape(r1 - r0, wcols)
-        self._weight[win] = weight.reshape(r1 - r0, wcols)
-        self._variance[win] = variance.reshape(r1 - r0, wcols)
-        self._count[win] = counts.reshape(r1 - r0, wcols)
+        delta = top - h_old
+        win[:, HEIGHT] = h_old + alpha * delta
+        win[:, VARIANCE] = (1.0 - alpha) * (win[:, VARIANCE] + alpha * delta * delta)
+        win[:, WEIGHT] = w_new
+        win[:, COUNT] += count[seen]
+        block = self._layers[r0:r1, c0:c1].reshape(-1, 4)
+        block[seen] = win
+        self._layers[r0:r1, c0:c1] = block.reshape(r1 - r0, wcols, 4)
 
     def _warp(self, body: BodyState) -> np.ndarray:
         """2×3 affine taking crop-box cells (col, row) to odometry-window cells (col, row)."""
@@ -266,17 +263,16 @@ class ElevationMap:
         flags = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
         size = (self.cols, self.rows)
 
-        def read(layer: np.ndarray, border: float) -> np.ndarray:
-            return cv2.warpAffine(layer, m, size, flags=flags, borderValue=border)
-
-        heights = read(self._height, float("nan")) - np.float32(body.position[2])
+        border = (float("nan"), 0.0, 0.0, 0.0)
+        layers = cv2.warpAffine(self._layers, m, size, flags=flags, borderValue=border)
+        heights = layers[..., HEIGHT] - np.float32(body.position[2])
         radius = max(1, int(round(c.inpaint_radius / c.resolution)))
         filled = fill_holes(heights, radius) if fill else heights
         return Grid(
             heights=heights,
             filled=filled,
-            count=read(self._count, 0.0),
-            variance=read(self._variance, 0.0),
+            count=layers[..., COUNT],
+            variance=layers[..., VARIANCE],
             origin_x=c.x_min,
             origin_y=-c.width / 2,
             resolution=c.resolution,
