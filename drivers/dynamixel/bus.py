@@ -30,6 +30,8 @@ from drivers.dynamixel.units import JointMap, little_endian
 log = logging.getLogger(__name__)
 
 STATUS_RETURN_ALL = 2
+# What dynamixel_sdk raises when a late status is taken for the reply to the next instruction.
+MISPARSE = (IndexError, KeyError, ValueError)
 BRING_UP_MARGIN_MS = 50.0  # bring-up is not time-critical: wait long, never misread a late reply
 
 
@@ -308,7 +310,7 @@ class DynamixelBus:
             if not want[k]:
                 out.append(None)
                 continue
-            data, result, error = self.ph.readTxRx(self.port, ident, item.address, item.size)
+            data, result, error = self._read_one(ident, item)
             if result == sdk.COMM_SUCCESS and len(data) == item.size:
                 self.errors[k] = error
                 out.append(bytes(data))
@@ -329,7 +331,19 @@ class DynamixelBus:
         return group
 
     def _sync_read(self, group: sdk.GroupSyncRead) -> int:
-        return group.fastSyncRead() if self.fast_sync_read else group.txRxPacket()
+        try:
+            return group.fastSyncRead() if self.fast_sync_read else group.txRxPacket()
+        except MISPARSE:
+            self.port.clearPort()
+            return sdk.COMM_RX_CORRUPT
+
+    def _read_one(self, ident: int, item: Item) -> tuple[list[int], int, int]:
+        """One READ; a late reply the SDK misparses counts as a corrupt packet, not a fault."""
+        try:
+            return self.ph.readTxRx(self.port, ident, item.address, item.size)
+        except MISPARSE:
+            self.port.clearPort()
+            return [], sdk.COMM_RX_CORRUPT, 0
 
     def _read_sync(self, item: Item, want: np.ndarray) -> list[bytes | None]:
         """Protocol 2.0: one (fast) sync read of the answering servos; on failure, each alone."""
@@ -343,7 +357,7 @@ class DynamixelBus:
                 active = []
         for k in range(len(self.ids)):
             if want[k] and (self.lost[k] or k in active):
-                data, result, _ = self.ph.readTxRx(self.port, self.ids[k], item.address, item.size)
+                data, result, _ = self._read_one(self.ids[k], item)
                 if result == sdk.COMM_SUCCESS and len(data) == item.size:
                     out[k] = bytes(data)
         return out
