@@ -56,6 +56,8 @@ def zenoh_config(
     """Zenoh config from the profile's network section: peer mode, explicit endpoints, no multicast.
 
     ``endpoints`` overrides the profile's for this role (tests pick free loopback ports).
+    With ``network.auth`` the session admits only authenticated peers and commanders
+    (daemon/access.py); raises access.AccessError naming the field when that cannot work.
     """
     net = profile.network if profile is not None else None
     cfg = zenoh.Config()
@@ -69,6 +71,10 @@ def zenoh_config(
         )
     cfg.insert_json5("listen/endpoints", json.dumps(endpoints.listen))
     cfg.insert_json5("connect/endpoints", json.dumps(endpoints.connect))
+    if net is not None and net.auth is not None:
+        from daemon.access import apply_auth
+
+        apply_auth(cfg, profile, role, endpoints.listen, endpoints.connect)
     return cfg
 
 

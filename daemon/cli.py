@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "estop": ("daemon.estop", "engage (or reset) the e-stop of a robot over Zenoh"),
     "profile": ("daemon.profile_cmd", "check a robot profile"),
     "schema": ("daemon.schema_cmd", "write the JSON Schema of every message"),
+    "certs": ("daemon.certs", "generate a CA and per-role/operator certificates for mutual TLS"),
     "perceive": ("daemon.perceive", "run a perception plugin on a point cloud file or recording"),
     "record-camera": ("daemon.record_camera", "record a profile camera to a .bag file"),
 }

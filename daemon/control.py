@@ -89,6 +89,7 @@ class Controller:
         self.body = BodyState()
         self.messages: list[str] = []
         self.loop_stats: Callable | None = None
+        self.unauthorised: Callable[[], int] = lambda: 0
         self.sit_q = self._sit_joints()
         self.shutdown: str | None = None
         self.sat_down = False
@@ -243,7 +244,12 @@ class Controller:
             return self._shutdown_step(t, q)
         try:
             if mode == Mode.ACTIVE:
-                feet = self.gait.call("step", t, dt, self.body, self._world(t), self._command(t))
+                world = self._world(t)
+                stale = [k for k in self.gait.plugin.needs if k not in world]
+                if stale:
+                    self.safety.hold(t, f"{self.gait.name} needs {', '.join(stale)}: stale")
+                    return motion.joint_step(q)
+                feet = self.gait.call("step", t, dt, self.body, world, self._command(t))
                 if feet is None:
                     self.safety.hold(t, f"gait {self.gait.name} failed: {self.gait.status}")
                     return motion.joint_step(q)
@@ -305,6 +311,8 @@ class Controller:
             loop=self.loop_stats() if self.loop_stats is not None else Health().loop,
             plugins=plugins,
             refused_commands=self.safety.refused,
+            unauthorised_commands=self.unauthorised(),
+            features={k: t - v.at for k, v in list(self.features.items())},
             messages=self.messages[-10:],
         )
 

@@ -99,7 +99,11 @@ class LoopStats(msgspec.Struct, kw_only=True):
 
 
 class Health(Message):
-    """Whole-robot health: mode, joints, loop timing, plugins, bus decode errors, refusals."""
+    """Whole-robot health: mode, joints, loop timing, plugins, bus decode errors, refusals.
+
+    ``unauthorised_commands`` counts command puts from peers without credentials (read-only
+    telemetry gate); ``features`` gives the age (s) of each feature topic the role last received.
+    """
 
     TOPIC: ClassVar[str] = "state/health"
     RATE: ClassVar[str] = "2 Hz"
@@ -110,7 +114,9 @@ class Health(Message):
     plugins: dict[str, str] = {}
     decode_errors: int = 0
     refused_commands: int = 0
+    unauthorised_commands: int = 0
     dropped_frames: int = 0
+    features: dict[str, float] = {}
     messages: list[str] = []
 
 

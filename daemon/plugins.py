@@ -67,6 +67,9 @@ class GaitPlugin:
 
     name: ClassVar[str] = ""
     Config: ClassVar[type[msgspec.Struct]] = EmptyConfig
+    needs: ClassVar[tuple[str, ...]] = ()
+    """Feature topics (e.g. ``features/joists``) without which the behaviour cannot go on:
+    while one is absent or older than the profile's ``safety.feature_max_age`` the robot holds."""
 
     def __init__(self, config: msgspec.Struct | None = None, profile: Any = None) -> None:
         self.config = config if config is not None else self.Config()
