@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "certs": ("daemon.certs", "generate a CA and per-role/operator certificates for mutual TLS"),
     "perceive": ("daemon.perceive", "run a perception plugin on a point cloud file or recording"),
     "record-camera": ("daemon.record_camera", "record a profile camera to a .bag file"),
+    "install": ("daemon.install", "write systemd units and udev rules for a profile"),
 }
 
 

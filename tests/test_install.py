@@ -1,0 +1,96 @@
+"""``climbd install``: units and udev rules rendered for the user's paths, verified by systemd."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def install(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "daemon.cli",
+            "install",
+            "--profile",
+            "robots/widowx.toml",
+            "--unit-dir",
+            str(tmp_path / "units"),
+            "--udev-dir",
+            str(tmp_path / "udev"),
+            "--user",
+            "root",
+            "--workdir",
+            str(tmp_path),
+            *extra,
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def test_units_are_rendered_for_this_machine(tmp_path: Path) -> None:
+    res = install(tmp_path, "--climbd", "/opt/climbd/bin/climbd")
+    assert res.returncode == 0, res.stderr
+    control = (tmp_path / "units" / "climbd-control.service").read_text()
+    profile = (ROOT / "robots" / "widowx.toml").resolve()
+    assert f"ExecStart=/opt/climbd/bin/climbd run --profile {profile} --role control" in control
+    assert (
+        "Type=notify" in control and "WatchdogSec=" in control and "Restart=on-failure" in control
+    )
+    assert "CPUSchedulingPolicy=fifo" in control and "LimitMEMLOCK=infinity" in control
+    assert "{" not in control, "every placeholder is filled"
+    perception = (tmp_path / "units" / "climbd-perception.service").read_text()
+    assert "--role perception" in perception
+    rules = (tmp_path / "udev" / "99-climbd.rules").read_text()
+    assert 'ATTR{latency_timer}="1"' in rules and 'SYMLINK+="dynamixel"' in rules
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
+def test_systemd_analyze_verifies_the_units(tmp_path: Path) -> None:
+    climbd = shutil.which("climbd") or str(Path(sys.executable).with_name("climbd"))
+    assert install(tmp_path, "--climbd", climbd).returncode == 0
+    units = sorted((tmp_path / "units").glob("*.service"))
+    res = subprocess.run(
+        ["systemd-analyze", "verify", *map(str, units)], capture_output=True, text=True, timeout=60
+    )
+    problems = [
+        line
+        for line in (res.stdout + res.stderr).splitlines()
+        if "climbd-" in line and "network-online.target" not in line
+    ]
+    assert res.returncode == 0 and not problems, res.stdout + res.stderr
+
+
+def test_bad_profile_is_refused(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = 1\n")
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "daemon.cli",
+            "install",
+            "--profile",
+            str(bad),
+            "--unit-dir",
+            str(tmp_path / "u"),
+            "--udev-dir",
+            str(tmp_path / "d"),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert res.returncode == 2 and "$.name" in res.stderr
+    assert not (tmp_path / "u").exists()
