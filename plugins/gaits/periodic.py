@@ -38,7 +38,7 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 HOME_TOLERANCE = 1e-3
 """A foot within this distance (m) of its stand position needs no step when the body is still."""
 
-MOVING_SPEED = 1e-4
+MOVING_SPEED = 5e-4
 """Below this foot speed (m/s) over the ground, with no command, the body counts as still."""
 
 LATE_START = 0.5
@@ -298,9 +298,7 @@ class PeriodicGait(GaitPlugin):
         ready = window & ~self.stepping & (psi <= LATE_START * swing_fraction + 1e-9)
         if ready.any() and (c.sway == 0.0 or self.sway_gain == 1.0):
             moving = self.moving
-            away = np.hypot(feet[:, 0] - self.home[:, 0], feet[:, 1] - self.home[:, 1])
-            away = np.maximum(away, np.abs(feet[:, 2] + self.height))
-            lift_off = ready & (moving | (away > HOME_TOLERANCE))
+            lift_off = ready & (moving | self._away())
             self.stepping |= lift_off
             self.swing_start = np.where(lift_off, psi, self.swing_start)
             lift_point[lift_off] = feet[lift_off]
@@ -347,10 +345,16 @@ class PeriodicGait(GaitPlugin):
         ones = np.ones((*np.shape(phase), 1))
         return np.concatenate([ones, np.cos(angle), np.sin(angle)], -1)
 
+    def _away(self) -> np.ndarray:
+        """Legs whose foot is more than HOME_TOLERANCE from its stand position."""
+        feet = self.feet
+        away = np.hypot(feet[:, 0] - self.home[:, 0], feet[:, 1] - self.home[:, 1])
+        return np.maximum(away, np.abs(feet[:, 2] + self.height)) > HOME_TOLERANCE
+
     def _update_sway(self, dt: float) -> None:
         """Establish the sway (over a quarter cycle, smoothstep) while walking; remove it once
         still. The body only follows a velocity command in proportion to the established sway."""
-        walking = bool(self.stepping.any()) or self.moving
+        walking = bool(self.stepping.any()) or self.moving or bool(self._away().any())
         rate = 4.0 * dt / self.config.cycle_time
         self.sway_gain = min(max(self.sway_gain + (rate if walking else -rate), 0.0), 1.0)
 
