@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from daemon.estimation import StateEstimator
 from daemon.kinematics import Kinematics
 from daemon.messages import (
     BodyState,
@@ -35,7 +36,7 @@ from daemon.plugins import Isolated
 from daemon.profile import Profile
 from daemon.safety import Safety
 from daemon.smoothing import SmoothingError
-from drivers.base import DriverError, JointBus
+from drivers.base import DriverError, Imu, JointBus
 
 log = logging.getLogger("climbd.control")
 
@@ -69,6 +70,8 @@ class Controller:
         gait: Isolated | None = None,
         publish: Callable[[Message], None] | None = None,
         state_rate_hz: float = 100.0,
+        estimator: StateEstimator | None = None,
+        imu: Imu | None = None,
     ) -> None:
         self.profile = profile
         self.bus = bus
@@ -87,6 +90,8 @@ class Controller:
         self.motion_command: Timed | None = None
         self.features: dict[str, Timed] = {}
         self.body = BodyState()
+        self.estimator = estimator
+        self.imu = imu
         self.messages: list[str] = []
         self.loop_stats: Callable | None = None
         self.unauthorised: Callable[[], int] = lambda: 0
@@ -171,6 +176,8 @@ class Controller:
             return
         self.measured = state
         q = np.asarray(state.position)
+        if self.estimator is not None:
+            self._estimate(t, dt, q, state)
         safety = self.safety
         safety.check_heartbeat(t)
         if self._ticks % self._health_every == 0:
@@ -194,6 +201,17 @@ class Controller:
         if t - self._last_health_publish >= HEALTH_PERIOD:
             self._last_health_publish = t
             self.publish_health(t)
+
+    def _estimate(self, t: float, dt: float, q: np.ndarray, state: JointState) -> None:
+        """Body state from the stance feet and the IMU (paper 004 eqs. 5-9, filter 1)."""
+        try:
+            sample = self.imu.read() if self.imu is not None else None
+        except DriverError as e:
+            self.messages.append(f"imu: {e}")
+            sample = None
+        gyro = sample.gyro if sample is not None else None
+        accel = sample.accel if sample is not None else None
+        self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t)
 
     def _fault(self, t: float, reason: str) -> None:
         if self.safety.mode != Mode.FAULT:

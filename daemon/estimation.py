@@ -1,0 +1,380 @@
+"""Stance-based body state estimation (paper 004, section 3.1, eqs. 5-9) with two Kalman filters.
+
+Each tick: foot forces from joint torques (eq. 5); the stance tripod is the group whose feet
+carry the larger support force (group A: MF, RB, LB; group B: MB, RF, LF); the body pose in the
+global (odometry) frame follows from the three stance feet (eqs. 6-9), whose global positions
+are registered when their group takes the load. The first Kalman filter fuses that kinematic
+pose with the IMU (gyro and accelerometer predict, kinematics and gravity correct); the second
+holds a drift correction that ICP between successive stair clouds measures, applied on top.
+Pure: arrays in, BodyState out, no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+import msgspec
+import numpy as np
+
+from daemon.kinematics import Kinematics
+from daemon.messages import BodyState
+from daemon.profile import Profile
+
+GRAVITY = 9.80665
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0)]
+
+
+class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Noise figures (SI, 1-sigma) of the two filters and the stance detector.
+
+    ``foot_radius``: radius of the rubber foot (m); a stance foot rolls on it, which moves its
+    centre (what FK gives) over the ground. ``groups``: the two tripods by leg name; empty
+    means paper 004's layout rule (alternate legs along each side).
+    """
+
+    gyro_noise: Positive = 0.02
+    accel_noise: Positive = 0.5
+    accel_gate: Positive = 1.0
+    velocity_walk: Positive = 0.5
+    kinematic_position_noise: Positive = 0.005
+    kinematic_rotation_noise: Positive = 0.01
+    gravity_rotation_noise: Positive = 0.03
+    drift_position_rate: Positive = 0.005
+    drift_rotation_rate: Positive = 0.005
+    icp_position_noise: Positive = 0.005
+    icp_rotation_noise: Positive = 0.005
+    switch_margin: NonNegative = 0.1
+    foot_radius: NonNegative = 0.0
+    groups: list[list[str]] = []
+
+
+# --- rotations ----------------------------------------------------------------------------
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrix of a 3-vector."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def exp_so3(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of rotation vector ``w`` (Rodrigues)."""
+    angle = float(np.linalg.norm(w))
+    if angle < 1e-12:
+        return np.eye(3) + skew(w)
+    k = skew(w / angle)
+    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+
+
+def log_so3(r: np.ndarray) -> np.ndarray:
+    """Rotation vector of rotation matrix ``r``."""
+    c = min(max((np.trace(r) - 1.0) / 2.0, -1.0), 1.0)
+    angle = math.acos(c)
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    if angle < 1e-9:
+        return 0.5 * v
+    if math.pi - angle < 1e-6:
+        w, vec = np.linalg.eigh((r + r.T) / 2.0)
+        return angle * vec[:, np.argmax(w)]
+    return angle / (2.0 * math.sin(angle)) * v
+
+
+def nearest_rotation(m: np.ndarray) -> np.ndarray:
+    """The rotation matrix closest to ``m`` (SVD projection onto SO(3))."""
+    u, _, vt = np.linalg.svd(m)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def quaternion(r: np.ndarray) -> list[float]:
+    """Unit quaternion (w, x, y, z) of rotation matrix ``r``."""
+    w = log_so3(r)
+    angle = float(np.linalg.norm(w))
+    axis = w / angle if angle > 1e-12 else np.zeros(3)
+    return [math.cos(angle / 2), *(math.sin(angle / 2) * axis)]
+
+
+def rotation(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of quaternion (w, x, y, z)."""
+    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+# --- eqs. 6-9 -------------------------------------------------------------------------------
+
+
+class EstimationError(ValueError):
+    """Stance feet that do not determine a pose (collinear, or inconsistent distances)."""
+
+
+def stance_pose(feet_body: np.ndarray, feet_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Body rotation and origin in the global frame from three stance feet (eqs. 7-9).
+
+    Eq. 7: the body origin lies at each foot's body-frame distance from that foot's global
+    position (three spheres; the root on the body's side of the feet plane). Eq. 9: the rotation
+    maps the body-frame feet onto the global ones seen from that origin, projected on SO(3).
+    """
+    pb = np.asarray(feet_body, float)
+    pg = np.asarray(feet_global, float)
+    r = np.linalg.norm(pb, axis=1)
+    e1 = pg[1] - pg[0]
+    e2 = pg[2] - pg[0]
+    normal = np.cross(e1, e2)
+    if np.linalg.norm(normal) < 1e-9:
+        raise EstimationError("stance feet are collinear: no pose")
+    # Pairwise differences of the spheres of eq. 7 are planes; their line meets sphere 0.
+    a = 2.0 * np.stack([e1, e2])
+    b = np.array(
+        [
+            r[0] ** 2 - r[1] ** 2 + pg[1] @ pg[1] - pg[0] @ pg[0],
+            r[0] ** 2 - r[2] ** 2 + pg[2] @ pg[2] - pg[0] @ pg[0],
+        ]
+    )
+    base, *_ = np.linalg.lstsq(a, b, rcond=None)
+    n = normal / np.linalg.norm(normal)
+    off = base - pg[0]
+    s = math.sqrt(max(r[0] ** 2 - off @ off + (off @ n) ** 2, 0.0))
+    side = np.sign(np.cross(pb[1] - pb[0], pb[2] - pb[0]) @ (-pb[0])) or 1.0
+    along = -(off @ n) + side * s
+    origin = base + along * n
+    rot = nearest_rotation((pg - origin).T @ np.linalg.inv(pb.T))
+    return rot, origin
+
+
+def tripod_groups(profile: Profile, names: list[list[str]] | None = None) -> np.ndarray:
+    """Group index (0 = A, 1 = B) of every leg: from ``names`` or the alternating layout rule.
+
+    The rule puts legs alternately along each side, the sides shifted by one: for Qingzhui it
+    gives paper 004's group A (MF, RB, LB) and group B (MB, RF, LF); group A holds the most
+    forward leg.
+    """
+    legs = [leg.name for leg in profile.legs]
+    if names:
+        group = np.full(len(legs), -1)
+        for g, members in enumerate(names[:2]):
+            for name in members:
+                if name not in legs:
+                    raise ValueError(f"estimator groups: no leg {name!r} (legs: {legs})")
+                group[legs.index(name)] = g
+        if (group < 0).any():
+            missing = [n for n, g in zip(legs, group, strict=True) if g < 0]
+            raise ValueError(f"estimator groups: legs {missing} are in neither group")
+        return group
+    mounts = np.array([leg.mount for leg in profile.legs], float)
+    angle = np.arctan2(mounts[:, 1], mounts[:, 0])
+    left = (angle > 0) | np.isclose(angle, np.pi)
+    group = np.zeros(len(legs), int)
+    for side, members in enumerate((np.flatnonzero(left), np.flatnonzero(~left))):
+        order = members[np.argsort(mounts[members, 0], kind="stable")]
+        for rank, leg in enumerate(order):
+            group[leg] = (rank + side) % 2
+    front = int(np.argmax(mounts[:, 0]))
+    return group if group[front] == 0 else 1 - group
+
+
+def support_forces(forces_body: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """Vertical support (N, + up on the body) of each foot from its eq. 5 force, body frame."""
+    return -(np.asarray(forces_body) @ rot.T)[:, 2]
+
+
+def foot_link_rotations(kin: Kinematics, q: np.ndarray) -> np.ndarray:
+    """Orientation (n_legs, 3, 3) in the body frame of each leg's last link (the foot's)."""
+    th = kin.to_theta(q)
+    a, b, c = th[:, 0], th[:, 1], th[:, 2]
+    ca, sa = np.cos(a), np.sin(a)
+    pitch = np.where(kin.cft, -(b + c), c)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    ry = np.zeros((kin.n_legs, 3, 3))
+    ry[:, 0, 0], ry[:, 0, 2], ry[:, 1, 1], ry[:, 2, 0], ry[:, 2, 2] = cp, sp, 1.0, -sp, cp
+    first = np.zeros((kin.n_legs, 3, 3))
+    # coxa-femur-tibia: yaw about z; abduction-thigh-shank: roll about x
+    first[:, 0, 0] = np.where(kin.cft, ca, 1.0)
+    first[:, 0, 1] = np.where(kin.cft, -sa, 0.0)
+    first[:, 1, 0] = np.where(kin.cft, sa, 0.0)
+    first[:, 1, 1] = ca
+    first[:, 1, 2] = np.where(kin.cft, 0.0, -sa)
+    first[:, 2, 1] = np.where(kin.cft, 0.0, sa)
+    first[:, 2, 2] = np.where(kin.cft, 1.0, ca)
+    return kin.rot @ first @ ry
+
+
+# --- the estimator -------------------------------------------------------------------------
+
+
+class StateEstimator:
+    """Leg odometry from the stance tripod, fused with the IMU (filter 1) and ICP (filter 2).
+
+    ``update(q, tau, gyro, accel, dt)`` returns the BodyState; without ``gyro``/``accel`` the
+    pose is the kinematic one. ``icp_correction(rot, trans)`` feeds filter 2 with the
+    transform that aligns the latest stair cloud (placed with this estimate) onto the previous.
+    """
+
+    def __init__(
+        self,
+        profile: Profile,
+        config: EstimatorConfig | None = None,
+        position: np.ndarray | None = None,
+        orientation: np.ndarray | None = None,
+    ) -> None:
+        self.config = config or EstimatorConfig()
+        self.kin = Kinematics(profile)
+        self.group = tripod_groups(profile, self.config.groups)
+        self.weight = profile.mass * GRAVITY
+        n = self.kin.n_legs
+        self.anchors = np.zeros((n, 3))
+        self.forces = np.zeros((n, 3))
+        self.support = np.zeros(n)
+        self.stance_group = -1
+        self.switches = 0
+        self._link_rot = np.zeros((n, 3, 3))
+        # filter 1: orientation error state (3) and per-axis position/velocity
+        self.rot = np.eye(3) if orientation is None else rotation(orientation)
+        self.pos = np.zeros(3) if position is None else np.asarray(position, float).copy()
+        self.vel = np.zeros(3)
+        self.omega = np.zeros(3)
+        self.p_rot = np.full(3, 1e-4)
+        self.p_pv = np.tile(np.diag([1e-4, 1e-2]), (3, 1, 1))
+        # filter 2: drift correction (rotation vector, translation) applied on top of filter 1
+        self.drift_rot = np.eye(3)
+        self.drift_pos = np.zeros(3)
+        self.p_drift = np.zeros(2)
+        self.kinematic: tuple[np.ndarray, np.ndarray] | None = None
+
+    # --- filter 1 -------------------------------------------------------------------------
+
+    def _predict(self, gyro: np.ndarray, accel: np.ndarray, dt: float) -> None:
+        c = self.config
+        self.omega = self.rot @ gyro
+        self.rot = self.rot @ exp_so3(gyro * dt)
+        self.p_rot += c.gyro_noise**2 * dt
+        acc = self.rot @ accel - np.array([0.0, 0.0, GRAVITY])
+        f = np.array([[1.0, dt], [0.0, 1.0]])
+        self.pos += self.vel * dt + 0.5 * acc * dt * dt
+        self.vel += acc * dt
+        q = np.diag([0.25 * dt**4, dt * dt]) * c.accel_noise**2 + np.diag([0.0, dt]) * (
+            c.velocity_walk**2
+        )
+        self.p_pv = f @ self.p_pv @ f.T + q
+        norm = float(np.linalg.norm(accel))
+        if abs(norm - GRAVITY) < c.accel_gate:
+            up = self.rot @ (accel / norm)
+            err = np.cross(up, [0.0, 0.0, 1.0])
+            gain = self.p_rot / (self.p_rot + c.gravity_rotation_noise**2)
+            gain[2] = 0.0
+            self._rotate(gain * err)
+
+    def _rotate(self, delta: np.ndarray) -> None:
+        self.rot = nearest_rotation(exp_so3(delta) @ self.rot)
+
+    def _correct(self, rot_kin: np.ndarray, pos_kin: np.ndarray) -> None:
+        c = self.config
+        err = log_so3(rot_kin @ self.rot.T)
+        gain = self.p_rot / (self.p_rot + c.kinematic_rotation_noise**2)
+        self._rotate(gain * err)
+        self.p_rot *= 1.0 - gain
+        h = np.array([1.0, 0.0])
+        s = self.p_pv[:, 0, 0] + c.kinematic_position_noise**2
+        k = self.p_pv[:, :, 0] / s[:, None]
+        innov = pos_kin - self.pos
+        self.pos += k[:, 0] * innov
+        self.vel += k[:, 1] * innov
+        self.p_pv -= k[:, :, None] * (h @ self.p_pv)[:, None, :]
+
+    # --- leg odometry (eqs. 5-9) ------------------------------------------------------------
+
+    def _register(self, legs: np.ndarray, feet: np.ndarray) -> None:
+        """Global positions of feet that just took the load, from the current estimate."""
+        self.anchors[legs] = self.pos + feet[legs] @ self.rot.T
+
+    def _roll(self, legs: np.ndarray, link_rot: np.ndarray) -> None:
+        """Move the anchors of rolling stance feet: the centre moves by dθ × (r·up)."""
+        r = self.config.foot_radius
+        if r <= 0.0:
+            return
+        for leg in legs:
+            turn = log_so3(self.rot @ link_rot[leg] @ self._link_rot[leg].T @ self.rot.T)
+            self.anchors[leg] += np.cross(turn, [0.0, 0.0, r])
+
+    def update(
+        self,
+        q: np.ndarray,
+        tau: np.ndarray,
+        gyro: np.ndarray | None = None,
+        accel: np.ndarray | None = None,
+        dt: float = 0.0,
+        stamp: float = 0.0,
+    ) -> BodyState:
+        """One estimation step from joint positions and torques (and the IMU, if given)."""
+        q = np.asarray(q, float)
+        feet = self.kin.fk(q)
+        link_rot = foot_link_rotations(self.kin, q)
+        self.forces = self.kin.foot_forces(q, tau)
+        if gyro is not None and accel is not None and dt > 0:
+            self._predict(np.asarray(gyro, float), np.asarray(accel, float), dt)
+        if self.stance_group >= 0:
+            self._roll(np.flatnonzero(self.group == self.stance_group), link_rot)
+        self._link_rot = link_rot
+        self.support = np.nan_to_num(support_forces(self.forces, self.rot))
+        sums = np.array([self.support[self.group == g].sum() for g in (0, 1)])
+        leading = int(np.argmax(sums))
+        margin = self.config.switch_margin * self.weight
+        if self.stance_group < 0 or (
+            leading != self.stance_group and sums[leading] > sums[1 - leading] + margin
+        ):
+            self.stance_group = leading
+            self.switches += 1
+            self._register(np.flatnonzero(self.group == leading), feet)
+        stance = np.flatnonzero(self.group == self.stance_group)
+        try:
+            rot_kin, pos_kin = stance_pose(feet[stance], self.anchors[stance])
+        except EstimationError:
+            rot_kin, pos_kin = self.rot, self.pos
+        self.kinematic = (rot_kin, pos_kin)
+        if gyro is None or accel is None:
+            if dt > 0:
+                self.vel = (pos_kin - self.pos) / dt
+            self.rot, self.pos = rot_kin, pos_kin
+        else:
+            self._correct(rot_kin, pos_kin)
+        self._drift_predict(dt)
+        return self.body(stamp)
+
+    # --- filter 2 (ICP) ---------------------------------------------------------------------
+
+    def _drift_predict(self, dt: float) -> None:
+        c = self.config
+        self.p_drift += np.array([c.drift_rotation_rate**2, c.drift_position_rate**2]) * dt
+
+    def icp_correction(self, rot: np.ndarray, trans: np.ndarray) -> None:
+        """Fuse an ICP alignment (global frame: maps the newest cloud onto the stitched map)."""
+        c = self.config
+        k_rot = self.p_drift[0] / (self.p_drift[0] + c.icp_rotation_noise**2)
+        k_pos = self.p_drift[1] / (self.p_drift[1] + c.icp_position_noise**2)
+        corr_rot = exp_so3(k_rot * log_so3(np.asarray(rot, float)))
+        corr_pos = k_pos * np.asarray(trans, float)
+        self.drift_rot = corr_rot @ self.drift_rot
+        self.drift_pos = corr_rot @ self.drift_pos + corr_pos
+        self.p_drift *= 1.0 - np.array([k_rot, k_pos])
+
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Final body rotation and position: filter 2's correction applied to filter 1."""
+        return self.drift_rot @ self.rot, self.drift_rot @ self.pos + self.drift_pos
+
+    def body(self, stamp: float = 0.0) -> BodyState:
+        rot, pos = self.pose()
+        stance = (self.group == self.stance_group).tolist()
+        return BodyState(
+            stamp=stamp,
+            position=pos.tolist(),
+            orientation=quaternion(rot),
+            linear_velocity=(self.drift_rot @ self.vel).tolist(),
+            angular_velocity=(self.drift_rot @ self.omega).tolist(),
+            stance=stance,
+        )

@@ -1,0 +1,86 @@
+"""Couples emulated MIT-mode motors on a CAN bus to the physics twin, in lock-step.
+
+The driver (drivers/torque/bus.py) talks CAN to ``MitMotorChain`` exactly as to real
+actuators; this coupling hands each motor's last command (position, velocity, kp, kd,
+feed-forward torque; zero gains out of motor mode) to the twin's MIT law, steps physics, and
+writes the joint state (position, velocity, torque as the joint's torque sensor reads it)
+back into the motors, which the next replies carry:
+
+    coupling = MitCoupling(twin, chain)
+    clock = SteppedClock(on_advance=coupling.advance)
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from drivers.sim.mit_motors import MitMotorChain
+from drivers.sim.twin import Twin
+
+SETTLE_TIMEOUT = 0.05
+"""Seconds to wait for the emulator thread to take the frames of the last tick."""
+
+
+class MitCoupling:
+    """Motor commands → twin joint torques; twin joint state → motor replies."""
+
+    def __init__(self, twin: Twin, chain: MitMotorChain) -> None:
+        if not twin.robot.torque_legs:
+            raise ValueError(f"twin of {twin.profile.name}: not a torque-controlled robot")
+        self.twin = twin
+        self.chain = chain
+        self.ids = [j.id for j in twin.profile.joints]
+        missing = [i for i in self.ids if i not in chain.motors]
+        if missing:
+            raise ValueError(f"MIT chain on {chain.channel!r} lacks motors {missing}")
+        self.motors = [chain.motors[i] for i in self.ids]
+        self._frames = 0
+        self.publish()
+
+    def _settle(self) -> None:
+        """Wait until the emulator took at least one frame per motor since the last step."""
+        want = self._frames + len(self.motors)
+        deadline = time.monotonic() + SETTLE_TIMEOUT
+        while sum(m.frames for m in self.motors) < want and time.monotonic() < deadline:
+            time.sleep(0)
+        self._frames = sum(m.frames for m in self.motors)
+
+    def apply(self) -> None:
+        """Copy every motor's last command into the twin's MIT law (zero gains when idle)."""
+        n = len(self.motors)
+        goal, rate, kp, kd, ff = (np.zeros(n) for _ in range(5))
+        on = np.zeros(n, bool)
+        for k, m in enumerate(self.motors):
+            c = m.command
+            if m.motor_mode and c is not None:
+                goal[k], rate[k], kp[k], kd[k], ff[k] = (
+                    c.position,
+                    c.velocity,
+                    c.kp,
+                    c.kd,
+                    c.torque,
+                )
+                on[k] = True
+            else:
+                goal[k] = m.position
+        twin = self.twin
+        with twin.lock:
+            twin.goal[:], twin.mit_rate[:], twin.mit_kp[:] = goal, rate, kp
+            twin.mit_kd[:], twin.mit_ff[:], twin.torque_on[:] = kd, ff, on
+
+    def publish(self) -> None:
+        """Write the twin's joint positions, velocities and torques into the motors."""
+        q = self.twin.joint_positions()
+        qd = self.twin.joint_velocities()
+        tau = self.twin.joint_efforts()
+        for k, motor in enumerate(self.ids):
+            self.chain.set_state(motor, float(q[k]), float(qd[k]), float(tau[k]))
+
+    def advance(self, t0: float, t1: float) -> None:
+        """SteppedClock hook: apply the last commands, step physics from ``t0`` to ``t1``."""
+        self._settle()
+        self.apply()
+        self.twin.advance_to(t0, t1)
+        self.publish()
