@@ -39,6 +39,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--connect", action="append", help="Zenoh connect endpoint (repeatable; overrides profile)"
     )
     parser.add_argument("--quiet", action="store_true", help="no periodic loop statistics")
+    parser.add_argument(
+        "--role",
+        choices=("control", "perception", "all"),
+        default="control",
+        help="control (joints, loop), perception (camera, plugins), or all as supervised "
+        "processes (default: control)",
+    )
+    parser.add_argument(
+        "--source",
+        choices=("camera", "floor"),
+        default="camera",
+        help="perception input: the profile's camera, or a synthetic flat floor (tests, demos)",
+    )
+    parser.add_argument("--camera", help="perception: profile camera name (default: first)")
+    parser.add_argument("--playback", help="perception: play a .bag recording instead")
+    parser.add_argument(
+        "--plugin", action="append", help="perception plugin (repeatable; default: profile's)"
+    )
 
 
 def main(args: argparse.Namespace) -> int:
@@ -50,6 +68,14 @@ def main(args: argparse.Namespace) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     try:
+        if args.role == "all":
+            from daemon.supervisor import supervise
+
+            return asyncio.run(supervise(profile, args))
+        if args.role == "perception":
+            from daemon.perception_role import PerceptionRole
+
+            return asyncio.run(PerceptionRole(profile, args).run())
         return asyncio.run(ControlRole(profile, args).run())
     except StartupError as e:
         print(f"error: {e}", file=sys.stderr)
@@ -126,9 +152,16 @@ class ControlRole:
             joint_bus.close()
             raise StartupError(f"zenoh: {e}") from None
         publishers = {t: bus.publisher(t) for t in (m.JointState, m.Health, m.ModeState)}
+        gate = None
+        if profile.network.auth is not None and profile.network.auth.telemetry_listen:
+            from daemon.access import TelemetryGate
+
+            gate = TelemetryGate(profile.name, list(profile.network.auth.telemetry_listen))
 
         def publish(message: m.Message) -> None:
             publishers[type(message)].put(message)
+            if gate is not None:
+                gate.put(message)
 
         gait = make_gait(
             profile, args.gait, lambda name, e: safety.hold(clock.now(), f"gait {name} failed")
@@ -136,6 +169,8 @@ class ControlRole:
         controller = Controller(profile, joint_bus, safety, clock.now, gait, publish)
         loop = ControlLoop(profile.rate_hz, clock, controller.tick)
         controller.loop_stats = loop.stats
+        if gate is not None:
+            controller.unauthorised = lambda: gate.attempts
         bus.subscribe(m.MotionCommand, controller.on_motion, latest_only=True)
         bus.subscribe(m.ModeRequest, controller.on_mode)
         bus.subscribe(m.EStop, controller.on_estop)
@@ -166,6 +201,8 @@ class ControlRole:
         await aio.run_in_executor(None, thread.join, 2.0)
         sdnotify.notify("STOPPING=1")
         bus.close()
+        if gate is not None:
+            gate.close()
         joint_bus.close()
         self._report(loop, safety, controller)
         return 0
