@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import logging
 import sys
+
+from daemon import logs
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("daemon.run", "run the daemon for a robot profile"),
@@ -37,10 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
+    logs.setup(args.verbose)
     return int(importlib.import_module(args._module).main(args) or 0)
 
 
