@@ -1,0 +1,374 @@
+"""Graspable-point detection of paper 001 (§2): terrain matrix, gripper mask, correlation.
+
+The cloud is turned to its regression plane (z along the plane normal, towards the robot),
+occlusions are filled by linear interpolation over a Delaunay triangulation onto a square
+lattice, and the lattice's heights are voxelised into the 0/1 terrain matrix. The paper scans
+every solid voxel with the gripper mask; the test is the same at every voxel, so here it is one
+FFT correlation of the terrain matrix with the mask's void cells plus a box sum of solid cells.
+
+Rule (paper §2.3, ClimbLab's thresholds): a solid voxel is graspable when the solid voxels
+of its window that fall in the mask's void cells are at most ``void_fraction`` of the window's
+solid voxels (0 = the paper's strict rule; a near-miss within that fraction, e.g. one sensor
+speckle or a slope sampled into the 1-mm closing layer, is accepted, and beyond it rejected, as
+ClimbLab's sub-target penalty does), the window holds more than ``solid_threshold`` solid
+voxels (too little terrain under the gripper to trust), nothing stands more than
+``above_tolerance`` voxels above the voxel within the palm's footprint (the paper's window
+starts at the palm, but the palm cannot sink into rock: this keeps targets off the rims at the
+feet of holds), the mask's void cells all lie over
+measured or interpolated terrain (unknown is never taken for void), and the voxel itself is on
+measured terrain (a cloud point within one lattice pitch): interpolation fills a target's
+surroundings, never the target itself.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import msgspec
+import numpy as np
+import scipy.fft
+from scipy import ndimage
+from scipy.spatial import Delaunay, QhullError
+
+from daemon.messages import BodyState, GraspablePoints
+from daemon.plugins import PerceptionPlugin
+from plugins.perception.gripper_mask import GripperGeometry, gripper_mask
+
+
+class GraspableConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Detection settings; defaults are ClimbLab's (voxel 1 mm, threshold 120, HubRobo gripper).
+
+    ``lattice_spacing`` is the interpolation lattice pitch (m), rounded to whole voxels so solid
+    columns sit on a lattice; 3 mm is the D435's point pitch on holds at 0.5 m (ClimbLab's
+    density rule gives 3-4 mm on its clouds), 0 derives it from the density as ClimbLab does.
+    ``thin_distance`` (m): graspable points closer than this collapse to one target.
+    """
+
+    voxel: float = 0.001
+    lattice_spacing: float = 0.003
+    solid_threshold: int = 120
+    void_fraction: float = 0.02
+    above_tolerance: int = 1
+    thin_distance: float = 0.015
+    gripper: GripperGeometry = msgspec.field(default_factory=GripperGeometry)
+
+    def check(self) -> None:
+        """Raise ValueError naming the field of a setting that cannot work."""
+        if not (math.isfinite(self.voxel) and 0 < self.voxel <= 0.05):
+            raise ValueError(f"graspable.voxel: expected 0 < voxel <= 0.05 m, found {self.voxel}")
+        if not (math.isfinite(self.lattice_spacing) and self.lattice_spacing >= 0):
+            raise ValueError(
+                f"graspable.lattice_spacing: expected >= 0 m (0 = from density), "
+                f"found {self.lattice_spacing}"
+            )
+        if self.solid_threshold < 0:
+            raise ValueError(
+                f"graspable.solid_threshold: expected >= 0, found {self.solid_threshold}"
+            )
+        if not 0 <= self.void_fraction < 1:
+            raise ValueError(
+                f"graspable.void_fraction: expected 0 <= fraction < 1, found {self.void_fraction}"
+            )
+        if self.above_tolerance < 0:
+            raise ValueError(
+                f"graspable.above_tolerance: expected >= 0 voxels, found {self.above_tolerance}"
+            )
+        if not (math.isfinite(self.thin_distance) and self.thin_distance >= 0):
+            raise ValueError(
+                f"graspable.thin_distance: expected >= 0 m, found {self.thin_distance}"
+            )
+        self.gripper.check()
+
+
+@dataclass(frozen=True)
+class PlaneFrame:
+    """The regression plane's frame Σ_R: origin at the centroid, rows of ``rotation`` = axes."""
+
+    origin: np.ndarray
+    rotation: np.ndarray
+
+    def to_plane(self, points: np.ndarray) -> np.ndarray:
+        return (points - self.origin) @ self.rotation.T
+
+    def to_body(self, points: np.ndarray) -> np.ndarray:
+        return points @ self.rotation + self.origin
+
+
+def regression_frame(points: np.ndarray, viewpoint: np.ndarray) -> PlaneFrame:
+    """Least-squares plane of ``points`` (§2.1 step 1), its normal turned towards ``viewpoint``."""
+    origin = points.mean(axis=0)
+    _, _, axes = np.linalg.svd(points - origin, full_matrices=False)
+    axes = axes.copy()
+    if axes[2] @ (viewpoint - origin) < 0:
+        axes[1:] *= -1.0
+    return PlaneFrame(origin, axes)
+
+
+@dataclass(frozen=True)
+class HeightLattice:
+    """Heights (m, NaN where unknown) on a square lattice of pitch ``spacing`` from (x0, y0).
+
+    ``measured`` marks nodes with a cloud point within one pitch; the rest are interpolated.
+    """
+
+    x0: float
+    y0: float
+    spacing: float
+    heights: np.ndarray
+    measured: np.ndarray
+
+
+def interpolate_heights(plane_points: np.ndarray, spacing: float) -> HeightLattice:
+    """Fill occlusions by linear interpolation over the Delaunay triangulation (§2.1 step 2).
+
+    Each triangle is rasterised onto the lattice nodes it covers (barycentric weights), which
+    is what griddata does node by node, in one vectorised pass.
+    """
+    xy = plane_points[:, :2]
+    lo = xy.min(axis=0)
+    n = np.floor((xy.max(axis=0) - lo) / spacing).astype(np.int64) + 1
+    try:
+        simplices = Delaunay(xy).simplices
+    except QhullError as e:
+        raise ValueError(f"cloud is degenerate (no 2-D extent on its plane): {e}") from None
+    corner = (xy[simplices] - lo) / spacing
+    z = plane_points[simplices, 2]
+    first = np.clip(np.ceil(corner.min(axis=1) - 1e-9).astype(np.int64), 0, None)
+    last = np.minimum(np.floor(corner.max(axis=1) + 1e-9).astype(np.int64), n - 1)
+    span = np.clip(last - first + 1, 0, None)
+    count = span[:, 0] * span[:, 1]
+    owner = np.repeat(np.arange(len(simplices)), count)
+    local = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    ix = first[owner, 0] + local // span[owner, 1]
+    iy = first[owner, 1] + local % span[owner, 1]
+    a = corner[:, 1] - corner[:, 0]
+    b = corner[:, 2] - corner[:, 0]
+    det = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    px = ix - corner[owner, 0, 0]
+    py = iy - corner[owner, 0, 1]
+    w1 = (px * b[owner, 1] - py * b[owner, 0]) / det[owner]
+    w2 = (a[owner, 0] * py - a[owner, 1] * px) / det[owner]
+    inside = (w1 >= -1e-9) & (w2 >= -1e-9) & (w1 + w2 <= 1 + 1e-9)
+    o = owner[inside]
+    heights = np.full(n, np.nan)
+    heights[ix[inside], iy[inside]] = (
+        z[o, 0] + w1[inside] * (z[o, 1] - z[o, 0]) + w2[inside] * (z[o, 2] - z[o, 0])
+    )
+    nearest = np.minimum(np.rint((xy - lo) / spacing).astype(np.int64), n - 1)
+    measured = np.zeros(n, dtype=bool)
+    measured[nearest[:, 0], nearest[:, 1]] = True
+    measured = ndimage.binary_dilation(measured, structure=np.ones((3, 3), dtype=bool))
+    return HeightLattice(float(lo[0]), float(lo[1]), spacing, heights, measured)
+
+
+def lattice_spacing(plane_points: np.ndarray, voxel: float, requested: float) -> float:
+    """The lattice pitch: ``requested`` or ClimbLab's density rule, in whole voxels (≥ 1)."""
+    if requested <= 0:
+        extent = np.ptp(plane_points[:, :2], axis=0)
+        density = len(plane_points) / max(float(extent[0] * extent[1]), 1e-12)
+        requested = 1.0 / math.sqrt(density * 5.0 / 3.0)
+    return voxel * max(1, round(requested / voxel))
+
+
+def terrain_matrix(lattice: HeightLattice, voxel: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Voxelise the lattice heights (§2.1 step 3): depth index k = ⌊(z_top − z) / voxel⌋.
+
+    Returns the 0/1 terrain matrix (columns × depth, float32 for the FFT), each column's depth
+    index (−1 where unknown) and z_top. Depth grows downwards, as the mask's does.
+    """
+    known = np.isfinite(lattice.heights)
+    if not known.any():
+        raise ValueError("cloud has no interpolated terrain")
+    top = float(np.nanmax(lattice.heights))
+    depth = np.full(lattice.heights.shape, -1, dtype=np.int64)
+    depth[known] = np.floor((top - lattice.heights[known]) / voxel).astype(np.int64)
+    terrain = np.zeros((*depth.shape, int(depth.max()) + 1), dtype=np.float32)
+    ix, iy = np.nonzero(known)
+    terrain[ix, iy, depth[known]] = 1.0
+    return terrain, depth, top
+
+
+def lattice_mask(mask: np.ndarray, step: int) -> np.ndarray:
+    """The mask cells at whole multiples of ``step`` voxels from its centre (exact on a lattice)."""
+    half = mask.shape[0] // 2
+    keep = np.arange(half % step, mask.shape[0], step)
+    return mask[np.ix_(keep, keep, np.arange(mask.shape[2]))]
+
+
+class Correlator:
+    """Counts, for every voxel, the terrain's solid voxels in the mask's void cells (FFT).
+
+    The window is the mask anchored with its centre column over the voxel and its depth 0 at
+    the voxel's depth; the kernel's spectrum is cached per FFT shape.
+    """
+
+    def __init__(self, mask: np.ndarray) -> None:
+        self.mask = mask
+        self._void = (~mask)[::-1, ::-1, ::-1].astype(np.float32)
+        self._spectra: dict[tuple[int, ...], np.ndarray] = {}
+
+    def void_hits(self, terrain: np.ndarray) -> np.ndarray:
+        """Σ terrain · void over each voxel's window, same shape as ``terrain`` (exact integers)."""
+        full = [t + k - 1 for t, k in zip(terrain.shape, self._void.shape, strict=True)]
+        shape = tuple(scipy.fft.next_fast_len(n, real=True) for n in full)
+        spectrum = self._spectra.get(shape)
+        if spectrum is None:
+            spectrum = self._spectra[shape] = scipy.fft.rfftn(self._void, shape, workers=-1)
+        product = scipy.fft.rfftn(terrain, shape, workers=-1)
+        product *= spectrum
+        conv = scipy.fft.irfftn(product, shape, workers=-1)
+        h = self.mask.shape[0] // 2
+        d = self.mask.shape[2] - 1
+        nx, ny, nz = terrain.shape
+        return np.rint(conv[h : h + nx, h : h + ny, d : d + nz]).astype(np.int32)
+
+
+def scan_void_hits(terrain: np.ndarray, mask: np.ndarray, at: tuple[np.ndarray, ...]) -> np.ndarray:
+    """The paper's per-voxel scan (§2.3): cut each voxel's window, count solid cells in void.
+
+    The reference the correlation is tested and benchmarked against; O(voxels × mask cells).
+    """
+    h = mask.shape[0] // 2
+    depth = mask.shape[2]
+    padded = np.zeros(
+        (terrain.shape[0] + 2 * h, terrain.shape[1] + 2 * h, terrain.shape[2] + depth),
+        dtype=terrain.dtype,
+    )
+    padded[h : h + terrain.shape[0], h : h + terrain.shape[1], : terrain.shape[2]] = terrain
+    void = ~mask
+    hits = np.empty(len(at[0]), dtype=np.int64)
+    for i, (x, y, z) in enumerate(zip(*at, strict=True)):
+        window = padded[x : x + 2 * h + 1, y : y + 2 * h + 1, z : z + depth]
+        hits[i] = int(window[void].sum())
+    return hits
+
+
+def box_sums(terrain: np.ndarray, half: int, depth: int, at: tuple[np.ndarray, ...]) -> np.ndarray:
+    """Solid voxels in the (2·half+1)² columns × ``depth`` layers window of each voxel ``at``."""
+    nx, ny, nz = terrain.shape
+    c = np.zeros((nx + 2 * half + 1, ny + 2 * half + 1, nz + depth + 1), dtype=np.int32)
+    c[half + 1 : half + 1 + nx, half + 1 : half + 1 + ny, 1 : 1 + nz] = terrain
+    c = c.cumsum(0).cumsum(1).cumsum(2)
+    x0, y0, z0 = at
+    x1, y1, z1 = x0 + 2 * half + 1, y0 + 2 * half + 1, z0 + depth
+    return (
+        c[x1, y1, z1]
+        - c[x0, y1, z1]
+        - c[x1, y0, z1]
+        - c[x1, y1, z0]
+        + c[x0, y0, z1]
+        + c[x0, y1, z0]
+        + c[x1, y0, z0]
+        - c[x0, y0, z0]
+    )
+
+
+def void_known(known: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """True at columns whose mask void cells all lie over known terrain (unknown is not void)."""
+    footprint = (~mask).any(axis=2)
+    return ~ndimage.binary_dilation(~known, structure=footprint, border_value=1)
+
+
+def palm_clear(depth: np.ndarray, radius: float, tolerance: int) -> np.ndarray:
+    """True where no column within ``radius`` lattice cells stands > ``tolerance`` voxels higher."""
+    r = int(radius)
+    offsets = np.arange(-r, r + 1)
+    footprint = np.hypot(offsets[:, None], offsets[None, :]) <= radius
+    highest = ndimage.minimum_filter(
+        np.where(depth >= 0, depth, np.iinfo(np.int64).max), footprint=footprint, mode="nearest"
+    )
+    return highest >= depth - tolerance
+
+
+def thin(points: np.ndarray, scores: np.ndarray, distance: float) -> np.ndarray:
+    """Collapse points closer than ``distance`` to the best-scored one among them (greedy NMS)."""
+    if len(points) == 0 or distance <= 0:
+        return points
+    order = np.argsort(-scores, kind="stable")
+    kept: list[int] = []
+    taken = np.zeros(len(points), dtype=bool)
+    for i in order:
+        if taken[i]:
+            continue
+        kept.append(i)
+        taken |= np.linalg.norm(points - points[i], axis=1) < distance
+    return points[kept]
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Result of one detection: thinned targets and every graspable voxel (body frame, m)."""
+
+    points: np.ndarray
+    candidates: np.ndarray
+    lattice_spacing: float
+
+
+class GraspableDetector:
+    """The whole pipeline of §2 as a reusable object: mask and kernel spectra are built once."""
+
+    def __init__(self, config: GraspableConfig) -> None:
+        config.check()
+        self.config = config
+        self.mask = gripper_mask(config.gripper, config.voxel)
+        self._correlators: dict[int, Correlator] = {}
+
+    def correlator(self, step: int) -> Correlator:
+        """The correlator of the mask sampled on a lattice of ``step`` voxels."""
+        if step not in self._correlators:
+            self._correlators[step] = Correlator(lattice_mask(self.mask, step))
+        return self._correlators[step]
+
+    def detect(self, points: np.ndarray, viewpoint: np.ndarray | None = None) -> Detection:
+        """Graspable points of an N×3 cloud (body frame, m); the robot looks from ``viewpoint``."""
+        cloud = np.asarray(points, dtype=np.float64)
+        if cloud.ndim != 2 or cloud.shape[1] != 3:
+            raise ValueError(f"points: expected an N×3 array, found shape {cloud.shape}")
+        cloud = cloud[np.isfinite(cloud).all(axis=1)]
+        if len(cloud) < 3:
+            raise ValueError(f"points: need at least 3 finite points, found {len(cloud)}")
+        eye = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
+        cfg = self.config
+        frame = regression_frame(cloud, eye)
+        plane = frame.to_plane(cloud)
+        spacing = lattice_spacing(plane, cfg.voxel, cfg.lattice_spacing)
+        lattice = interpolate_heights(plane, spacing)
+        terrain, depth, _ = terrain_matrix(lattice, cfg.voxel)
+        correlator = self.correlator(round(spacing / cfg.voxel))
+        half = correlator.mask.shape[0] // 2
+        hits = correlator.void_hits(terrain)
+        known = depth >= 0
+        palm = (cfg.gripper.palm_diameter + cfg.gripper.margin_top_solid) / 2 / spacing
+        cols = np.nonzero(
+            lattice.measured
+            & known
+            & void_known(known, correlator.mask)
+            & palm_clear(depth, palm, cfg.above_tolerance)
+        )
+        at = (cols[0], cols[1], depth[cols])
+        solid = box_sums(terrain, half, correlator.mask.shape[2], at)
+        ok = (hits[at] <= cfg.void_fraction * solid) & (solid > cfg.solid_threshold)
+        gx, gy = cols[0][ok], cols[1][ok]
+        on_plane = np.column_stack(
+            (lattice.x0 + gx * spacing, lattice.y0 + gy * spacing, lattice.heights[gx, gy])
+        )
+        body = frame.to_body(on_plane)
+        targets = thin(body, on_plane[:, 2], cfg.thin_distance)
+        return Detection(targets, body, spacing)
+
+
+class GraspablePerception(PerceptionPlugin):
+    """Perception plugin publishing paper 001's graspable points (GraspablePoints, body frame)."""
+
+    name: ClassVar[str] = "graspable"
+    Config: ClassVar[type[msgspec.Struct]] = GraspableConfig
+
+    def __init__(self, config: GraspableConfig | None = None, profile: object = None) -> None:
+        super().__init__(config, profile)
+        self.detector = GraspableDetector(self.config)
+
+    def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> GraspablePoints:
+        detection = self.detector.detect(points)
+        return GraspablePoints(stamp=stamp, frame_stamp=stamp, points=detection.points.tolist())
