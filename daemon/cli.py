@@ -16,6 +16,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("daemon.run", "run the daemon for a robot profile"),
     "status": ("daemon.status", "print live mode, loop rate and joint health over Zenoh"),
     "estop": ("daemon.estop", "engage (or reset) the e-stop of a robot over Zenoh"),
+    "teleop": ("daemon.teleop", "drive or override a robot: keyboard UI or a timed script"),
     "profile": ("daemon.profile_cmd", "check a robot profile"),
     "schema": ("daemon.schema_cmd", "write the JSON Schema of every message"),
     "certs": ("daemon.certs", "generate a CA and per-role/operator certificates for mutual TLS"),
