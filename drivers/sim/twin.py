@@ -24,8 +24,10 @@ physics in a thread that follows the monotonic clock and renders depth at each c
 from __future__ import annotations
 
 import fcntl
+import inspect
 import logging
 import math
+import sys
 import termios
 import threading
 import time
@@ -162,6 +164,7 @@ class Twin:
         self._gyro = self.model.sensor_adr[sensor("imu_gyro").id]
         self._accel = self.model.sensor_adr[sensor("imu_accel").id]
         self._steps = 0
+        self._select_line: int | None = None
         self._thread: threading.Thread | None = None
         self._camera_thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -226,7 +229,7 @@ class Twin:
             self.thermal.temperature[:] = self.thermal.ambient
             if self.chain is not None:
                 with self.chain.lock:
-                    for (servo, _, _), qi in zip(self.chain.joints, q, strict=True):
+                    for servo, qi in zip(self.chain.joints, q, strict=True):
                         servo.set("goal_position", servo.tick(qi))
             self._sync_bus()
 
@@ -318,12 +321,13 @@ class Twin:
         q = self.map.joint(d.qpos[r.qpos_adr])
         qd = self.map.joint_rate(d.qvel[r.dof_adr])
         with self.chain.lock:
-            for k, (servo, _, _) in enumerate(self.chain.joints):
+            for k, servo in enumerate(self.chain.joints):
                 self.goal[k] = servo.goal_angle
                 self.torque_on[k] = servo.torque_enabled
                 self.speed_limit[k] = servo.speed_limit
-                f = servo.spec.fields["torque_limit" if servo.spec.protocol == 1 else "pwm_limit"]
-                self.torque_limit[k] = self.stall[k] * servo.get(f.name) / f.default
+                limit = "torque_limit" if servo.spec.protocol == 1 else "pwm_limit"
+                cap = servo.get(limit) / servo.spec.fields[limit].default
+                self.torque_limit[k] = self.stall[k] * cap
                 servo.set_present(
                     angle=q[k],
                     velocity=qd[k],
@@ -355,22 +359,29 @@ class Twin:
             self._cameras_due()
 
     def _settle_bus(self) -> None:
-        """Wait until the pty holds no unread instruction bytes and the chain is idle."""
+        """Wait until the emulator has handled every byte the driver wrote to the pty.
+
+        True when the pty holds no unread bytes and the emulator thread sits in its select()
+        (a thread that has read bytes is past that line until it has handled them), twice
+        0.5 ms apart: the kernel hands bytes from the pty's slave to its master asynchronously.
+        """
         emu = self.emulator
-        if emu is None or emu._master < 0:
+        if emu is None or emu._master < 0 or emu._thread is None:
             return
+        if self._select_line is None:
+            source, first = inspect.getsourcelines(type(emu)._serve)
+            self._select_line = first + next(
+                i for i, line in enumerate(source) if "select.select(" in line
+            )
         pending = np.zeros(1, np.int32)
-        deadline = time.monotonic() + 0.2
-        while time.monotonic() < deadline:
+        deadline = time.monotonic() + 0.5
+        idle = 0
+        while idle < 2 and time.monotonic() < deadline:
             fcntl.ioctl(emu._master, termios.FIONREAD, pending)
-            before = self.chain.bytes_in
-            if pending[0] == 0:
-                time.sleep(0.0005)
-                fcntl.ioctl(emu._master, termios.FIONREAD, pending)
-                if pending[0] == 0 and self.chain.bytes_in == before:
-                    return
-            else:
-                time.sleep(0.0002)
+            frame = sys._current_frames().get(emu._thread.ident)
+            quiet = pending[0] == 0 and frame is not None and frame.f_lineno == self._select_line
+            idle = idle + 1 if quiet else 0
+            time.sleep(0.0005)
 
     def _run(self) -> None:
         """Real-time mode: keep simulated time on the monotonic clock, in 2 ms batches."""
