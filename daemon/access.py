@@ -14,11 +14,13 @@ import logging
 import os
 import threading
 from pathlib import Path
-
-import zenoh
+from typing import TYPE_CHECKING
 
 from daemon.messages import Message, encode
 from daemon.profile import AuthConfig, Profile
+
+if TYPE_CHECKING:  # the CLI parser imports this module: zenoh loads only when used
+    import zenoh
 
 log = logging.getLogger("climbd.access")
 
@@ -189,6 +191,8 @@ class TelemetryGate:
     """
 
     def __init__(self, robot: str, listen: list[str]) -> None:
+        import zenoh
+
         cfg = zenoh.Config()
         cfg.insert_json5("mode", json.dumps("peer"))
         cfg.insert_json5("scouting/multicast/enabled", "false")
@@ -218,6 +222,8 @@ class TelemetryGate:
         k = f"climbd/{self.robot}/{message.TOPIC}"
         pub = self._publishers.get(k)
         if pub is None:
+            import zenoh
+
             pub = self._publishers[k] = self.session.declare_publisher(
                 k, congestion_control=zenoh.CongestionControl.DROP
             )

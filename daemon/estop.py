@@ -9,8 +9,11 @@ from __future__ import annotations
 import argparse
 import os
 import socket
+import sys
 import time
 import uuid
+
+from daemon.access import add_credential_arguments
 
 REPEAT_HZ = 10.0
 REPEAT_FOR = 1.0
@@ -23,14 +26,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--reason", default="operator", help="why (logged by the robot)")
     parser.add_argument("--reset", action="store_true", help="reset a latched e-stop or fault")
+    add_credential_arguments(parser)
 
 
 def main(args: argparse.Namespace) -> int:
-    from daemon.bus import Bus, Endpoints, zenoh_config
+    from daemon.access import AccessError, client_config
+    from daemon.bus import Bus
     from daemon.messages import EStop, ModeRequest, SessionClaim
 
     source = f"{socket.gethostname()}:{os.getpid()}"
-    bus = Bus(args.robot, zenoh_config(None, "estop", Endpoints([], args.connect)))
+    try:
+        cfg = client_config(args, "estop")
+    except AccessError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    bus = Bus(args.robot, cfg)
     try:
         time.sleep(0.3)  # let the session connect before the first (reliable) put
         if args.reset:

@@ -8,12 +8,59 @@ import threading
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--robot", required=True, help="robot name (profile name)")
+    from daemon.access import add_credential_arguments
+
+    target = parser.add_mutually_exclusive_group(required=True)
+    target.add_argument("--robot", help="robot name (profile name)")
+    target.add_argument("--all", action="store_true", help="fleet view: every robot and role")
     parser.add_argument(
         "--connect", action="append", default=[], help="Zenoh endpoint of the robot (repeatable)"
     )
     parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for health")
     parser.add_argument("--json", action="store_true", help="print the Health message as JSON")
+    add_credential_arguments(parser)
+
+
+def fleet(bus, timeout: float) -> dict[str, dict]:
+    """Every robot on the network: its live roles (liveliness) and last mode (ModeState)."""
+    import time
+
+    from daemon.messages import ModeState, decode
+
+    robots: dict[str, dict] = {}
+    lock = threading.Lock()
+
+    def on_mode(sample) -> None:
+        robot = str(sample.key_expr).split("/")[1]
+        try:
+            state = decode(sample.payload.to_bytes(), ModeState)
+        except Exception:  # another climbd version's payload: the robot is listed, mode unknown
+            return
+        with lock:
+            robots.setdefault(robot, {"roles": []})["mode"] = state
+
+    sub = bus.session.declare_subscriber("climbd/*/" + ModeState.TOPIC, on_mode)
+    try:
+        for robot, role in bus.alive_roles("*", timeout=timeout):
+            with lock:
+                robots.setdefault(robot, {"roles": []})["roles"].append(role)
+        end = time.monotonic() + 1.0  # ModeState comes at 2 Hz
+        while time.monotonic() < end and any("mode" not in r for r in robots.values()):
+            time.sleep(0.05)
+    finally:
+        sub.undeclare()
+    return robots
+
+
+def format_fleet(robots: dict[str, dict]) -> str:
+    """One line per robot: name, live roles, mode and why."""
+    lines = []
+    for name in sorted(robots):
+        r = robots[name]
+        mode = r.get("mode")
+        what = f"{mode.mode.value} ({mode.reason})" if mode is not None else "mode unknown"
+        lines.append(f"{name:<16} roles {','.join(sorted(r['roles'])) or '-':<28} {what}")
+    return "\n".join(lines)
 
 
 def format_health(health) -> str:
@@ -37,10 +84,26 @@ def format_health(health) -> str:
 def main(args: argparse.Namespace) -> int:
     import msgspec
 
-    from daemon.bus import Bus, Endpoints, zenoh_config
+    from daemon.access import AccessError, client_config
+    from daemon.bus import Bus
     from daemon.messages import Health
 
-    bus = Bus(args.robot, zenoh_config(None, "status", Endpoints([], args.connect)))
+    try:
+        cfg = client_config(args, "status")
+    except AccessError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    bus = Bus(args.robot or "*", cfg)
+    if args.all:
+        try:
+            robots = fleet(bus, args.timeout)
+        finally:
+            bus.close()
+        if not robots:
+            print(f"no climbd robot answered within {args.timeout:g} s", file=sys.stderr)
+            return 1
+        print(format_fleet(robots))
+        return 0
     got: list[Health] = []
     arrived = threading.Event()
 
