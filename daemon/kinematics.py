@@ -65,7 +65,7 @@ def _two_link(u, w, l2, l3, knee_sign):
     """Planar two-link IK: (first angle, relative second angle, reachable) for point (u, w)."""
     c = (u * u + w * w - l2 * l2 - l3 * l3) / (2.0 * l2 * l3)
     ok = np.abs(c) <= 1.0
-    rel = knee_sign * np.arccos(np.clip(c, -1.0, 1.0))
+    rel = knee_sign * np.arccos(np.minimum(np.maximum(c, -1.0), 1.0))
     first = np.arctan2(w, u) - np.arctan2(l3 * np.sin(rel), l2 + l3 * np.cos(rel))
     return first, rel, ok
 
@@ -82,7 +82,7 @@ class Kinematics:
         self.mount = np.array([leg.mount for leg in legs], float)
         self.yaw = np.array([leg.yaw for leg in legs], float)
         self.rot = rot_z(self.yaw)
-        self.rot_t = np.swapaxes(self.rot, 1, 2)
+        self.cos_yaw, self.sin_yaw = np.cos(self.yaw), np.sin(self.yaw)
         links = np.array([leg.links for leg in legs], float)
         self.l1, self.l2, self.l3 = links[:, 0], links[:, 1], links[:, 2]
         joints = profile.joints
@@ -91,7 +91,7 @@ class Kinematics:
         self.lower = np.array([j.limits.lower for j in joints], float)
         self.upper = np.array([j.limits.upper for j in joints], float)
         self.cft = np.array([leg.kind == CFT for leg in legs])
-        self.ats = ~self.cft
+        self.all_cft = bool(self.cft.all())
         self.knee_sign = np.array(
             [
                 (-1.0 if leg.kind == CFT else 1.0) * (1.0 if leg.knee == "a" else -1.0)
@@ -114,27 +114,55 @@ class Kinematics:
 
     def to_leg(self, feet: np.ndarray) -> np.ndarray:
         """Body-frame points (n_legs, 3) into each leg's frame."""
-        return np.einsum("lij,lj->li", self.rot_t, np.asarray(feet, float) - self.mount)
+        d = np.asarray(feet, float) - self.mount
+        c, s = self.cos_yaw, self.sin_yaw
+        out = np.empty_like(d)
+        out[:, 0] = c * d[:, 0] + s * d[:, 1]
+        out[:, 1] = c * d[:, 1] - s * d[:, 0]
+        out[:, 2] = d[:, 2]
+        return out
 
     def to_body(self, feet_leg: np.ndarray) -> np.ndarray:
         """Leg-frame points (n_legs, 3) into the body frame."""
-        return np.einsum("lij,lj->li", self.rot, feet_leg) + self.mount
+        c, s = self.cos_yaw, self.sin_yaw
+        out = np.array(self.mount)
+        out[:, 0] += c * feet_leg[:, 0] - s * feet_leg[:, 1]
+        out[:, 1] += s * feet_leg[:, 0] + c * feet_leg[:, 1]
+        out[:, 2] += feet_leg[:, 2]
+        return out
+
+    def _by_kind(self, cft, ats, *args):
+        """Evaluate the coxa-femur-tibia and/or abduction-thigh-shank form, as the legs need."""
+        if self.all_cft:
+            return cft(*args)
+        if not self.cft.any():
+            return ats(*args)
+        a, b = cft(*args), ats(*args)
+        return tuple(
+            np.where(self.cft.reshape(-1, *[1] * (x.ndim - 1)), x, y)
+            for x, y in zip(a, b, strict=True)
+        )
 
     # --- forward kinematics -----------------------------------------------------------
 
     def fk_leg(self, theta: np.ndarray) -> np.ndarray:
         """Feet in their leg frames (n_legs, 3) from kinematic angles (n_legs, 3)."""
-        a, b, c = theta[:, 0], theta[:, 1], theta[:, 2]
-        l1, l2, l3 = self.l1, self.l2, self.l3
-        out = np.empty((self.n_legs, 3))
-        # coxa-femur-tibia: a = gamma, b = alpha, c = beta
-        r = l1 + l2 * np.cos(b) + l3 * np.cos(b + c)
-        cft = np.stack([r * np.cos(a), r * np.sin(a), l2 * np.sin(b) + l3 * np.sin(b + c)], 1)
-        # abduction-thigh-shank (paper 004 eqs. 1-3): a = theta_a, b = theta_t, c = theta_s
-        rho = l2 * np.sin(b) + l3 * np.sin(c)
-        ats = np.stack([l1 + l2 * np.cos(b) + l3 * np.cos(c), rho * np.sin(a), -rho * np.cos(a)], 1)
-        out[:] = np.where(self.cft[:, None], cft, ats)
-        return out
+        return self._by_kind(self._fk_cft, self._fk_ats, theta)[0]
+
+    def _fk_cft(self, theta: np.ndarray) -> tuple[np.ndarray]:
+        gamma, alpha, beta = theta[:, 0], theta[:, 1], theta[:, 2]
+        l2, l3 = self.l2, self.l3
+        r = self.l1 + l2 * np.cos(alpha) + l3 * np.cos(alpha + beta)
+        z = l2 * np.sin(alpha) + l3 * np.sin(alpha + beta)
+        return (np.stack([r * np.cos(gamma), r * np.sin(gamma), z], 1),)
+
+    def _fk_ats(self, theta: np.ndarray) -> tuple[np.ndarray]:
+        """Paper 004 eqs. 1-3 in our leg frame."""
+        ta, tt, ts = theta[:, 0], theta[:, 1], theta[:, 2]
+        l2, l3 = self.l2, self.l3
+        rho = l2 * np.sin(tt) + l3 * np.sin(ts)
+        x = self.l1 + l2 * np.cos(tt) + l3 * np.cos(ts)
+        return (np.stack([x, rho * np.sin(ta), -rho * np.cos(ta)], 1),)
 
     def fk(self, q: np.ndarray) -> np.ndarray:
         """Feet in the body frame (n_legs, 3) from a joint vector (n_joints,)."""
@@ -144,21 +172,19 @@ class Kinematics:
 
     def ik_leg(self, feet_leg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Kinematic angles (n_legs, 3) and a geometric-reachability mask from leg-frame feet."""
+        return self._by_kind(self._ik_cft, self._ik_ats, feet_leg)
+
+    def _ik_cft(self, feet_leg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         x, y, z = feet_leg[:, 0], feet_leg[:, 1], feet_leg[:, 2]
-        l1, l2, l3, k = self.l1, self.l2, self.l3, self.knee_sign
-        # coxa-femur-tibia
-        gamma = np.arctan2(y, x)
-        alpha, beta, ok_c = _two_link(np.hypot(x, y) - l1, z, l2, l3, k)
-        # abduction-thigh-shank: the thigh plane holds (x - l1, rho) with rho pointing down
-        theta_a = np.arctan2(y, -z)
-        theta_t, rel, ok_a = _two_link(x - l1, np.hypot(y, z), l2, l3, k)
-        theta = np.where(
-            self.cft[:, None],
-            np.stack([gamma, alpha, beta], 1),
-            np.stack([theta_a, theta_t, theta_t + rel], 1),
-        )
-        ok = np.where(self.cft, ok_c, ok_a)
-        return theta, ok
+        alpha, beta, ok = _two_link(np.hypot(x, y) - self.l1, z, self.l2, self.l3, self.knee_sign)
+        return np.stack([np.arctan2(y, x), alpha, beta], 1), ok
+
+    def _ik_ats(self, feet_leg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The thigh plane holds (x - l1, rho), rho = hypot(y, z) pointing down the leg."""
+        x, y, z = feet_leg[:, 0], feet_leg[:, 1], feet_leg[:, 2]
+        rho = np.hypot(y, z)
+        theta_t, rel, ok = _two_link(x - self.l1, rho, self.l2, self.l3, self.knee_sign)
+        return np.stack([np.arctan2(y, -z), theta_t, theta_t + rel], 1), ok
 
     def ik(self, feet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Joint vector (n_joints,) and per-leg reachable mask from body-frame feet (n_legs, 3).
@@ -177,37 +203,34 @@ class Kinematics:
 
     def jacobian_leg(self, theta: np.ndarray) -> np.ndarray:
         """d(foot_leg)/d(theta), shape (n_legs, 3, 3), columns in joint order."""
-        a, b, c = theta[:, 0], theta[:, 1], theta[:, 2]
+        return self._by_kind(self._jacobian_cft, self._jacobian_ats, theta)[0]
+
+    def _jacobian_cft(self, theta: np.ndarray) -> tuple[np.ndarray]:
+        gamma, alpha, beta = theta[:, 0], theta[:, 1], theta[:, 2]
         l2, l3 = self.l2, self.l3
-        ca, sa = np.cos(a), np.sin(a)
+        cg, sg = np.cos(gamma), np.sin(gamma)
+        r = self.l1 + l2 * np.cos(alpha) + l3 * np.cos(alpha + beta)
+        z = l2 * np.sin(alpha) + l3 * np.sin(alpha + beta)
+        dr_beta = -l3 * np.sin(alpha + beta)
+        dz_beta = l3 * np.cos(alpha + beta)
         jac = np.empty((self.n_legs, 3, 3))
-        # coxa-femur-tibia
-        r = self.l1 + l2 * np.cos(b) + l3 * np.cos(b + c)
-        z = l2 * np.sin(b) + l3 * np.sin(b + c)
-        dr_c = -l3 * np.sin(b + c)
-        cft = np.stack(
-            [
-                np.stack([-r * sa, -z * ca, dr_c * ca], 1),
-                np.stack([r * ca, -z * sa, dr_c * sa], 1),
-                np.stack(
-                    [np.zeros_like(a), l2 * np.cos(b) + l3 * np.cos(b + c), l3 * np.cos(b + c)], 1
-                ),
-            ],
-            1,
-        )
-        # abduction-thigh-shank: paper 004 eq. 4 in our leg frame and joint order
-        rho = l2 * np.sin(b) + l3 * np.sin(c)
-        tc, sc = l2 * np.cos(b), l3 * np.cos(c)
-        ats = np.stack(
-            [
-                np.stack([np.zeros_like(a), -l2 * np.sin(b), -l3 * np.sin(c)], 1),
-                np.stack([rho * ca, tc * sa, sc * sa], 1),
-                np.stack([rho * sa, -tc * ca, -sc * ca], 1),
-            ],
-            1,
-        )
-        jac[:] = np.where(self.cft[:, None, None], cft, ats)
-        return jac
+        jac[:, 0] = np.stack([-r * sg, -z * cg, dr_beta * cg], 1)
+        jac[:, 1] = np.stack([r * cg, -z * sg, dr_beta * sg], 1)
+        jac[:, 2] = np.stack([np.zeros_like(r), l2 * np.cos(alpha) + dz_beta, dz_beta], 1)
+        return (jac,)
+
+    def _jacobian_ats(self, theta: np.ndarray) -> tuple[np.ndarray]:
+        """Paper 004 eq. 4 in our leg frame and joint order (abduction, thigh, shank)."""
+        ta, tt, ts = theta[:, 0], theta[:, 1], theta[:, 2]
+        l2, l3 = self.l2, self.l3
+        ca, sa = np.cos(ta), np.sin(ta)
+        rho = l2 * np.sin(tt) + l3 * np.sin(ts)
+        tc, sc = l2 * np.cos(tt), l3 * np.cos(ts)
+        jac = np.empty((self.n_legs, 3, 3))
+        jac[:, 0] = np.stack([np.zeros_like(rho), -l2 * np.sin(tt), -l3 * np.sin(ts)], 1)
+        jac[:, 1] = np.stack([rho * ca, tc * sa, sc * sa], 1)
+        jac[:, 2] = np.stack([rho * sa, -tc * ca, -sc * ca], 1)
+        return (jac,)
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """d(foot_body)/dq per leg, shape (n_legs, 3, 3), in the joints' own convention."""

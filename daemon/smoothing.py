@@ -42,6 +42,8 @@ class Smoother:
         self._inp = ruckig.InputParameter(self.n)
         self._out = ruckig.OutputParameter(self.n)
         self._inp.synchronization = ruckig.Synchronization.No
+        self._a_target = self.a_max * _MARGIN
+        self._half_inv_jerk = 0.5 / self.j_max
         self._inp.max_acceleration = self.a_max.tolist()
         self._inp.max_jerk = self.j_max.tolist()
         self._scale = 1.0
@@ -107,11 +109,12 @@ class Smoother:
         The acceleration is bounded by the acceleration limit and the velocity by what can
         still be brought to zero acceleration without passing the velocity limit.
         """
-        a_lim = self.a_max * _MARGIN
-        qdd = np.zeros(self.n) if target_qdd is None else np.clip(target_qdd, -a_lim, a_lim)
-        v_lim = np.maximum(self.v_lim * _MARGIN - qdd * qdd / (2.0 * self.j_max), 0.0)
-        qd = np.clip(target_qd, -v_lim, v_lim)
-        return qd, qdd
+        if target_qdd is None:
+            qdd = np.zeros(self.n)
+        else:
+            qdd = np.minimum(np.maximum(target_qdd, -self._a_target), self._a_target)
+        v_lim = np.maximum(self.v_lim * _MARGIN - qdd * qdd * self._half_inv_jerk, 0.0)
+        return np.minimum(np.maximum(target_qd, -v_lim), v_lim), qdd
 
     def step(
         self,

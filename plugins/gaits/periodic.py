@@ -155,15 +155,19 @@ class PeriodicGait(GaitPlugin):
         self.step_length = c.step_length if c.step_length is not None else 0.4 * stand.foot_reach
         self.step_height = c.step_height if c.step_height is not None else self.height0 / 3.0
         self.home = kin.stand_feet(self.height0)[:, :2].copy()
+        self.home_perp = np.column_stack([-self.home[:, 1], self.home[:, 0]])
         self.swing_time = (1.0 - c.duty_factor) * c.cycle_time
         self.stance_time = c.duty_factor * c.cycle_time
         self.sway_coef = self._sway_series(c.sway)
         self._reset(np.column_stack([self.home, np.full(n, -self.height0)]))
 
     def _reset(self, feet: np.ndarray) -> None:
-        self.feet = np.array(feet, float)
-        self.lift_point = self.feet.copy()
-        self.anchor = self.feet.copy()
+        # Ground-fixed points in the level frame, advected together: the feet, the swing
+        # legs' lift-off points and their touch-down anchors.
+        self.points = np.repeat(np.array(feet, float)[None], 3, axis=0)
+        self.feet, self.lift_point, self.anchor = self.points
+        self._command: MotionCommand | None = None
+        self._command_targets = self._targets(None)
         self.phase = 0.0
         self.pose = np.array([0.0, 0.0, 0.0, -self.feet[:, 2].mean(), 0.0, 0.0])
         self.pose_rate = np.zeros(6)
@@ -233,7 +237,9 @@ class PeriodicGait(GaitPlugin):
 
     def _follow(self, dt: float, command: MotionCommand | None) -> float:
         """Filter (vx, vy, yaw rate, height, roll, pitch) towards the command; returns d(height)."""
-        v, w, height, roll, pitch = self._targets(command)
+        if command is not self._command:
+            self._command, self._command_targets = command, self._targets(command)
+        v, w, height, roll, pitch = self._command_targets
         self.commanded = bool(v.any()) or w != 0.0
         if self.config.sway > 0.0:
             v, w = v * self.sway_gain, w * self.sway_gain
@@ -263,12 +269,12 @@ class PeriodicGait(GaitPlugin):
     def _touch_down(self, t_rem: np.ndarray) -> np.ndarray:
         """Where, now (level frame), lies the ground point each foot lands on in ``t_rem`` s."""
         v, w = self.pose[:2], self.pose[2]
-        hx, hy = self.home[:, 0], self.home[:, 1]
-        half = 0.5 * self.stance_time
-        tx = hx + (v[0] - w * hy) * half
-        ty = hy + (v[1] + w * hx) * half
+        target = self.home + (v + w * self.home_perp) * (0.5 * self.stance_time)
+        if w == 0.0:
+            return target + np.multiply.outer(t_rem, v)
         a = w * t_rem
         ca, sa = np.cos(a), np.sin(a)
+        tx, ty = target[:, 0], target[:, 1]
         return np.column_stack([ca * tx - sa * ty + v[0] * t_rem, sa * tx + ca * ty + v[1] * t_rem])
 
     def step(
@@ -286,9 +292,7 @@ class PeriodicGait(GaitPlugin):
             self._update_sway(dt)
         dz = self._follow(dt, command)
         feet, lift_point = self.feet, self.lift_point
-        self._advect(feet, dt, dz)
-        self._advect(lift_point, dt, dz)
-        self._advect(self.anchor, dt, dz)
+        self._advect(self.points.reshape(-1, 3), dt, dz)
 
         self.phase = (self.phase + dt / c.cycle_time) % 1.0
         psi = (self.phase - self.offsets) % 1.0
@@ -305,24 +309,19 @@ class PeriodicGait(GaitPlugin):
             self.anchor[lift_off] = feet[lift_off]
         swinging = window & self.stepping
         if swinging.any() or ended.any():
-            tau = np.clip((psi - self.swing_start) / (swing_fraction - self.swing_start), 0.0, 1.0)
+            span = swing_fraction - self.swing_start
+            tau = np.minimum(np.maximum((psi - self.swing_start) / span, 0.0), 1.0)
             s = progress(tau)
             # The touch-down point follows the command early in the swing and is held on the
             # ground as the swing ends, so the foot lands at rest relative to the ground.
             touch = self.anchor
             predicted = self._touch_down((swing_fraction - psi) * c.cycle_time)
-            follow = np.where(swinging, 1.0 - s, 0.0)[:, None]
-            touch[:, :2] += follow * (predicted - touch[:, :2])
-            lx, ly, lz = lift_point[:, 0], lift_point[:, 1], lift_point[:, 2]
-            ground = -self.height
-            sx = np.where(swinging, lx + s * (touch[:, 0] - lx), feet[:, 0])
-            sy = np.where(swinging, ly + s * (touch[:, 1] - ly), feet[:, 1])
-            sz = np.where(
-                swinging, lz + s * (ground - lz) + self.step_height * lift(tau), feet[:, 2]
-            )
-            feet[:, 0] = np.where(ended, touch[:, 0], sx)
-            feet[:, 1] = np.where(ended, touch[:, 1], sy)
-            feet[:, 2] = np.where(ended, ground, sz)
+            touch[:, :2] += np.where(swinging, 1.0 - s, 0.0)[:, None] * (predicted - touch[:, :2])
+            touch[:, 2] = -self.height
+            path = lift_point + s[:, None] * (touch - lift_point)
+            path[:, 2] += self.step_height * lift(tau)
+            feet[swinging] = path[swinging]
+            feet[ended] = touch[ended]
         self.stepping &= window
         self.in_window = window
         return FootTargets(stamp=t, positions=self._posed().tolist(), stance=(~swinging).tolist())
