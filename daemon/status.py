@@ -18,6 +18,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for health")
     parser.add_argument("--json", action="store_true", help="print the Health message as JSON")
+    parser.add_argument(
+        "--role", default="control", help="whose health: control (default) or perception"
+    )
     add_credential_arguments(parser)
 
 
@@ -108,8 +111,9 @@ def main(args: argparse.Namespace) -> int:
     arrived = threading.Event()
 
     def on_health(h: Health) -> None:
-        got.append(h)
-        arrived.set()
+        if h.role == args.role:
+            got.append(h)
+            arrived.set()
 
     try:
         bus.subscribe(Health, on_health)
