@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import msgspec
 import mujoco
@@ -16,6 +17,7 @@ from daemon.profile import load
 from drivers.sim import servos
 from drivers.sim.depth import NOISE
 from drivers.sim.model import GRIP_FORCE, build
+from drivers.sim.topview import render_top_view
 from drivers.sim.twin import Twin
 from drivers.sim.worlds import JoistRow, World, WorldError, holds_heightfield, stock_worlds
 from drivers.sim.worlds import load as load_world
@@ -280,3 +282,51 @@ def test_depth_drops_grazing_and_far_returns(widowx):
     twin.advance_to(1.0)
     imu = twin.imu_sample()
     assert np.linalg.norm(imu.accel) == pytest.approx(9.80665, rel=0.05)
+
+
+def test_depth_enters_pyrealsense2_through_the_software_device(widowx):
+    """Frames the stepped twin renders at the camera rate come out of the RealSense driver's
+    software device unchanged, with the camera's intrinsics and depth units."""
+    twin = Twin(widowx, _box_world(0.9), stepped=True, bus=False)
+    pushed = []
+    twin.on_depth(lambda name, frame: pushed.append(frame))
+    camera = twin.software_camera("front", timeout=5.0)
+    camera.open()
+    try:
+        twin.advance_to(0.1)
+        frames = camera.frames()
+        got = next(frames)
+    finally:
+        camera.close()
+    assert len(pushed) in (3, 4)  # every 1/30 s of simulated time
+    match = [f for f in pushed if np.array_equal(f.depth, got.depth)]
+    assert match, "a delivered frame equals a rendered one, pixel for pixel"
+    assert got.intrinsics == twin.cameras["front"].intrinsics
+    assert got.depth_scale == pytest.approx(0.00025)
+
+
+def test_real_time_mode_runs_physics_and_cameras_in_threads(widowx):
+    """Started without ``stepped``, simulated time advances on its own and depth callbacks
+    arrive; stop() ends both threads."""
+    twin = Twin(widowx, "attic", bus=False)
+    frames = []
+    twin.on_depth(lambda name, frame: frames.append(frame.timestamp))
+    with twin:
+        deadline = time.monotonic() + 10.0
+        while (twin.time < 0.3 or len(frames) < 3) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    assert twin.time >= 0.3 and len(frames) >= 3
+    assert np.all(np.diff(frames) > 0)
+    stopped = twin.time
+    time.sleep(0.05)
+    assert twin.time == stopped
+
+
+def test_top_view_png(tmp_path):
+    """The demo's snapshot: a PNG of the attic, a path and a detected joist."""
+    path = np.stack([np.linspace(0, 1.2, 20), np.zeros(20)], axis=1)
+    out = render_top_view(
+        load_world("attic"), path, tmp_path / "top.png", detected=[((1.5, -1), (1.5, 1))]
+    )
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000

@@ -7,6 +7,7 @@
     twin.step(n)                    # stepped: n physics steps
     twin.body_pose(); twin.foot_positions(); twin.foot_contacts()   # ground truth for tests
     twin.depth_frame("front"); twin.on_depth(callback)              # ray-cast depth
+    camera = twin.software_camera("front")     # …entering pyrealsense2 through software_device
     twin.imu_sample()
     twin.overheat("rf_femur", 80.0); twin.silence("rf_femur"); twin.unplug()   # faults
     twin.stop()
@@ -34,6 +35,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -47,6 +49,9 @@ from drivers.sim.depth import RayCastDepth
 from drivers.sim.model import RobotModel, build
 from drivers.sim.worlds import World
 from drivers.sim.worlds import load as load_world
+
+if TYPE_CHECKING:
+    from drivers.realsense.software import SoftwareDepthCamera
 
 log = logging.getLogger("climbd.sim")
 
@@ -341,7 +346,7 @@ class Twin:
         with self.lock:
             for _ in range(n):
                 self._physics_step()
-            self._cameras_due()
+                self._cameras_due()
 
     def advance_to(self, t: float, t1: float | None = None) -> None:
         """Step physics until simulated time reaches ``t`` (s).
@@ -355,8 +360,8 @@ class Twin:
         with self.lock:
             while self.data.time < target - 0.5 * h:
                 self._physics_step()
+                self._cameras_due()
             self._sync_bus()
-            self._cameras_due()
 
     def _settle_bus(self) -> None:
         """Wait until the emulator has handled every byte the driver wrote to the pty.
@@ -412,7 +417,7 @@ class Twin:
         now = self.data.time
         for name, cam in self.cameras.items():
             if now + 1e-9 >= self._next_frame[name]:
-                self._next_frame[name] = now + cam.period
+                self._next_frame[name] = max(self._next_frame[name] + cam.period, now)
                 frame = self.depth_frame(name)
                 for callback in self._depth_callbacks:
                     callback(name, frame)
@@ -499,6 +504,30 @@ class Twin:
     def on_depth(self, callback: DepthCallback) -> None:
         """Call ``callback(camera, frame)`` at each camera's frame rate (simulated time)."""
         self._depth_callbacks.append(callback)
+
+    def software_camera(self, camera: str, **options) -> SoftwareDepthCamera:
+        """A pyrealsense2 software device fed with ``camera``'s frames, as the perception role
+        reads a USB camera; ``options`` go to SoftwareDepthCamera (e.g. ``record_to``)."""
+        from drivers.realsense.software import SoftwareDepthCamera
+
+        cam = self.cameras[camera]
+        config = next(c for c in self.profile.cameras if c.name == camera)
+        device = SoftwareDepthCamera(
+            cam.intrinsics,
+            cam.depth_scale,
+            cam.extrinsics,
+            fps=config.fps,
+            model=config.model,
+            config=config,
+            **options,
+        )
+
+        def push(name: str, frame: DepthFrame) -> None:
+            if name == camera:
+                device.push(frame.depth, frame.timestamp)
+
+        self.on_depth(push)
+        return device
 
     def imu_sample(self) -> ImuSample:
         """Gyro (rad/s) and specific force (m/s², gravity included) in the body frame."""
