@@ -24,7 +24,7 @@ from plugins.perception.graspable import (
     interpolate_heights,
     lattice_mask,
     regression_frame,
-    scan_void_hits,
+    scan_window,
     terrain_matrix,
 )
 from plugins.perception.gripper_mask import GripperGeometry, gripper_mask
@@ -88,9 +88,11 @@ def test_correlation_equals_the_papers_per_voxel_scan():
         ix, iy = np.nonzero(depth >= 0)
         pick = np.random.default_rng(step).choice(len(ix), 400, replace=False)
         at = (ix[pick], iy[pick], depth[ix[pick], iy[pick]])
-        fast = Correlator(mask).void_hits(terrain)[at]
-        np.testing.assert_array_equal(fast, scan_void_hits(terrain, mask, at))
-        assert fast.max() > 0 and (fast == 0).any()
+        hits, solid = Correlator(mask).counts(terrain)
+        scan_hits, scan_solid = scan_window(terrain, mask, at)
+        np.testing.assert_array_equal(hits[at], scan_hits)
+        np.testing.assert_array_equal(solid[at], scan_solid)
+        assert hits[at].max() > 0 and (hits[at] == 0).any() and solid[at].min() > 0
 
 
 def test_delaunay_fill_is_linear_inside_triangles():

@@ -4,7 +4,7 @@ The cloud is turned to its regression plane (z along the plane normal, towards t
 occlusions are filled by linear interpolation over a Delaunay triangulation onto a square
 lattice, and the lattice's heights are voxelised into the 0/1 terrain matrix. The paper scans
 every solid voxel with the gripper mask; the test is the same at every voxel, so here it is one
-FFT correlation of the terrain matrix with the mask's void cells plus a box sum of solid cells.
+FFT correlation of the terrain matrix with the mask's void cells plus a box count of solid cells.
 
 Rule (paper §2.3, ClimbLab's thresholds): a solid voxel is graspable when the solid voxels
 of its window that fall in the mask's void cells are at most ``void_fraction`` of the window's
@@ -198,38 +198,42 @@ def lattice_mask(mask: np.ndarray, step: int) -> np.ndarray:
 
 
 class Correlator:
-    """Counts, for every voxel, the terrain's solid voxels in the mask's void cells (FFT).
+    """Counts, for every voxel, the solid voxels of its window and those in the mask's void cells.
 
     The window is the mask anchored with its centre column over the voxel and its depth 0 at
-    the voxel's depth; the kernel's spectrum is cached per FFT shape.
+    the voxel's depth. One forward FFT of the terrain serves both counts (void kernel and box
+    kernel); the kernels' spectra are cached per FFT shape.
     """
 
     def __init__(self, mask: np.ndarray) -> None:
         self.mask = mask
-        self._void = (~mask)[::-1, ::-1, ::-1].astype(np.float32)
+        self._kernels = np.stack(((~mask)[::-1, ::-1, ::-1], np.ones_like(mask)), axis=0).astype(
+            np.float32
+        )
         self._spectra: dict[tuple[int, ...], np.ndarray] = {}
 
-    def void_hits(self, terrain: np.ndarray) -> np.ndarray:
-        """Σ terrain · void over each voxel's window, same shape as ``terrain`` (exact integers)."""
-        full = [t + k - 1 for t, k in zip(terrain.shape, self._void.shape, strict=True)]
+    def counts(self, terrain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(void hits, solid voxels) of each voxel's window, both shaped like ``terrain``."""
+        full = [t + k - 1 for t, k in zip(terrain.shape, self.mask.shape, strict=True)]
         shape = tuple(scipy.fft.next_fast_len(n, real=True) for n in full)
-        spectrum = self._spectra.get(shape)
-        if spectrum is None:
-            spectrum = self._spectra[shape] = scipy.fft.rfftn(self._void, shape, workers=-1)
-        product = scipy.fft.rfftn(terrain, shape, workers=-1)
-        product *= spectrum
-        conv = scipy.fft.irfftn(product, shape, workers=-1)
+        spectra = self._spectra.get(shape)
+        if spectra is None:
+            spectra = scipy.fft.rfftn(self._kernels, shape, axes=(1, 2, 3), workers=-1)
+            self._spectra[shape] = spectra
+        product = scipy.fft.rfftn(terrain, shape, workers=-1)[None] * spectra
+        conv = scipy.fft.irfftn(product, shape, axes=(1, 2, 3), workers=-1)
         h = self.mask.shape[0] // 2
         d = self.mask.shape[2] - 1
         nx, ny, nz = terrain.shape
-        return np.rint(conv[h : h + nx, h : h + ny, d : d + nz]).astype(np.int32)
+        hits, solid = np.rint(conv[:, h : h + nx, h : h + ny, d : d + nz]).astype(np.int32)
+        return hits, solid
 
 
-def scan_void_hits(terrain: np.ndarray, mask: np.ndarray, at: tuple[np.ndarray, ...]) -> np.ndarray:
-    """The paper's per-voxel scan (§2.3): cut each voxel's window, count solid cells in void.
-
-    The reference the correlation is tested and benchmarked against; O(voxels × mask cells).
-    """
+def scan_window(
+    terrain: np.ndarray, mask: np.ndarray, at: tuple[np.ndarray, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's per-voxel scan (§2.3): cut each voxel's window, count its solid cells in the
+    mask's void and in all. The reference the correlation is tested and benchmarked against."""
     h = mask.shape[0] // 2
     depth = mask.shape[2]
     padded = np.zeros(
@@ -239,30 +243,12 @@ def scan_void_hits(terrain: np.ndarray, mask: np.ndarray, at: tuple[np.ndarray, 
     padded[h : h + terrain.shape[0], h : h + terrain.shape[1], : terrain.shape[2]] = terrain
     void = ~mask
     hits = np.empty(len(at[0]), dtype=np.int64)
+    solid = np.empty(len(at[0]), dtype=np.int64)
     for i, (x, y, z) in enumerate(zip(*at, strict=True)):
         window = padded[x : x + 2 * h + 1, y : y + 2 * h + 1, z : z + depth]
         hits[i] = int(window[void].sum())
-    return hits
-
-
-def box_sums(terrain: np.ndarray, half: int, depth: int, at: tuple[np.ndarray, ...]) -> np.ndarray:
-    """Solid voxels in the (2·half+1)² columns × ``depth`` layers window of each voxel ``at``."""
-    nx, ny, nz = terrain.shape
-    c = np.zeros((nx + 2 * half + 1, ny + 2 * half + 1, nz + depth + 1), dtype=np.int32)
-    c[half + 1 : half + 1 + nx, half + 1 : half + 1 + ny, 1 : 1 + nz] = terrain
-    c = c.cumsum(0).cumsum(1).cumsum(2)
-    x0, y0, z0 = at
-    x1, y1, z1 = x0 + 2 * half + 1, y0 + 2 * half + 1, z0 + depth
-    return (
-        c[x1, y1, z1]
-        - c[x0, y1, z1]
-        - c[x1, y0, z1]
-        - c[x1, y1, z0]
-        + c[x0, y0, z1]
-        + c[x0, y1, z0]
-        + c[x1, y0, z0]
-        - c[x0, y0, z0]
-    )
+        solid[i] = int(window.sum())
+    return hits, solid
 
 
 def void_known(known: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -337,8 +323,7 @@ class GraspableDetector:
         lattice = interpolate_heights(plane, spacing)
         terrain, depth, _ = terrain_matrix(lattice, cfg.voxel)
         correlator = self.correlator(round(spacing / cfg.voxel))
-        half = correlator.mask.shape[0] // 2
-        hits = correlator.void_hits(terrain)
+        hits, solid = correlator.counts(terrain)
         known = depth >= 0
         palm = (cfg.gripper.palm_diameter + cfg.gripper.margin_top_solid) / 2 / spacing
         cols = np.nonzero(
@@ -348,8 +333,7 @@ class GraspableDetector:
             & palm_clear(depth, palm, cfg.above_tolerance)
         )
         at = (cols[0], cols[1], depth[cols])
-        solid = box_sums(terrain, half, correlator.mask.shape[2], at)
-        ok = (hits[at] <= cfg.void_fraction * solid) & (solid > cfg.solid_threshold)
+        ok = (hits[at] <= cfg.void_fraction * solid[at]) & (solid[at] > cfg.solid_threshold)
         gx, gy = cols[0][ok], cols[1][ok]
         on_plane = np.column_stack(
             (lattice.x0 + gx * spacing, lattice.y0 + gy * spacing, lattice.heights[gx, gy])
