@@ -77,8 +77,8 @@ def refine(points: np.ndarray, cylinder: Cylinder, iterations: int = 8) -> Cylin
         ru, rv = pu / distance, pv / distance
         jacobian = np.column_stack([-ru, -rv, -t * ru, -t * rv, -np.ones_like(t)])
         normal = jacobian.T @ jacobian
-        normal[np.diag_indices(5)] *= 1.0 + 1e-9
-        step = np.linalg.lstsq(normal, jacobian.T @ (radius - distance), rcond=None)[0]
+        normal[np.diag_indices(5)] += 1e-12 + 1e-9 * np.trace(normal)
+        step = np.linalg.solve(normal, jacobian.T @ (radius - distance))
         point = point + step[0] * u + step[1] * v
         axis = axis + step[2] * u + step[3] * v
         axis /= np.sqrt(axis @ axis)

@@ -23,7 +23,7 @@ from plugins.perception.truss.completion import (
     suppress_duplicates,
 )
 from plugins.perception.truss.cylinders import Segment, refine, segment_cylinders, surface_fit
-from plugins.perception.truss.planes import find_planes, plane_heights, refine_plane
+from plugins.perception.truss.planes import accept_plane, find_planes, plane_heights
 
 
 class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -37,7 +37,9 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     outlier_neighbours: int = 4
     plane_distance: float = 0.02
     plane_angle_deg: float = 20.0
-    plane_voxel: float = 0.05
+    plane_voxel: float = 0.08
+    plane_neighbours: int = 8
+    plane_cell: float = 0.05
     plane_min_points: int = 30
     plane_min_fill: float = 0.2
     plane_min_width: float = 0.3
@@ -146,25 +148,34 @@ class TrussModeller:
     def _without_planes(
         self, points: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Remove planes (found on a coarse copy) and isolated points; normals of the rest."""
+        """Remove planes and isolated points; normals of the rest. Every point within
+        ``plane_distance`` of a plane goes, and within twice that if its normal is the plane's."""
         c = self.config
         coarse = voxel_downsample(points, c.plane_voxel)
-        planes: list = []
-        if len(coarse) > c.normal_neighbours:
-            _, _, indices = neighbourhoods(coarse, c.normal_neighbours)
-            planes = find_planes(
+        candidates: list = []
+        if len(coarse) > c.plane_neighbours:
+            _, _, indices = neighbourhoods(coarse, c.plane_neighbours)
+            candidates = find_planes(
                 coarse,
                 estimate_normals(coarse, indices),
                 rng,
                 distance=c.plane_distance,
                 angle_deg=c.plane_angle_deg,
                 min_points=c.plane_min_points,
-                min_width=c.plane_min_width,
-                min_fill=c.plane_min_fill,
-                cell=c.plane_voxel,
                 max_planes=c.max_planes,
             )
-        planes = [refine_plane(points, p, c.plane_distance) for p in planes]
+        planes = []
+        for candidate in candidates:
+            plane, real = accept_plane(
+                points,
+                candidate,
+                distance=c.plane_distance,
+                min_width=c.plane_min_width,
+                min_fill=c.plane_min_fill,
+                cell=c.plane_cell,
+            )
+            if real:
+                planes.append(plane)
         height, nearest = plane_heights(points, planes)
         points, height, nearest = (
             points[height >= c.plane_distance],

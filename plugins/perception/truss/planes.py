@@ -1,8 +1,7 @@
 """Plane removal before member segmentation (paper 003 II-A: planes go first, linkers stay).
 
-Planes are found on a coarse voxel copy of the cloud (a floor holds most of the points, and
-its normals are cheap there), refined on the fine cloud, then removed in two bands: every
-point within ``distance``, and points within twice that whose normal is along the plane's.
+Candidate planes are found on a coarse voxel copy of the cloud (a floor holds most of the
+points, and its normals are cheap there), then refitted and judged on the fine cloud.
 """
 
 from __future__ import annotations
@@ -18,20 +17,14 @@ def find_planes(
     distance: float,
     angle_deg: float,
     min_points: int,
-    min_width: float,
-    min_fill: float,
-    cell: float,
     max_planes: int,
     hypotheses: int = 64,
     sample: int = 2000,
 ) -> list[tuple[np.ndarray, float]]:
-    """Up to ``max_planes`` RANSAC planes (unit normal, offset) of an oriented cloud.
+    """Up to ``max_planes`` candidate RANSAC planes (unit normal, offset) of an oriented cloud.
 
     A hypothesis is one oriented point; inliers are near the plane with a normal within
-    ``angle_deg`` of it. A plane is accepted only with ``min_points`` inliers spread over at
-    least ``min_width`` in both directions (a strip of a tube is no floor) that fill at least
-    ``min_fill`` of that extent in ``cell``-sized cells (the front face of a truss is as wide
-    as a floor but mostly empty).
+    ``angle_deg`` of it; each candidate's inliers leave the pool before the next search.
     """
     active = np.ones(len(points), bool)
     cos_limit = np.cos(np.radians(angle_deg))
@@ -56,17 +49,39 @@ def find_planes(
             if len(inliers) < min_points:
                 return planes
             normal, offset = fit_plane(points[inliers])
-        centred = points[inliers] - points[inliers].mean(axis=0)
-        _, _, vt = np.linalg.svd(centred, full_matrices=False)
-        flat = centred @ vt[:2].T
-        spans = np.ptp(flat, axis=0)
-        cells = np.unique(np.floor(flat / cell).astype(np.int64), axis=0)
-        fill = len(cells) / np.prod(np.ceil(spans / cell) + 1)
-        if spans.min() < min_width or fill < min_fill:
-            break
         planes.append((normal, offset))
         active[inliers] = False
     return planes
+
+
+def accept_plane(
+    points: np.ndarray,
+    plane: tuple[np.ndarray, float],
+    *,
+    distance: float,
+    min_width: float,
+    min_fill: float,
+    cell: float,
+) -> tuple[tuple[np.ndarray, float], bool]:
+    """Refit a candidate on the fine points within ``distance`` and judge it a real surface.
+
+    It must span ``min_width`` in both directions (a strip of a tube is no floor) and fill
+    ``min_fill`` of that extent in ``cell``-sized cells (the front face of a truss is as wide
+    as a floor but mostly empty).
+    """
+    normal, offset = plane
+    near = points[np.abs(points @ normal - offset) < distance]
+    if len(near) < 3:
+        return plane, False
+    centroid = near.mean(axis=0)
+    _, _, vt = np.linalg.svd(near - centroid, full_matrices=False)
+    flat = (near - centroid) @ vt[:2].T
+    spans = np.ptp(flat, axis=0)
+    cells = np.floor((flat - flat.min(axis=0)) / cell).astype(np.int64)
+    occupied = len(np.unique(cells[:, 0] * (cells[:, 1].max() + 1) + cells[:, 1]))
+    fill = occupied / np.prod(np.ceil(spans / cell) + 1)
+    refined = (vt[2], float(vt[2] @ centroid))
+    return refined, bool(spans.min() >= min_width and fill >= min_fill)
 
 
 def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
@@ -74,15 +89,6 @@ def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
     centroid = points.mean(axis=0)
     _, _, vt = np.linalg.svd(points - centroid, full_matrices=False)
     return vt[2], float(vt[2] @ centroid)
-
-
-def refine_plane(
-    points: np.ndarray, plane: tuple[np.ndarray, float], distance: float
-) -> tuple[np.ndarray, float]:
-    """Refit a coarse plane on the fine points within ``distance`` of it."""
-    normal, offset = plane
-    near = points[np.abs(points @ normal - offset) < distance]
-    return fit_plane(near) if len(near) >= 3 else plane
 
 
 def plane_heights(points: np.ndarray, planes: list[tuple[np.ndarray, float]]) -> np.ndarray:

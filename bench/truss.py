@@ -1,0 +1,169 @@
+"""Truss modelling (paper 003) per scene of 100k points beside pyransac3d, with both accuracies.
+
+For each truss (the paper's 5- and 7-member experiments, and an 18-member scaffold) a scene
+is rendered at Kinect-2 resolution from several poses and 100 000 points are drawn from the
+merged cloud. On the same points, in the same run:
+- ours: ``TrussModeller.model`` (voxels, plane removal, RANSAC with normals, sliding-box
+  completion, merging); its RANSAC-only initial model is scored too, as in the paper;
+- the peer: pyransac3d, its own ``Plane`` fit to drop the floor, then one ``Cylinder`` fit per
+  ground-truth member, each removing its inliers, ends at the inliers' extent on the axis.
+Prints time per scene (median of ``--repeat``), the peer/ours time ratio, and the paper's
+metrics; writes a figure like the paper's Figs. 9-11 to bench/out/truss.png.
+
+    .venv/bin/python bench/truss.py [--repeat 5] [--peer-iterations 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import pyransac3d
+
+from drivers.sim import truss_scene as ts
+from plugins.perception.truss import TrussConfig, TrussModeller
+from plugins.perception.truss.evaluate import Accuracy, evaluate
+
+POINTS = 100_000
+
+
+def scenes(seed: int) -> list[tuple[str, ts.TrussScene]]:
+    """The benchmark trusses, rendered at full Kinect-2 resolution."""
+    scaffold = ts.scaffold(1, 2, 2)
+    return [
+        ("5 members", ts.render(ts.five_member(), seed=seed)),
+        ("7 members", ts.render(ts.seven_member(), seed=seed)),
+        (
+            f"{len(scaffold.tubes)} members",
+            ts.render(
+                scaffold,
+                poses=ts.orbit_poses(scaffold, count=7, distance=3.5, spread_deg=160),
+                seed=seed,
+            ),
+        ),
+    ]
+
+
+def peer_model(points: np.ndarray, members: int, iterations: int) -> list[tuple]:
+    """pyransac3d: its plane fit removes the floor, then one cylinder per member."""
+    random.seed(0)
+    _, floor = pyransac3d.Plane().fit(points, thresh=0.02, maxIteration=iterations)
+    rest = np.delete(points, floor, axis=0)
+    found = []
+    for _ in range(members):
+        if len(rest) < 3:
+            break
+        centre, axis, _, inliers = pyransac3d.Cylinder().fit(
+            rest, thresh=0.01, maxIteration=iterations
+        )
+        if len(inliers) < 2:
+            break
+        axis = np.asarray(axis)
+        t = (rest[inliers] - centre) @ axis
+        found.append((centre + t.min() * axis, centre + t.max() * axis))
+        rest = np.delete(rest, inliers, axis=0)
+    return found
+
+
+def timed(function, repeat: int):
+    times, result = [], None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = function()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), result
+
+
+def row(name: str, method: str, seconds: float | None, accuracy: Accuracy, total: int) -> str:
+    time_ms = "(same run)" if seconds is None else f"{seconds * 1000:.0f}"
+    return (
+        f"| {name} | {method} | {time_ms} | {accuracy.found}/{total} "
+        f"| {accuracy.false_members} | {accuracy.mean('relative_length_error') * 100:.2f} "
+        f"| {accuracy.mean('length_error') * 1000:.1f} "
+        f"| {accuracy.mean('midpoint_error') * 1000:.1f} "
+        f"| {accuracy.mean('angle_error_deg'):.2f} |"
+    )
+
+
+def figure(results: list, path: Path) -> None:
+    """Per-member length, midpoint and angle errors of both methods (paper Figs. 9-11)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fields = [
+        ("relative_length_error", "length error (%)", 100.0),
+        ("midpoint_error", "midpoint error (mm)", 1000.0),
+        ("angle_error_deg", "axis angle error (deg)", 1.0),
+    ]
+    fig, axes = plt.subplots(len(fields), len(results), figsize=(4.2 * len(results), 8))
+    for col, (name, initial, completed) in enumerate(results):
+        for row_, (field, label, scale) in enumerate(fields):
+            ax = axes[row_, col]
+            index = np.arange(len(completed.members))
+            for offset, accuracy, colour, text in (
+                (-0.2, initial, "tab:orange", "RANSAC only"),
+                (0.2, completed, "tab:blue", "sliding box (ours)"),
+            ):
+                values = [getattr(m, field) * scale for m in accuracy.members]
+                ax.bar(index + offset, np.nan_to_num(values), 0.4, color=colour, label=text)
+            ax.set_xticks(index, [str(i + 1) for i in index], fontsize=7)
+            if col == 0:
+                ax.set_ylabel(label)
+            if row_ == 0:
+                ax.set_title(name)
+        axes[-1, col].set_xlabel("member")
+    axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=5, help="timed runs of ours per scene")
+    parser.add_argument("--peer-iterations", type=int, default=300, help="pyransac3d iterations")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("bench/out/truss.png"))
+    args = parser.parse_args()
+
+    rng = np.random.default_rng(args.seed)
+    modeller = TrussModeller(TrussConfig(seed=args.seed))
+    lines = [
+        "| truss | method | ms/scene | found | false | length err % | length err mm "
+        "| midpoint err mm | axis err deg |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    ratios, plotted = [], []
+    for name, scene in scenes(args.seed):
+        cloud = scene.cloud[rng.choice(len(scene.cloud), POINTS, replace=False)]
+        truth = [(t.p0, t.p1, t.radius) for t in scene.members]
+        modeller.model(cloud)  # warm-up
+        count = len(truth)
+        ours_s, model = timed(lambda cloud=cloud: modeller.model(cloud), args.repeat)
+        peer_s, peer = timed(
+            lambda cloud=cloud, n=count: peer_model(cloud, n, args.peer_iterations), 1
+        )
+        initial = evaluate([(m.p0, m.p1) for m in model.initial], truth)
+        completed = evaluate([(m.p0, m.p1) for m in model.members], truth)
+        lines.append(row(name, "ours, RANSAC only (initial model)", None, initial, len(truth)))
+        lines.append(row(name, "ours, sliding box (TEM)", ours_s, completed, len(truth)))
+        lines.append(row(name, "pyransac3d", peer_s, evaluate(peer, truth), len(truth)))
+        ratios.append((name, peer_s / ours_s))
+        plotted.append((name, initial, completed))
+    print(f"{POINTS} points per scene, median of {args.repeat} runs (ours), 1 run (peer)\n")
+    print("\n".join(lines))
+    print()
+    for name, ratio in ratios:
+        print(f"{name}: pyransac3d / ours time = {ratio:.1f}x")
+    figure(plotted, args.out)
+    print(f"figure: {args.out}")
+
+
+if __name__ == "__main__":
+    main()
