@@ -24,6 +24,7 @@ class Proc:
         self.proc = subprocess.Popen(
             [*prefix, sys.executable, "-m", "daemon.cli", *args],
             cwd=ROOT,
+            stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
@@ -77,7 +78,11 @@ class Observer:
     """A test-side Zenoh session that records a robot's messages with their arrival times."""
 
     def __init__(self, robot: str, connect: list[str]) -> None:
-        self.bus = Bus(robot, zenoh_config(None, "test", Endpoints([], connect)))
+        from conftest import free_port
+
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        """Where clients dial the observer too: peers do not route between other peers."""
+        self.bus = Bus(robot, zenoh_config(None, "test", Endpoints([self.endpoint], connect)))
         self.robot = robot
         self.seen: dict[type, list[tuple[float, Message]]] = {}
         self._lock = threading.Lock()
