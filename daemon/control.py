@@ -331,6 +331,7 @@ class Controller:
             refused_commands=self.safety.refused,
             unauthorised_commands=self.unauthorised(),
             features={k: t - v.at for k, v in list(self.features.items())},
+            session=held.client if (held := self.safety.session) is not None else "",
             messages=self.messages[-10:],
         )
 

@@ -102,7 +102,8 @@ class Health(Message):
     """Whole-robot health: mode, joints, loop timing, plugins, bus decode errors, refusals.
 
     ``unauthorised_commands`` counts command puts from peers without credentials (read-only
-    telemetry gate); ``features`` gives the age (s) of each feature topic the role last received.
+    telemetry gate); ``features`` gives the age (s) of each feature topic the role last received;
+    ``session`` names the client holding the control session ("" when none).
     """
 
     TOPIC: ClassVar[str] = "state/health"
@@ -117,6 +118,7 @@ class Health(Message):
     unauthorised_commands: int = 0
     dropped_frames: int = 0
     features: dict[str, float] = {}
+    session: str = ""
     messages: list[str] = []
 
 
