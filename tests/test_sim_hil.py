@@ -6,7 +6,6 @@ safety supervisor and tripod gait run on a stepped clock that advances the physi
 
 from __future__ import annotations
 
-import msgspec
 import numpy as np
 import pytest
 from conftest import ROOT
@@ -15,10 +14,11 @@ from daemon.control import Controller
 from daemon.loop import ControlLoop, SteppedClock
 from daemon.messages import Heartbeat, Mode, ModeRequest, MotionCommand, SessionClaim
 from daemon.plugins import Isolated
-from daemon.profile import Profile, load
+from daemon.profile import load
 from daemon.safety import Safety
 from drivers.base import DriverError
 from drivers.dynamixel.bus import DynamixelBus
+from drivers.sim.model import fold_zero_offsets
 from drivers.sim.twin import Twin
 from plugins.gaits.periodic import Tripod, TripodConfig
 
@@ -27,34 +27,13 @@ STEPPED_MARGIN_MS = 100.0
 descheduled for longer than a real bus's few milliseconds, and a miss would change the log."""
 
 
-def _without_zero_offsets(profile: Profile) -> Profile:
-    """The profile with every servo's zero offset at 0 (limits shifted to match).
-
-    The Dynamixel driver maps horn = zero_offset + direction × q and daemon/kinematics.py maps
-    q = direction × θ + zero_offset: a non-zero offset is applied twice between them. The twin
-    models horn = zero_offset + direction × θ (both modules' physical reading); until the two
-    agree, these tests run where all conventions coincide.
-    """
-
-    def shift(j):
-        lim = j.limits
-        lo, hi = sorted(j.direction * (x - j.zero_offset) for x in (lim.lower, lim.upper))
-        limits = msgspec.structs.replace(lim, lower=lo, upper=hi)
-        return msgspec.structs.replace(j, zero_offset=0.0, direction=1, limits=limits)
-
-    legs = [
-        msgspec.structs.replace(leg, joints=[shift(j) for j in leg.joints]) for leg in profile.legs
-    ]
-    return msgspec.structs.replace(profile, legs=legs)
-
-
 class Hil:
     """Twin + real driver + controller + loop on one stepped clock."""
 
     def __init__(
         self, robot: str = "widowx", world: str = "attic", gait: TripodConfig | None = None
     ) -> None:
-        self.profile = _without_zero_offsets(load(ROOT / "robots" / f"{robot}.toml"))
+        self.profile = fold_zero_offsets(load(ROOT / "robots" / f"{robot}.toml"))
         self.twin = Twin(self.profile, world, stepped=True).start()
         self.clock = SteppedClock(on_advance=self.twin.advance_to)
         self.bus = DynamixelBus.from_profile(

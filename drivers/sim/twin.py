@@ -46,6 +46,7 @@ from daemon.profile import load as load_profile
 from drivers.base import DepthFrame, ImuSample
 from drivers.sim import servos
 from drivers.sim.depth import RayCastDepth
+from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 from drivers.sim.model import RobotModel, build
 from drivers.sim.worlds import World
 from drivers.sim.worlds import load as load_world
@@ -102,6 +103,27 @@ class JointMap:
         return self.direction * (self.a.T @ tau_p)
 
 
+class PhysicsChain(ServoChain):
+    """The emulated servo chain, answering from the physics at the instant of each packet.
+
+    Before an instruction runs, the servos' present values are written from the twin's state;
+    after it, goals and limits are read back — under the twin's lock, so a reply is a
+    consistent snapshot and a write takes effect from the next physics step.
+    """
+
+    twin: Twin | None = None
+
+    def handle(self, instr):
+        twin = self.twin
+        if twin is None:
+            return super().handle(instr)
+        with twin.lock, self.lock:
+            twin._write_present()
+            replies = super().handle(instr)
+            twin._read_goals()
+            return replies
+
+
 class Twin:
     """MuJoCo physics of ``profile`` in ``world`` with emulated devices; see the module doc."""
 
@@ -115,7 +137,6 @@ class Twin:
         seed: int = 0,
         initial_joints: np.ndarray | None = None,
         bus: bool = True,
-        bus_sync: float = 0.002,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
         self.world = world if isinstance(world, World) else load_world(world)
@@ -150,11 +171,9 @@ class Twin:
         self.grip = np.zeros(len(self.profile.legs), bool)
         self.chain = None
         self.emulator = None
-        self.bus_sync = max(1, round(bus_sync / timestep))
         if bus and not r.torque_legs:
-            from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
-
-            self.chain = ServoChain.from_profile(self.profile)
+            self.chain = PhysicsChain.from_profile(self.profile)
+            self.chain.twin = self
             for s in self.chain.servos.values():
                 s.external = True
             self.emulator = DynamixelEmulator(self.chain, realtime_motor=False)
@@ -315,31 +334,37 @@ class Twin:
         mujoco.mj_step(self.model, self.data)
         self._steps += 1
         self.thermal.advance(self.effort / self.stall, *self._heat, self.model.opt.timestep)
-        if self._steps % self.bus_sync == 0:
-            self._sync_bus()
 
-    def _sync_bus(self) -> None:
-        """Exchange with the emulated chain: goals in, present state out (servo horn angles, SI)."""
-        if self.chain is None:
-            return
+    def _read_goals(self) -> None:
+        """Goal position, torque enable, speed and torque limits from the chain's tables."""
+        for k, servo in enumerate(self.chain.joints):
+            self.goal[k] = servo.goal_angle
+            self.torque_on[k] = servo.torque_enabled
+            self.speed_limit[k] = servo.speed_limit
+            limit = "torque_limit" if servo.spec.protocol == 1 else "pwm_limit"
+            cap = servo.get(limit) / servo.spec.fields[limit].default
+            self.torque_limit[k] = self.stall[k] * cap
+
+    def _write_present(self) -> None:
+        """Present position, speed, load, temperature and voltage into the chain's tables."""
         r, d = self.robot, self.data
         q = self.map.joint(d.qpos[r.qpos_adr])
         qd = self.map.joint_rate(d.qvel[r.dof_adr])
-        with self.chain.lock:
-            for k, servo in enumerate(self.chain.joints):
-                self.goal[k] = servo.goal_angle
-                self.torque_on[k] = servo.torque_enabled
-                self.speed_limit[k] = servo.speed_limit
-                limit = "torque_limit" if servo.spec.protocol == 1 else "pwm_limit"
-                cap = servo.get(limit) / servo.spec.fields[limit].default
-                self.torque_limit[k] = self.stall[k] * cap
-                servo.set_present(
-                    angle=q[k],
-                    velocity=qd[k],
-                    effort=self.effort[k],
-                    temperature=self.thermal.temperature[k],
-                    voltage=self.voltage,
-                )
+        for k, servo in enumerate(self.chain.joints):
+            servo.set_present(
+                angle=q[k],
+                velocity=qd[k],
+                effort=self.effort[k],
+                temperature=self.thermal.temperature[k],
+                voltage=self.voltage,
+            )
+
+    def _sync_bus(self) -> None:
+        """Exchange with the emulated chain now (physics lock held by the caller)."""
+        if self.chain is not None:
+            with self.chain.lock:
+                self._write_present()
+                self._read_goals()
 
     def step(self, n: int = 1) -> None:
         """Advance physics by ``n`` steps (stepped mode, or before ``start``)."""
@@ -361,7 +386,6 @@ class Twin:
             while self.data.time < target - 0.5 * h:
                 self._physics_step()
                 self._cameras_due()
-            self._sync_bus()
 
     def _settle_bus(self) -> None:
         """Wait until the emulator has handled every byte the driver wrote to the pty.

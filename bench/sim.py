@@ -1,0 +1,170 @@
+"""Physics twin benchmark: real-time factor per robot and world, and ray-cast depth per frame.
+
+1. Stepped physics with the twin's motor laws, per robot × world; baseline: bare
+   ``mujoco.mj_step`` on the same model in the same run (ratio = the twin's own overhead).
+2. Real time with the daemon alongside (WidowX): twin threads + DynamixelBus on the pty +
+   Controller in a ControlLoop on the monotonic clock, standing then holding; reports the
+   simulated/wall time ratio, the physics lag and loop overruns.
+3. Depth frames at 320×240 and 640×480 (L515) and 424×240 / 640×480 (D435) in the attic,
+   beside the 33.3 ms frame period; baseline: bare ``mj_multiRay`` over the same rays.
+
+Run: ``.venv/bin/python bench/sim.py`` (about a minute).
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+
+import msgspec
+import mujoco
+import numpy as np
+
+from daemon.kinematics import Kinematics
+from daemon.profile import load
+from drivers.sim.depth import GEOM_GROUPS, RayCastDepth
+from drivers.sim.model import fold_zero_offsets
+from drivers.sim.twin import Twin
+
+ROBOTS = ("widowx", "hubrobo", "qingzhui")
+WORLDS = ("attic", "stairs", "slope", "truss")
+
+
+def stepped_rtf(robot: str, world: str, seconds: float) -> tuple[float, float]:
+    """(twin RTF, bare mj_step RTF) for ``seconds`` of a standing robot in ``world``."""
+    profile = load(f"robots/{robot}.toml")
+    stand = Kinematics(profile).stand_joints()
+    twin = Twin(profile, world, stepped=True, bus=False, initial_joints=stand)
+    if twin.robot.torque_legs:
+        n = len(stand)
+        twin.command_mit(stand, np.zeros(n), np.full(n, 300.0), np.full(n, 5.0), np.zeros(n))
+    else:
+        twin.command(stand)
+    twin.advance_to(0.1)
+    t0 = time.perf_counter()
+    twin.advance_to(0.1 + seconds)
+    ours = seconds / (time.perf_counter() - t0)
+    m, d = twin.model, mujoco.MjData(twin.model)
+    d.qpos[:] = twin.data.qpos
+    steps = round(seconds / m.opt.timestep)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        mujoco.mj_step(m, d)
+    bare = seconds / (time.perf_counter() - t0)
+    return ours, bare
+
+
+def real_time_with_daemon(seconds: float) -> dict:
+    """WidowX twin in real time with the daemon's driver and controller polling it at 100 Hz."""
+    from daemon.control import Controller
+    from daemon.loop import ControlLoop, MonotonicClock
+    from daemon.messages import Mode
+    from daemon.safety import Safety
+    from drivers.dynamixel.bus import DynamixelBus
+
+    profile = fold_zero_offsets(load("robots/widowx.toml"))
+    twin = Twin(profile, "attic", initial_joints=Kinematics(profile).stand_joints())
+    twin.on_depth(lambda name, frame: None)
+    twin.start()
+    bus = DynamixelBus.from_profile(profile, port=twin.port)
+    bus.open()
+    clock = MonotonicClock()
+    safety = Safety(profile)
+    controller = Controller(profile, bus, safety, clock.now, None, lambda m: None)
+    loop = ControlLoop(profile.rate_hz, clock, controller.tick)
+    thread = threading.Thread(target=loop.run, daemon=True)
+    sim0, wall0 = twin.time, time.monotonic()
+    thread.start()
+    safety.request(Mode.STAND, clock.now())
+    time.sleep(seconds)
+    sim1, wall1 = twin.time, time.monotonic()
+    loop.stop()
+    thread.join(2.0)
+    stats = loop.stats()
+    frames = twin.cameras["front"].number
+    bus.close()
+    twin.stop()
+    return {
+        "rtf": (sim1 - sim0) / (wall1 - wall0),
+        "lag": twin.lag,
+        "ticks": stats.ticks,
+        "overruns": stats.overruns,
+        "late_p99_ms": stats.lateness_p99 * 1e3,
+        "frames": frames,
+        "seconds": wall1 - wall0,
+        "mode": safety.mode.value,
+    }
+
+
+def depth_times(model_name: str, width: int, height: int, frames: int) -> tuple[float, float]:
+    """(ms per rendered frame, ms per bare mj_multiRay) in the attic, WidowX camera mount."""
+    profile = load("robots/widowx.toml")
+    cam_cfg = msgspec.structs.replace(
+        profile.cameras[0], model=model_name, width=width, height=height
+    )
+    profile = msgspec.structs.replace(profile, cameras=[cam_cfg])
+    twin = Twin(profile, "attic", stepped=True, bus=False)
+    cam: RayCastDepth = twin.cameras[cam_cfg.name]
+    twin.depth_frame(cam_cfg.name)
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        twin.depth_frame(cam_cfg.name)
+    ours = (time.perf_counter() - t0) / frames * 1e3
+    d = twin._render_data
+    rot, pos = cam.pose(d)
+    vec = (cam.rays @ rot.T).ravel()
+    n = len(cam.rays)
+    geom, dist = np.zeros(n, np.int32), np.zeros(n)
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        mujoco.mj_multiRay(
+            twin.model, d, pos, vec, GEOM_GROUPS, 1, cam.body, geom, dist, None, n, 10.0
+        )
+    bare = (time.perf_counter() - t0) / frames * 1e3
+    return ours, bare
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per case")
+    parser.add_argument("--frames", type=int, default=10, help="depth frames per resolution")
+    parser.add_argument("--daemon-seconds", type=float, default=8.0)
+    args = parser.parse_args()
+
+    print("## real-time factor, stepped (twin alone; baseline bare mj_step, same model)\n")
+    print("| robot | world | twin RTF | bare mj_step RTF | twin / bare |")
+    print("|---|---|---:|---:|---:|")
+    for robot in ROBOTS:
+        for world in WORLDS:
+            ours, bare = stepped_rtf(robot, world, args.seconds)
+            print(f"| {robot} | {world} | {ours:.1f} | {bare:.1f} | {ours / bare:.2f} |")
+
+    r = real_time_with_daemon(args.daemon_seconds)
+    print("\n## real time, WidowX in the attic with the daemon's driver + controller at 100 Hz\n")
+    print("| wall s | sim/wall | physics lag s | loop ticks | overruns | lateness p99 ms |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    print(
+        f"| {r['seconds']:.1f} | {r['rtf']:.3f} | {r['lag']:.3f} | {r['ticks']} | "
+        f"{r['overruns']} | {r['late_p99_ms']:.2f} |"
+    )
+    print(f"\n(depth rendered alongside: {r['frames']} frames; mode at end {r['mode']})")
+
+    print("\n## depth frame (attic, WidowX mount; baseline bare mj_multiRay, same rays)\n")
+    print("| camera | resolution | frame ms | bare ray cast ms | ratio | frame period ms | Hz |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for model_name, (w, h) in (
+        ("L515", (320, 240)),
+        ("L515", (640, 480)),
+        ("D435", (424, 240)),
+        ("D435", (640, 480)),
+    ):
+        ours, bare = depth_times(model_name, w, h, args.frames)
+        print(
+            f"| {model_name} | {w}×{h} | {ours:.1f} | {bare:.1f} | {ours / bare:.2f} | "
+            f"{1000 / 30:.1f} | {1000 / ours:.0f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
