@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import subprocess
@@ -20,10 +21,13 @@ ROOT = Path(__file__).resolve().parent.parent
 class Proc:
     """A ``climbd`` subprocess with its stdout and stderr collected line by line."""
 
-    def __init__(self, *args: str, prefix: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self, *args: str, prefix: tuple[str, ...] = (), env: dict[str, str] | None = None
+    ) -> None:
         self.proc = subprocess.Popen(
             [*prefix, sys.executable, "-m", "daemon.cli", *args],
             cwd=ROOT,
+            env={**os.environ, **env} if env else None,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
