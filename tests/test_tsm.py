@@ -1,0 +1,43 @@
+"""Tumble Stability Margin (Yoneda & Hirose) with grip forces, against hand-derived moments."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from plugins.gaits.tsm import tumble_stability_margin
+
+SQUARE = np.array([[0.1, 0.1, 0.0], [-0.1, 0.1, 0.0], [-0.1, -0.1, 0.0], [0.1, -0.1, 0.0]])
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def test_level_ground_margin_is_distance_to_nearest_edge():
+    force = np.array([0.0, 0.0, -10.0])
+    com = np.array([0.03, 0.0, 0.06])
+    assert tumble_stability_margin(com, SQUARE[[2, 0, 3, 1]], force, 0.0, UP) == pytest.approx(0.07)
+
+
+def test_grip_forces_add_their_moments():
+    force = np.array([0.0, 0.0, -10.0])
+    com = np.array([0.0, 0.0, 0.06])
+    # each edge has the two other grippers 0.2 m off its axis: + 9 N × 0.4 m
+    expected = (10.0 * 0.1 + 9.0 * 0.4) / 10.0
+    assert tumble_stability_margin(com, SQUARE, force, 9.0, UP) == pytest.approx(expected)
+
+
+def test_com_outside_support_is_negative_without_grip():
+    force = np.array([0.0, 0.0, -10.0])
+    triangle = SQUARE[:3]
+    com = np.array([0.08, -0.08, 0.06])  # beyond the diagonal from (0.1, 0.1) to (-0.1, -0.1)
+    margin = tumble_stability_margin(com, triangle, force, 0.0, UP)
+    assert margin == pytest.approx(-0.16 / math.sqrt(2))
+
+
+def test_slope_shifts_the_downhill_margin_by_height_times_tangent():
+    slope = math.radians(30)
+    force = 2.3 * 9.80665 / 6 * np.array([-math.sin(slope), 0.0, -math.cos(slope)])
+    h = 0.06
+    margin = tumble_stability_margin(np.array([0.0, 0.0, h]), SQUARE, force, 0.0, UP)
+    assert margin == pytest.approx(0.1 * math.cos(slope) - h * math.sin(slope))
