@@ -63,9 +63,9 @@ def rot_rpy(roll: float, pitch: float, yaw: float = 0.0) -> np.ndarray:
 
 def _two_link(u, w, l2, l3, knee_sign):
     """Planar two-link IK: (first angle, relative second angle, reachable) for point (u, w)."""
-    c = (u * u + w * w - l2 * l2 - l3 * l3) / (2.0 * l2 * l3)
+    c = (u * u + w * w - (l2 * l2 + l3 * l3)) / (2.0 * l2 * l3)
     ok = np.abs(c) <= 1.0
-    rel = knee_sign * np.arccos(np.minimum(np.maximum(c, -1.0), 1.0))
+    rel = knee_sign * np.arccos(np.clip(c, -1.0, 1.0) if not ok.all() else c)
     first = np.arctan2(w, u) - np.arctan2(l3 * np.sin(rel), l2 + l3 * np.cos(rel))
     return first, rel, ok
 
@@ -90,6 +90,8 @@ class Kinematics:
         self.zero_offset = np.array([j.zero_offset for j in joints], float)
         self.lower = np.array([j.limits.lower for j in joints], float)
         self.upper = np.array([j.limits.upper for j in joints], float)
+        self._mid = 0.5 * (self.lower + self.upper)
+        self._half_range = 0.5 * (self.upper - self.lower) + LIMIT_TOLERANCE
         self.cft = np.array([leg.kind == CFT for leg in legs])
         self.all_cft = bool(self.cft.all())
         self.knee_sign = np.array(
@@ -193,10 +195,11 @@ class Kinematics:
         when the solution breaks a joint's position limits (its joints hold that solution).
         """
         theta, ok = self.ik_leg(self.to_leg(feet))
-        theta[~ok] = np.nan
-        q = self.to_q(theta)
-        tol = LIMIT_TOLERANCE
-        inside = ((q >= self.lower - tol) & (q <= self.upper + tol)).reshape(self.n_legs, 3).all(1)
+        q = theta.reshape(-1) * self.direction + self.zero_offset
+        inside = (np.abs(q - self._mid) <= self._half_range).reshape(self.n_legs, 3).all(1)
+        if ok.all():
+            return q, inside
+        q.reshape(self.n_legs, 3)[~ok] = np.nan
         return q, ok & inside
 
     # --- differential kinematics ------------------------------------------------------

@@ -53,7 +53,6 @@ class Smoother:
         self.acceleration = np.zeros(self.n)
         self.ready = False
         self.fallbacks = 0
-        self._next: tuple[list, list, list] | None = None
 
     @property
     def scale(self) -> float:
@@ -83,8 +82,6 @@ class Smoother:
         inp.current_velocity = self.velocity.tolist()
         inp.current_acceleration = self.acceleration.tolist()
         self._otg.reset()
-        at_rest = not (self.velocity.any() or self.acceleration.any())
-        self._next = (inp.current_position, [0.0] * self.n, [0.0] * self.n) if at_rest else None
         self.ready = True
 
     @staticmethod
@@ -142,8 +139,8 @@ class Smoother:
         if result not in _OK:
             result, error = self._retry_from_rest()
         if result not in _OK:
-            return self._continue_plan(result, error)
-        self._next = out.trajectory.at_time(out.time + self.dt)
+            why = self._first_line(error) if error is not None else result.name
+            raise SmoothingError(f"ruckig: {why}")
         out.pass_to_input(inp)
         self.position = np.array(out.new_position)
         self.velocity = np.array(out.new_velocity)
@@ -173,19 +170,3 @@ class Smoother:
         inp.current_velocity = np.where(tiny, 0.0, v).tolist()
         inp.current_acceleration = np.where(tiny, 0.0, a).tolist()
         return self._update()
-
-    def _continue_plan(self, result, error: Exception | None) -> np.ndarray:
-        """Ruckig found no plan this tick: follow the last plan one more tick, or raise.
-
-        The last plan's next sample is within the limits, and the next tick replans from it.
-        Two ticks in a row without a plan raise SmoothingError.
-        """
-        why = self._first_line(error) if error is not None else result.name
-        if self._next is None:
-            raise SmoothingError(f"ruckig: {why}")
-        p, v, a = self._next
-        self._next = None
-        inp = self._inp
-        inp.current_position, inp.current_velocity, inp.current_acceleration = p, v, a
-        self.position, self.velocity, self.acceleration = np.array(p), np.array(v), np.array(a)
-        return self.position

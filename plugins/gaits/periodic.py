@@ -41,6 +41,9 @@ HOME_TOLERANCE = 1e-3
 MOVING_SPEED = 5e-4
 """Below this foot speed (m/s) over the ground, with no command, the body counts as still."""
 
+SETTLED = 1e-9
+"""Filter error (m, m/s, rad, rad/s) under which the body pose counts as converged."""
+
 LATE_START = 0.5
 """A leg may lift off until this fraction of its swing window has passed (when the body starts
 moving mid-window); its swing then takes the rest of the window."""
@@ -172,6 +175,7 @@ class PeriodicGait(GaitPlugin):
         self.pose = np.array([0.0, 0.0, 0.0, -self.feet[:, 2].mean(), 0.0, 0.0])
         self.pose_rate = np.zeros(6)
         self.pose_acc = np.zeros(6)
+        self._settled = False
         self.sway_gain = 0.0
         self.commanded = False
         psi = (self.phase - self.offsets) % 1.0
@@ -239,15 +243,23 @@ class PeriodicGait(GaitPlugin):
         """Filter (vx, vy, yaw rate, height, roll, pitch) towards the command; returns d(height)."""
         if command is not self._command:
             self._command, self._command_targets = command, self._targets(command)
+            self._settled = False
         v, w, height, roll, pitch = self._command_targets
         self.commanded = bool(v.any()) or w != 0.0
         if self.config.sway > 0.0:
             v, w = v * self.sway_gain, w * self.sway_gain
+            self._settled &= self.sway_gain in (0.0, 1.0)
+        if self._settled:
+            return 0.0
         target = np.array([v[0], v[1], w, height, roll, pitch])
+        error = target - self.pose
+        if max(np.abs(error).max(), np.abs(self.pose_rate).max()) < SETTLED:
+            # Converged: snap (a sub-nanometre step) and skip the filter until the command changes.
+            self.pose, self._settled = target, True
+            self.pose_rate[:] = self.pose_acc[:] = 0.0
+            return float(error[3])
         omega = 1.0 / self.config.ramp_time
-        jerk = omega * (
-            omega * (omega * (target - self.pose) - 3.0 * self.pose_rate) - 3.0 * self.pose_acc
-        )
+        jerk = omega * (omega * (omega * error - 3.0 * self.pose_rate) - 3.0 * self.pose_acc)
         self.pose_acc += jerk * dt
         self.pose_rate += self.pose_acc * dt
         step = self.pose_rate * dt
@@ -257,13 +269,19 @@ class PeriodicGait(GaitPlugin):
     # --- the tick ---------------------------------------------------------------------
 
     def _advect(self, points: np.ndarray, dt: float, dz: float) -> None:
-        """Move ground-fixed points (level frame) by the body's motion over ``dt``, in place."""
+        """Move ground-fixed points (level frame) by the body's motion over ``dt``, in place.
+
+        p' = Rz(-w dt) (p - v dt) - dz z, as one affine map on the row vectors.
+        """
         vx, vy, w = self.pose[:3]
-        ca, sa = math.cos(w * dt), -math.sin(w * dt)
-        x = points[:, 0] - vx * dt
-        y = points[:, 1] - vy * dt
-        points[:, 0] = ca * x - sa * y
-        points[:, 1] = sa * x + ca * y
+        shift = np.array([vx * dt, vy * dt, 0.0])
+        if w == 0.0:
+            shift[2] = dz
+            points -= shift
+            return
+        c, s = math.cos(w * dt), math.sin(w * dt)
+        rot_t = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        points[:] = (points - shift) @ rot_t
         points[:, 2] -= dz
 
     def _touch_down(self, t_rem: np.ndarray) -> np.ndarray:

@@ -1,0 +1,197 @@
+"""One full motion tick for 18 joints: gait + IK + ruckig + guard, vectorised vs joint by joint.
+
+The vectorised tick is what the controller runs: ``PeriodicGait.step`` then
+``MotionPipeline.feet_step`` (IK of all legs at once, one 18-DOF ruckig, guard). The
+baseline computes the same tick in a plain Python loop: the same gait object (one call per
+tick either way), then leg by leg scalar IK with ``math``, joint by joint finite differences,
+target clipping, one single-DOF ruckig per joint and the position clamp. Both run interleaved
+in the same process on the same foot targets, and every tick's commands are checked equal.
+
+    .venv/bin/python bench/tick.py --robot qingzhui --ticks 5000
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import ruckig
+
+from daemon import profile as profiles
+from daemon.kinematics import LIMIT_TOLERANCE
+from daemon.messages import BodyState, MotionCommand
+from daemon.motion import MotionPipeline
+from daemon.plugins import instantiate
+
+ROBOTS = Path(__file__).resolve().parent.parent / "robots"
+MARGIN = 0.999
+
+
+class LoopTick:
+    """The motion tick written joint by joint: scalar IK per leg, one ruckig per joint."""
+
+    def __init__(self, pipeline: MotionPipeline) -> None:
+        kin = pipeline.kinematics
+        self.kin = kin
+        self.dt = pipeline.dt
+        smoother = pipeline.smoother
+        self.legs = []
+        for i, leg in enumerate(kin.profile.legs):
+            self.legs.append(
+                (
+                    leg.kind,
+                    kin.mount[i].tolist(),
+                    math.cos(kin.yaw[i]),
+                    math.sin(kin.yaw[i]),
+                    float(kin.l1[i]),
+                    float(kin.l2[i]),
+                    float(kin.l3[i]),
+                    float(kin.knee_sign[i]),
+                )
+            )
+        self.joints = []
+        for j, joint in enumerate(kin.profile.joints):
+            otg = ruckig.Ruckig(1, self.dt)
+            inp = ruckig.InputParameter(1)
+            out = ruckig.OutputParameter(1)
+            inp.synchronization = ruckig.Synchronization.No
+            inp.max_velocity = [float(smoother.v_lim[j])]
+            inp.max_acceleration = [joint.limits.acceleration]
+            inp.max_jerk = [joint.limits.jerk]
+            self.joints.append((otg, inp, out, joint))
+        self.direction = kin.direction.tolist()
+        self.offset = kin.zero_offset.tolist()
+
+    def start(self, q: list[float]) -> None:
+        for (otg, inp, _out, _joint), qj in zip(self.joints, q, strict=True):
+            inp.current_position = [qj]
+            inp.current_velocity = [0.0]
+            inp.current_acceleration = [0.0]
+            otg.reset()
+        self.target = list(q)
+        self.target_qd = [0.0] * len(q)
+        self.streaming = False
+
+    def ik_leg(self, i: int, foot: list[float]) -> tuple[list[float], bool]:
+        kind, mount, c, s, l1, l2, l3, k = self.legs[i]
+        dx, dy, dz = foot[0] - mount[0], foot[1] - mount[1], foot[2] - mount[2]
+        x, y, z = c * dx + s * dy, c * dy - s * dx, dz
+        if kind == "coxa_femur_tibia":
+            u, w, first_angle = math.hypot(x, y) - l1, z, math.atan2(y, x)
+        else:
+            u, w, first_angle = x - l1, math.hypot(y, z), math.atan2(y, -z)
+        cos_rel = (u * u + w * w - l2 * l2 - l3 * l3) / (2.0 * l2 * l3)
+        if abs(cos_rel) > 1.0:
+            return [math.nan] * 3, False
+        rel = k * math.acos(cos_rel)
+        second = math.atan2(w, u) - math.atan2(l3 * math.sin(rel), l2 + l3 * math.cos(rel))
+        third = rel if kind == "coxa_femur_tibia" else second + rel
+        return [first_angle, second, third], True
+
+    def step(self, positions: list[list[float]]) -> list[float]:
+        dt = self.dt
+        q = []
+        for i, foot in enumerate(positions):
+            theta, ok = self.ik_leg(i, foot)
+            leg_q = []
+            for k in range(3):
+                j = 3 * i + k
+                qj = theta[k] * self.direction[j] + self.offset[j]
+                lim = self.joints[j][3].limits
+                ok = ok and lim.lower - LIMIT_TOLERANCE <= qj <= lim.upper + LIMIT_TOLERANCE
+                leg_q.append(qj)
+            q.extend(leg_q if ok else self.target[3 * i : 3 * i + 3])
+        command = []
+        for j, (otg, inp, out, joint) in enumerate(self.joints):
+            qd = (q[j] - self.target[j]) / dt
+            lim = joint.limits
+            if self.streaming:
+                qdd = (qd - self.target_qd[j]) / dt
+                a_lim = lim.acceleration * MARGIN
+                qdd = min(max(qdd, -a_lim), a_lim)
+            else:
+                qdd = 0.0
+            v_lim = max(inp.max_velocity[0] * MARGIN - qdd * qdd * 0.5 / lim.jerk, 0.0)
+            inp.target_position = [q[j]]
+            inp.target_velocity = [min(max(qd, -v_lim), v_lim)]
+            inp.target_acceleration = [qdd]
+            otg.update(inp, out)
+            out.pass_to_input(inp)
+            command.append(min(max(out.new_position[0], lim.lower), lim.upper))
+            self.target_qd[j] = qd
+        self.target = q
+        self.streaming = True
+        return command
+
+
+def run(robot: str, ticks: int, speed: float) -> dict:
+    profile = profiles.load(ROBOTS / f"{robot}.toml")
+    dt = 1.0 / profile.rate_hz
+    pipeline = MotionPipeline(profile, dt)
+    kin = pipeline.kinematics
+    stand = kin.stand_joints()
+    gaits = [instantiate("climbd.gaits", "tripod", {}, profile, "bench") for _ in range(2)]
+    pipeline.start(stand)
+    loop = LoopTick(pipeline)
+    loop.start(stand.tolist())
+    for gait in gaits:
+        gait.start(BodyState(), kin.fk(stand))
+    command, body = MotionCommand(vx=speed), BodyState()
+    gait_t, vector_t, loop_t = np.empty(ticks), np.empty(ticks), np.empty(ticks)
+    warm = int(10.0 * profile.rate_hz)
+    worst = 0.0
+    clock = time.perf_counter
+    for k in range(ticks + warm):
+        t = k * dt
+        t0 = clock()
+        targets = gaits[0].step(t, dt, body, {}, command)
+        t1 = clock()
+        cmd = pipeline.feet_step(targets)
+        t2 = clock()
+        ref = loop.step(gaits[1].step(t, dt, body, {}, command).positions)
+        t3 = clock()
+        worst = max(worst, float(np.max(np.abs(np.array(cmd.position) - ref))))
+        if k >= warm:
+            i = k - warm
+            gait_t[i], vector_t[i], loop_t[i] = t1 - t0, t2 - t0, t3 - t2
+    if worst > 1e-9:
+        raise SystemExit(f"{robot}: vectorised and loop ticks differ by {worst:.3g} rad")
+    return {
+        "robot": robot,
+        "joints": kin.n_joints,
+        "rate": profile.rate_hz,
+        "gait": np.median(gait_t) * 1e6,
+        "vector": np.percentile(vector_t, [50, 99]) * 1e6,
+        "loop": np.percentile(loop_t, [50, 99]) * 1e6,
+        "worst": worst,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robot", action="append", help="robot profile (repeatable)")
+    parser.add_argument("--ticks", type=int, default=5000)
+    parser.add_argument("--speed", type=float, default=0.1, help="commanded vx, m/s")
+    args = parser.parse_args()
+    print(
+        "| robot | joints | rate Hz | gait median µs | vectorised tick median µs | p99 µs "
+        "| loop tick median µs | p99 µs | loop / vectorised (median) | vectorised / period "
+        "| max Δq rad |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for robot in args.robot or ["qingzhui", "widowx"]:
+        r = run(robot, args.ticks, args.speed)
+        (vm, vp), (lm, lp) = r["vector"], r["loop"]
+        share = vm * 1e-6 * r["rate"]
+        print(
+            f"| {robot} | {r['joints']} | {r['rate']:.0f} | {r['gait']:.1f} | {vm:.1f} | {vp:.1f} "
+            f"| {lm:.1f} "
+            f"| {lp:.1f} | {lm / vm:.2f} | {share:.1%} | {r['worst']:.1e} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
