@@ -97,14 +97,16 @@ def real_time_with_daemon(seconds: float) -> dict:
     }
 
 
-def depth_times(model_name: str, width: int, height: int, frames: int) -> tuple[float, float]:
+def depth_times(
+    model_name: str, width: int, height: int, frames: int, threads: int
+) -> tuple[float, float]:
     """(ms per rendered frame, ms per bare mj_multiRay) in the attic, WidowX camera mount."""
     profile = load("robots/widowx.toml")
     cam_cfg = msgspec.structs.replace(
         profile.cameras[0], model=model_name, width=width, height=height
     )
     profile = msgspec.structs.replace(profile, cameras=[cam_cfg])
-    twin = Twin(profile, "attic", stepped=True, bus=False)
+    twin = Twin(profile, "attic", stepped=True, bus=False, depth_threads=threads)
     cam: RayCastDepth = twin.cameras[cam_cfg.name]
     twin.depth_frame(cam_cfg.name)
     t0 = time.perf_counter()
@@ -151,19 +153,23 @@ def main() -> None:
     print(f"\n(depth rendered alongside: {r['frames']} frames; mode at end {r['mode']})")
 
     print("\n## depth frame (attic, WidowX mount; baseline bare mj_multiRay, same rays)\n")
-    print("| camera | resolution | frame ms | bare ray cast ms | ratio | frame period ms | Hz |")
-    print("|---|---|---:|---:|---:|---:|---:|")
+    print(
+        "| camera | resolution | threads | frame ms | bare ray cast ms (1 thread) | ratio "
+        "| frame period ms | Hz |"
+    )
+    print("|---|---|---:|---:|---:|---:|---:|---:|")
     for model_name, (w, h) in (
         ("L515", (320, 240)),
         ("L515", (640, 480)),
         ("D435", (424, 240)),
         ("D435", (640, 480)),
     ):
-        ours, bare = depth_times(model_name, w, h, args.frames)
-        print(
-            f"| {model_name} | {w}×{h} | {ours:.1f} | {bare:.1f} | {ours / bare:.2f} | "
-            f"{1000 / 30:.1f} | {1000 / ours:.0f} |"
-        )
+        for threads in (1, 2):
+            ours, bare = depth_times(model_name, w, h, args.frames, threads)
+            print(
+                f"| {model_name} | {w}×{h} | {threads} | {ours:.1f} | {bare:.1f} | "
+                f"{ours / bare:.2f} | {1000 / 30:.1f} | {1000 / ours:.0f} |"
+            )
 
 
 if __name__ == "__main__":

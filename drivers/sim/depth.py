@@ -10,6 +10,7 @@ surfaces and at random, and zeros outside the stream's range — as the real cam
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import mujoco
@@ -64,6 +65,7 @@ class RayCastDepth:
         seed: int = 0,
         noise: NoiseModel | None = None,
         intrinsics: Intrinsics | None = None,
+        threads: int = 1,
     ) -> None:
         spec = depth_model(camera.model)
         self.name = camera.name
@@ -89,6 +91,9 @@ class RayCastDepth:
         self._normal = np.zeros(3 * n)
         self.reflectance = model.geom_rgba[:, :3].mean(axis=1)
         self.number = 0
+        bounds = np.linspace(0, n, max(1, threads) + 1).astype(int)
+        self._chunks = list(zip(bounds[:-1], bounds[1:], strict=True))
+        self._pool = ThreadPoolExecutor(threads) if threads > 1 else None
 
     def pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Camera optical frame in the world: rotation (3×3) and position (m)."""
@@ -96,27 +101,37 @@ class RayCastDepth:
         p_wb = data.xpos[self.body]
         return r_wb @ self.extrinsics[:3, :3], p_wb + r_wb @ self.extrinsics[:3, 3]
 
-    def cast(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Noise-free z-depth (m, NaN for no hit), hit geom ids and unit normals, per pixel."""
+    def cast(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Noise-free z-depth (m, NaN for no hit), hit geom ids, unit normals and the world ray
+        directions, per pixel. With ``threads`` > 1 the rays are cast in parallel chunks
+        (MuJoCo releases the GIL while it casts)."""
         rot, pos = self.pose(data)
         vec = self.rays @ rot.T
         cutoff = self.max_range * float(self.ray_norm.max())
-        mujoco.mj_multiRay(
-            self.model,
-            data,
-            pos,
-            vec.ravel(),
-            GEOM_GROUPS,
-            1,
-            self.body,
-            self._geomid,
-            self._dist,
-            self._normal,
-            len(self.rays),
-            cutoff,
-        )
+
+        def chunk(bounds: tuple[int, int]) -> None:
+            lo, hi = bounds
+            mujoco.mj_multiRay(
+                self.model,
+                data,
+                pos,
+                vec[lo:hi].ravel(),
+                GEOM_GROUPS,
+                1,
+                self.body,
+                self._geomid[lo:hi],
+                self._dist[lo:hi],
+                self._normal[3 * lo : 3 * hi],
+                hi - lo,
+                cutoff,
+            )
+
+        if self._pool is None:
+            chunk(self._chunks[0])
+        else:
+            list(self._pool.map(chunk, self._chunks))
         depth = np.where(self._geomid >= 0, self._dist, np.nan)
-        return depth, self._geomid.copy(), self._normal.reshape(-1, 3).copy(), vec
+        return depth, self._geomid, self._normal.reshape(-1, 3), vec
 
     def render(self, data: mujoco.MjData, timestamp: float) -> DepthFrame:
         """One frame as the camera would deliver it (uint16 depth, 0 = no return)."""

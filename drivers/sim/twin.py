@@ -137,6 +137,7 @@ class Twin:
         seed: int = 0,
         initial_joints: np.ndarray | None = None,
         bus: bool = True,
+        depth_threads: int = 1,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
         self.world = world if isinstance(world, World) else load_world(world)
@@ -178,7 +179,9 @@ class Twin:
                 s.external = True
             self.emulator = DynamixelEmulator(self.chain, realtime_motor=False)
         self.cameras = {
-            cam.name: RayCastDepth(self.model, cam, r.base_body, seed=seed + k)
+            cam.name: RayCastDepth(
+                self.model, cam, r.base_body, seed=seed + k, threads=depth_threads
+            )
             for k, cam in enumerate(self.profile.cameras)
         }
         self._next_frame = dict.fromkeys(self.cameras, 0.0)
