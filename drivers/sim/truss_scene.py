@@ -99,7 +99,8 @@ class DepthNoise:
     """Kinect-2-like depth noise: axial sigma = a + b z^2 + c (1 - cos incidence) (m).
 
     ``flying`` is the chance that a pixel on a depth edge (neighbour step > ``edge_step``)
-    takes a depth between foreground and background; ``dropout`` the chance of no return.
+    takes a depth between foreground and background (0.2: what the driver's edge-aware
+    filter, on by default in libfreenect2, lets through); ``dropout`` the chance of no return.
     ``pose_translation``/``pose_rotation`` (m, rad) perturb each view's reported pose, as
     mapping drift does.
     """
@@ -107,7 +108,7 @@ class DepthNoise:
     a: float = 0.0012
     b: float = 0.00025
     c: float = 0.002
-    flying: float = 0.5
+    flying: float = 0.2
     edge_step: float = 0.05
     dropout: float = 0.01
     pose_translation: float = 0.002

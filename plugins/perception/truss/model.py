@@ -2,7 +2,7 @@
 
 Dense cloud -> voxel downsampling -> plane removal -> isolated-point removal -> normals ->
 RANSAC cylinder segments (the initial model), each completed by the sliding boxes as soon as
-it is found (its member's points then leave the RANSAC pool) -> merging of split pieces -> a
+it is found (the points in its boxes then leave the RANSAC pool) -> merging of split pieces -> a
 final refit of each member on all its surface points.
 """
 
@@ -45,7 +45,7 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     plane_min_width: float = 0.3
     max_planes: int = 3
     radius_min: float = 0.01
-    radius_max: float = 0.08
+    radius_max: float = 0.04
     partner_radius: float = 0.05
     cylinder_distance: float = 0.008
     cylinder_angle_deg: float = 25.0
@@ -115,7 +115,7 @@ class TrussModeller:
 
         def claim(segment: Segment) -> np.ndarray:
             completed.append(self._complete(segment, points, normals))
-            return np.union1d(segment.indices, self._surface(completed[-1], points, normals))
+            return np.union1d(segment.indices, completed[-1].indices)
 
         segments = segment_cylinders(
             points,
@@ -221,11 +221,14 @@ class TrussModeller:
         return support[(off < c.cylinder_distance) & (cos > cos_limit)]
 
     def _refit(self, member: Member, points: np.ndarray, normals: np.ndarray) -> Member:
-        """Refit the member's cylinder on all its surface points and re-project its end points."""
+        """Refit the member's cylinder on all its surface points and re-project its end points
+        (kept as it was if the refit leaves the configured radius limits)."""
         surface = self._surface(member, points, normals)
         if len(surface) < self.config.min_member_points:
             return member
         cylinder = refine(points[surface], member.cylinder)
+        if not self.config.radius_min <= cylinder.radius <= self.config.radius_max:
+            return member
         t = (np.array([member.p0, member.p1]) - cylinder.point) @ cylinder.axis
         return Member(cylinder, float(t.min()), float(t.max()), member.indices, member.pieces)
 
