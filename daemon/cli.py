@@ -23,6 +23,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "perceive": ("daemon.perceive", "run a perception plugin on a point cloud file or recording"),
     "record-camera": ("daemon.record_camera", "record a profile camera to a .bag file"),
     "install": ("daemon.install", "write systemd units and udev rules for a profile"),
+    "record": ("daemon.record", "record a robot's topics to an MCAP file (JSON + JSON Schema)"),
+    "replay": ("daemon.replay", "republish an MCAP recording on the bus at real or chosen speed"),
+    "top": ("daemon.top", "live terminal view of a robot or the fleet"),
 }
 
 
