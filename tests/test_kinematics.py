@@ -11,8 +11,19 @@ from daemon import profile as profiles
 from daemon.kinematics import Kinematics, KinematicsError
 from daemon.profile import stock_profiles
 
-ROBOTS = ("widowx", "hubrobo", "qingzhui")
+ROBOTS = ("widowx", "hubrobo", "qingzhui", "mixed")
 KIN = {name: Kinematics(profiles.load(path)) for name, path in stock_profiles().items()}
+
+
+def mixed_profile() -> profiles.Profile:
+    """Qingzhui with every other leg a coxa-femur-tibia leg: both chains in one robot."""
+    data = profiles.msgspec.to_builtins(KIN["qingzhui"].profile)
+    for leg in data["legs"][::2]:
+        leg["kind"] = "coxa_femur_tibia"
+    return profiles.from_dict(data, "mixed")
+
+
+KIN["mixed"] = Kinematics(mixed_profile())
 
 unit = st.floats(0.0, 1.0)
 
