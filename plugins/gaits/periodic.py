@@ -7,9 +7,11 @@ the body's velocity and yaw rate), a swing foot travels from its lift-off point 
 touch-down point chosen so that the next stance is centred on the stand pose, both points
 held fixed on the ground, along the quintic profile of plugins/gaits/swing.py: the foot
 leaves and lands at rest relative to the ground. Velocity, yaw rate, body height, roll and
-pitch follow the operator's command through rate limits, so starting and stopping have no
-step; without a command the robot slows to a stop and its legs settle on the stand pose. A
-leg whose foot is already home when the body is still does not lift at all.
+pitch follow the operator's command through a critically damped third-order filter, so
+starting and stopping have no step in velocity or acceleration; without a command the robot
+slows to a stop and its legs settle on the stand pose. A leg whose foot is already home when
+the body is still does not lift at all. Crawl sways the body over the support of the other
+three feet while a leg swings (a trigonometric series through the support centroids).
 
 Phase offsets follow the legs' layout (overridable per leg): legs are split into a left and
 a right side by the angle of their mount and ordered back to front; tripod alternates along
