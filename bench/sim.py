@@ -2,11 +2,13 @@
 
 1. Stepped physics with the twin's motor laws, per robot × world; baseline: bare
    ``mujoco.mj_step`` on the same model in the same run (ratio = the twin's own overhead).
-2. Real time with the daemon alongside (WidowX): twin threads + DynamixelBus on the pty +
-   Controller in a ControlLoop on the monotonic clock, standing then holding; reports the
-   simulated/wall time ratio, the physics lag and loop overruns.
+2. Real time with the daemon alongside (WidowX, one process): DynamixelBus on the pty and
+   the Controller in a ControlLoop on the monotonic clock, against the real-time twin with its
+   camera, or (baseline) against the bare servo emulator; simulated/wall time, physics lag,
+   loop ticks and overruns.
 3. Depth frames at 320×240 and 640×480 (L515) and 424×240 / 640×480 (D435) in the attic,
-   beside the 33.3 ms frame period; baseline: bare ``mj_multiRay`` over the same rays.
+   1 and 2 casting threads, beside the 33.3 ms frame period; baseline: one bare
+   ``mj_multiRay`` over the same rays.
 
 Run: ``.venv/bin/python bench/sim.py`` (about a minute).
 """
@@ -55,45 +57,52 @@ def stepped_rtf(robot: str, world: str, seconds: float) -> tuple[float, float]:
     return ours, bare
 
 
-def real_time_with_daemon(seconds: float) -> dict:
-    """WidowX twin in real time with the daemon's driver and controller polling it at 100 Hz."""
+def real_time_with_daemon(seconds: float, physics: bool) -> dict:
+    """The WidowX daemon side (driver + controller at 100 Hz on the monotonic clock) against
+    the real-time twin with its cameras (``physics``) or, as the baseline, against the bare
+    servo emulator with its built-in motor model."""
     from daemon.control import Controller
     from daemon.loop import ControlLoop, MonotonicClock
     from daemon.messages import Mode
     from daemon.safety import Safety
     from drivers.dynamixel.bus import DynamixelBus
+    from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
     profile = fold_zero_offsets(load("robots/widowx.toml"))
-    twin = Twin(profile, "attic", initial_joints=Kinematics(profile).stand_joints())
-    twin.on_depth(lambda name, frame: None)
-    twin.start()
-    bus = DynamixelBus.from_profile(profile, port=twin.port)
+    if physics:
+        device = Twin(profile, "attic", initial_joints=Kinematics(profile).stand_joints())
+        device.on_depth(lambda name, frame: None)
+    else:
+        device = DynamixelEmulator(ServoChain.from_profile(profile))
+    device.start()
+    bus = DynamixelBus.from_profile(profile, port=device.port)
     bus.open()
     clock = MonotonicClock()
     safety = Safety(profile)
     controller = Controller(profile, bus, safety, clock.now, None, lambda m: None)
     loop = ControlLoop(profile.rate_hz, clock, controller.tick)
     thread = threading.Thread(target=loop.run, daemon=True)
-    sim0, wall0 = twin.time, time.monotonic()
+    sim0 = device.time if physics else 0.0
+    wall0 = time.monotonic()
     thread.start()
     safety.request(Mode.STAND, clock.now())
     time.sleep(seconds)
-    sim1, wall1 = twin.time, time.monotonic()
+    wall1 = time.monotonic()
+    sim1 = device.time if physics else wall1 - wall0
     loop.stop()
     thread.join(2.0)
     stats = loop.stats()
-    frames = twin.cameras["front"].number
     bus.close()
-    twin.stop()
+    device.stop()
     return {
         "rtf": (sim1 - sim0) / (wall1 - wall0),
-        "lag": twin.lag,
+        "lag": device.lag if physics else 0.0,
         "ticks": stats.ticks,
         "overruns": stats.overruns,
         "late_p99_ms": stats.lateness_p99 * 1e3,
-        "frames": frames,
+        "compute_p50_ms": stats.compute_p50 * 1e3,
+        "frames": device.cameras["front"].number if physics else 0,
         "seconds": wall1 - wall0,
-        "mode": safety.mode.value,
     }
 
 
@@ -142,15 +151,19 @@ def main() -> None:
             ours, bare = stepped_rtf(robot, world, args.seconds)
             print(f"| {robot} | {world} | {ours:.1f} | {bare:.1f} | {ours / bare:.2f} |")
 
-    r = real_time_with_daemon(args.daemon_seconds)
-    print("\n## real time, WidowX in the attic with the daemon's driver + controller at 100 Hz\n")
-    print("| wall s | sim/wall | physics lag s | loop ticks | overruns | lateness p99 ms |")
-    print("|---:|---:|---:|---:|---:|---:|")
+    print("\n## real time, WidowX daemon side (DynamixelBus + Controller, 100 Hz) alongside\n")
     print(
-        f"| {r['seconds']:.1f} | {r['rtf']:.3f} | {r['lag']:.3f} | {r['ticks']} | "
-        f"{r['overruns']} | {r['late_p99_ms']:.2f} |"
+        "| device | wall s | sim/wall | physics lag s | loop ticks (of) | overruns "
+        "| tick compute p50 ms | lateness p99 ms | depth frames |"
     )
-    print(f"\n(depth rendered alongside: {r['frames']} frames; mode at end {r['mode']})")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for physics, label in ((False, "bare emulator (baseline)"), (True, "twin + L515 640×480")):
+        r = real_time_with_daemon(args.daemon_seconds, physics)
+        print(
+            f"| {label} | {r['seconds']:.1f} | {r['rtf']:.3f} | {r['lag']:.3f} | {r['ticks']} "
+            f"({round(r['seconds'] * 100)}) | {r['overruns']} | {r['compute_p50_ms']:.2f} | "
+            f"{r['late_p99_ms']:.2f} | {r['frames']} |"
+        )
 
     print("\n## depth frame (attic, WidowX mount; baseline bare mj_multiRay, same rays)\n")
     print(
