@@ -29,6 +29,7 @@ from daemon.messages import (
     ModeRequest,
     ModeState,
     MotionCommand,
+    MotionStats,
     SessionClaim,
 )
 from daemon.motion import MotionPipeline
@@ -327,12 +328,24 @@ class Controller:
             mode=self.safety.mode,
             joints=joints,
             loop=self.loop_stats() if self.loop_stats is not None else Health().loop,
+            motion=self.motion_stats(),
             plugins=plugins,
             refused_commands=self.safety.refused,
             unauthorised_commands=self.unauthorised(),
             features={k: t - v.at for k, v in list(self.features.items())},
             session=held.client if (held := self.safety.session) is not None else "",
             messages=self.messages[-10:],
+        )
+
+    def motion_stats(self) -> MotionStats:
+        m = self.motion
+        if m is None:
+            return MotionStats()
+        return MotionStats(
+            unreachable_legs=m.unreachable_legs,
+            unreachable_ticks=m.unreachable_ticks,
+            clamps=m.guard.clamps,
+            smoothing_fallbacks=m.smoother.fallbacks,
         )
 
     def publish_health(self, t: float) -> None:

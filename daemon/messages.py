@@ -98,6 +98,15 @@ class LoopStats(msgspec.Struct, kw_only=True):
     compute_p99: float = 0.0
 
 
+class MotionStats(msgspec.Struct, kw_only=True):
+    """What the motion pipeline did since the current mode was entered."""
+
+    unreachable_legs: list[str] = []
+    unreachable_ticks: int = 0
+    clamps: int = 0
+    smoothing_fallbacks: int = 0
+
+
 class Health(Message):
     """Whole-robot health: mode, joints, loop timing, plugins, bus decode errors, refusals.
 
@@ -112,6 +121,7 @@ class Health(Message):
     mode: Mode = Mode.OFF
     joints: list[JointHealth] = []
     loop: LoopStats = msgspec.field(default_factory=LoopStats)
+    motion: MotionStats = msgspec.field(default_factory=MotionStats)
     plugins: dict[str, str] = {}
     decode_errors: int = 0
     refused_commands: int = 0
