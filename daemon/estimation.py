@@ -4,13 +4,14 @@ Each tick: foot forces from joint torques (eq. 5); the stance tripod is the grou
 carry the larger support force (group A: MF, RB, LB; group B: MB, RF, LF); the body pose in the
 global (odometry) frame follows from the three stance feet (eqs. 6-9), whose global positions
 are registered when their group takes the load. The first Kalman filter fuses that kinematic
-pose with the IMU (gyro and accelerometer predict, kinematics and gravity correct); the second
+pose with the IMU (gyro and accelerometer predict, the kinematic pose corrects); the second
 holds a drift correction that ICP between successive stair clouds measures, applied on top.
 Pure: arrays in, BodyState out, no clock, no I/O.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Annotated
 
@@ -30,23 +31,24 @@ class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Noise figures (SI, 1-sigma) of the two filters and the stance detector.
 
     ``foot_radius``: radius of the rubber foot (m); a stance foot rolls on it, which moves its
-    centre (what FK gives) over the ground. ``groups``: the two tripods by leg name; empty
+    centre (what FK gives) over the ground. ``link_masses``: mass (kg) of each leg's three
+    links, centres at mid-link, whose weight the joint torques carry besides the foot force.
+    ``groups``: the two tripods by leg name; empty
     means paper 004's layout rule (alternate legs along each side).
     """
 
     gyro_noise: Positive = 0.02
     accel_noise: Positive = 0.5
-    accel_gate: Positive = 1.0
     velocity_walk: Positive = 0.5
     kinematic_position_noise: Positive = 0.005
     kinematic_rotation_noise: Positive = 0.01
-    gravity_rotation_noise: Positive = 0.03
     drift_position_rate: Positive = 0.005
     drift_rotation_rate: Positive = 0.005
     icp_position_noise: Positive = 0.005
     icp_rotation_noise: Positive = 0.005
     switch_margin: NonNegative = 0.1
     foot_radius: NonNegative = 0.0
+    link_masses: list[float] = []
     groups: list[list[str]] = []
 
 
@@ -117,34 +119,19 @@ class EstimationError(ValueError):
 def stance_pose(feet_body: np.ndarray, feet_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Body rotation and origin in the global frame from three stance feet (eqs. 7-9).
 
-    Eq. 7: the body origin lies at each foot's body-frame distance from that foot's global
-    position (three spheres; the root on the body's side of the feet plane). Eq. 9: the rotation
-    maps the body-frame feet onto the global ones seen from that origin, projected on SO(3).
+    Solves eq. 8 (global foot = origin + R · body foot, all three feet) in least squares
+    (Kabsch); with consistent feet this meets eq. 7's distances exactly. Eq. 7's trilateration
+    followed by eq. 9 amplifies millimetre foot errors about twice into height at Qingzhui's
+    stance (measured in the twin), so the least-squares form replaces it.
     """
     pb = np.asarray(feet_body, float)
     pg = np.asarray(feet_global, float)
-    r = np.linalg.norm(pb, axis=1)
-    e1 = pg[1] - pg[0]
-    e2 = pg[2] - pg[0]
-    normal = np.cross(e1, e2)
-    if np.linalg.norm(normal) < 1e-9:
+    if np.linalg.norm(np.cross(pg[1] - pg[0], pg[2] - pg[0])) < 1e-9:
         raise EstimationError("stance feet are collinear: no pose")
-    # Pairwise differences of the spheres of eq. 7 are planes; their line meets sphere 0.
-    a = 2.0 * np.stack([e1, e2])
-    b = np.array(
-        [
-            r[0] ** 2 - r[1] ** 2 + pg[1] @ pg[1] - pg[0] @ pg[0],
-            r[0] ** 2 - r[2] ** 2 + pg[2] @ pg[2] - pg[0] @ pg[0],
-        ]
-    )
-    base, *_ = np.linalg.lstsq(a, b, rcond=None)
-    n = normal / np.linalg.norm(normal)
-    off = base - pg[0]
-    s = math.sqrt(max(r[0] ** 2 - off @ off + (off @ n) ** 2, 0.0))
-    side = np.sign(np.cross(pb[1] - pb[0], pb[2] - pb[0]) @ (-pb[0])) or 1.0
-    along = -(off @ n) + side * s
-    origin = base + along * n
-    rot = nearest_rotation((pg - origin).T @ np.linalg.inv(pb.T))
+    cb, cg = pb.mean(0), pg.mean(0)
+    u, _, vt = np.linalg.svd((pg - cg).T @ (pb - cb))
+    rot = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    origin = cg - rot @ cb
     return rot, origin
 
 
@@ -205,6 +192,34 @@ def foot_link_rotations(kin: Kinematics, q: np.ndarray) -> np.ndarray:
     return kin.rot @ first @ ry
 
 
+class FootForces:
+    """Eq. 5 with the legs' own weight removed: F = (J^T)^-1 (tau + sum_i J_i^T m_i g).
+
+    ``J_i`` is the Jacobian of link i's centre, i.e. the foot Jacobian of the same leg with
+    its links cut at that centre. F is the force each foot exerts on its contact (body frame).
+    """
+
+    def __init__(self, kin: Kinematics, link_masses: list[float]) -> None:
+        if link_masses and len(link_masses) != 3:
+            raise ValueError(f"estimator link_masses: expected 3 values, found {link_masses}")
+        self.kin = kin
+        self.masses = np.asarray(link_masses, float)
+        self.centres = []
+        for k in range(3 if link_masses else 0):
+            cut = copy.copy(kin)
+            share = [1.0 if j < k else (0.5 if j == k else 0.0) for j in range(3)]
+            cut.l1, cut.l2, cut.l3 = kin.l1 * share[0], kin.l2 * share[1], kin.l3 * share[2]
+            self.centres.append(cut)
+
+    def __call__(self, q: np.ndarray, tau: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        tau = np.asarray(tau, float).reshape(self.kin.n_legs, 3)
+        if self.centres:
+            g = rot.T @ np.array([0.0, 0.0, -GRAVITY])
+            for m, cut in zip(self.masses, self.centres, strict=True):
+                tau = tau + m * np.einsum("lij,i->lj", cut.jacobian(q), g)
+        return self.kin.foot_forces(q, tau)
+
+
 # --- the estimator -------------------------------------------------------------------------
 
 
@@ -225,6 +240,7 @@ class StateEstimator:
     ) -> None:
         self.config = config or EstimatorConfig()
         self.kin = Kinematics(profile)
+        self.foot_forces = FootForces(self.kin, self.config.link_masses)
         self.group = tripod_groups(profile, self.config.groups)
         self.weight = profile.mass * GRAVITY
         n = self.kin.n_legs
@@ -262,13 +278,6 @@ class StateEstimator:
             c.velocity_walk**2
         )
         self.p_pv = f @ self.p_pv @ f.T + q
-        norm = float(np.linalg.norm(accel))
-        if abs(norm - GRAVITY) < c.accel_gate:
-            up = self.rot @ (accel / norm)
-            err = np.cross(up, [0.0, 0.0, 1.0])
-            gain = self.p_rot / (self.p_rot + c.gravity_rotation_noise**2)
-            gain[2] = 0.0
-            self._rotate(gain * err)
 
     def _rotate(self, delta: np.ndarray) -> None:
         self.rot = nearest_rotation(exp_so3(delta) @ self.rot)
@@ -315,9 +324,9 @@ class StateEstimator:
         q = np.asarray(q, float)
         feet = self.kin.fk(q)
         link_rot = foot_link_rotations(self.kin, q)
-        self.forces = self.kin.foot_forces(q, tau)
         if gyro is not None and accel is not None and dt > 0:
             self._predict(np.asarray(gyro, float), np.asarray(accel, float), dt)
+        self.forces = self.foot_forces(q, tau, self.rot)
         if self.stance_group >= 0:
             self._roll(np.flatnonzero(self.group == self.stance_group), link_rot)
         self._link_rot = link_rot
