@@ -275,6 +275,19 @@ class GraspablePoints(Message):
     points: list[list[float]] = []
 
 
+class Stability(Message):
+    """Tumble Stability Margin (m, Yoneda & Hirose, with grip forces) of a climbing gait's tick:
+    ``support`` marks the limbs it counts, ``grip`` the closed grippers, ``swing`` the swinging
+    limb (-1 when none)."""
+
+    TOPIC: ClassVar[str] = "state/stability"
+    RATE: ClassVar[str] = "control rate"
+    tsm: float = 0.0
+    support: list[bool] = []
+    grip: list[bool] = []
+    swing: int = -1
+
+
 class TrussMember(msgspec.Struct, kw_only=True):
     """A cylindrical truss member (paper 003): end points (m), radius (m), unit axis."""
 
@@ -327,6 +340,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     ElevationGrid,
     Joists,
     GraspablePoints,
+    Stability,
     TrussMembers,
     Stairs,
 )
