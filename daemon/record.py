@@ -305,6 +305,8 @@ def main(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
+    # A file size limit then fails the write (EFBIG), handled like a full disk, not a kill.
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     recorder.start()
     print(f"climbd: recording {len(messages)} topics of {args.robot} to {path}", flush=True)
     until = time.monotonic() + args.duration if args.duration else None
