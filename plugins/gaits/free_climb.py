@@ -5,14 +5,23 @@ body keeps the wall's orientation, so body-frame feet are wall-frame feet minus 
 One limb swings at a time (quasi-static, no four-limb phase): its gripper opens only while the
 three others hold, it swings along a cubic spline (0.02 m high, 4 s), and closes before the
 limb takes load. During the swing the base moves so that the CoM's projection along gravity
-lands on the intersection of the support diagonals (§3.3). The non-periodic gait swings the
-limb with most graspable points ahead in its reach (§3.1); the periodic baseline [9] swings
-limbs in a fixed order; both grip the point giving the longest stride (§3.2). A step whose
-predicted Tumble Stability Margin is negative anywhere along the swing is not taken.
+lands on the intersection of the support diagonals (§3.3).
+
+Both gaits choose among the same options: the graspable points each limb reaches from the
+current base (IK within joint limits), no farther than ``max_stride`` from its foot and clear
+of the other grippers, and both take the option with the longest stride towards the goal
+whose step is feasible: every foot reachable along the base's path and the predicted Tumble
+Stability Margin ≥ 0 throughout (§3.2, [9]). They differ only in the swing limb (§3.1): the
+non-periodic gait swings the limb with most options ahead, dropping options that prove
+infeasible and recounting (as ClimbLab does); the periodic baseline swings limbs in a fixed
+crawl order. When no option ahead is feasible the limb re-grips: the feasible option that
+loses least towards the goal (the periodic gait tries this for its own limb first, then
+passes the turn on), so neither planner stops while any feasible step exists.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import ClassVar
@@ -21,16 +30,31 @@ import msgspec
 import numpy as np
 
 from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, FootTargets, GraspablePoints, Message, MotionCommand
+from daemon.messages import (
+    BodyState,
+    FootTargets,
+    GraspablePoints,
+    Message,
+    MotionCommand,
+    Stability,
+)
 from daemon.plugins import GaitPlugin
+from daemon.profile import Profile
 from plugins.gaits.tsm import tumble_stability_margin
 
 NORMAL = np.array([0.0, 0.0, 1.0])
+GOAL = np.array([1.0, 0.0, 0.0])
+"""Direction of the goal in the wall frame: straight up the slope."""
 PERIODIC_ORDER = (1, 0, 2, 3)  # rr, rf, lr, lf: the crawl order of [9]
+SWING_SAMPLES = (0.25, 0.5, 0.75, 1.0)
+"""Swing phases at which a step's reach and TSM are checked before it is taken."""
 
 
 class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """Paper 001 §4.1 conditions: swing height/period, base height, grip force, slope, gravity."""
+    """Paper 001 §4.1 conditions (swing height/period, base height, grip force, slope, gravity,
+    mass) and the foothold rule's limits: ``max_stride`` is ClimbLab's allowable maximum stride
+    for discrete footholds, ``min_stride`` its same-point distance, ``hold_spacing`` the least
+    distance (m) between two grippers' holds (one palm's width)."""
 
     swing_height: float = 0.02
     swing_period: float = 4.0
@@ -39,19 +63,27 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     mass: float = 2.3
     gravity: float = 9.80665 / 6
     slope_deg: float = 30.0
+    max_stride: float = 0.1
     min_stride: float = 0.005
     hold_spacing: float = 0.03
 
 
 @dataclass(frozen=True)
 class Step:
-    """One planned swing: limb, foot start/target and base start/end (wall frame, m)."""
+    """One planned swing: limb, foot start/target and base start/end (wall frame, m);
+    ``regrip`` when no option ahead was feasible and the limb moved to keep going."""
 
     limb: int
     start: np.ndarray
     target: np.ndarray
     base_start: np.ndarray
     base_end: np.ndarray
+    regrip: bool = False
+
+    @property
+    def stride(self) -> float:
+        """Foot displacement towards the goal (m)."""
+        return float((self.target - self.start) @ GOAL)
 
 
 def smooth(s: float) -> float:
@@ -77,17 +109,52 @@ def diagonal_crossing(feet: np.ndarray) -> np.ndarray | None:
     return a + u * (b - a)
 
 
+class LegReach:
+    """Reachability (IK within joint limits) of many points per leg in one vectorised call.
+
+    The daemon's Kinematics solves one point per leg; a Kinematics over each leg repeated
+    ``batch`` times solves ``batch`` candidate points of every leg at once.
+    """
+
+    def __init__(self, profile: Profile) -> None:
+        self.profile = profile
+        self.n_legs = len(profile.legs)
+        self._kinematics: dict[int, Kinematics] = {}
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """(n_legs, m) reachable flags of body-frame points shaped (n_legs, m, 3)."""
+        m = points.shape[1]
+        if m == 0:
+            return np.zeros((self.n_legs, 0), dtype=bool)
+        batch = 1 << (m - 1).bit_length()
+        kin = self._kinematics.get(batch)
+        if kin is None:
+            legs = [leg for leg in self.profile.legs for _ in range(batch)]
+            kin = Kinematics(msgspec.structs.replace(self.profile, legs=legs))
+            self._kinematics[batch] = kin
+        padded = np.zeros((self.n_legs, batch, 3))
+        padded[:, :m] = points
+        padded[:, m:] = points[:, :1]
+        return kin.ik(padded.reshape(-1, 3))[1].reshape(self.n_legs, batch)[:, :m]
+
+
 class ClimbPlanner:
     """Plans swings over a hold map; ``periodic`` picks limbs in a fixed order instead (§3.1)."""
 
     def __init__(self, kinematics: Kinematics, config: ClimbConfig, periodic: bool) -> None:
         self.kinematics = kinematics
+        self.reach = LegReach(kinematics.profile)
         self.config = config
         self.periodic = periodic
         self.turn = 0
+        self.passed = 0
+        self.left: dict[int, np.ndarray] = {}
+        """Holds left by re-grips, barred to their limb until a stride ahead (no cycling)."""
+        """Turns the periodic gait passed on because its limb had no feasible step at all."""
         slope = math.radians(config.slope_deg)
         self.down = np.array([-math.sin(slope), 0.0, -math.cos(slope)])
         self.force = config.mass * config.gravity * self.down
+        self.nominal = kinematics.stand_feet(config.base_height) * [1.0, 1.0, 0.0]
 
     def base_for(self, feet: np.ndarray) -> np.ndarray | None:
         """Base whose CoM projects along gravity onto the diagonals' crossing (§3.3)."""
@@ -113,53 +180,112 @@ class ClimbPlanner:
         foot = foot + NORMAL * swing_lift(s, self.config.swing_height)
         return foot, step.base_start + k * (step.base_end - step.base_start)
 
-    def _feasible(self, feet: np.ndarray, base: np.ndarray, limb: int, target: np.ndarray):
+    def feasible(
+        self, feet: np.ndarray, base: np.ndarray, limb: int, target: np.ndarray
+    ) -> Step | None:
+        """The step of ``limb`` to ``target``, or None if the new diagonals do not cross, a foot
+        leaves its reach along the base's path or the TSM of the three holding limbs < 0."""
         new = feet.copy()
         new[limb] = target
         base_end = self.base_for(new)
-        if base_end is None or not self.reachable(new, base_end).all():
+        if base_end is None:
             return None
-        step = Step(limb, feet[limb].copy(), target, base.copy(), base_end)
+        step = Step(limb, feet[limb].copy(), np.asarray(target, float), base.copy(), base_end)
         stance = np.delete(feet, limb, axis=0)
-        for s in (0.0, 0.25, 0.5, 0.75, 1.0):
-            if self.tsm(self.pose(step, s)[1], stance) < 0.0:
+        trial = feet.copy()
+        for s in SWING_SAMPLES:
+            trial[limb], com = self.pose(step, s)
+            if not self.reachable(trial, com).all() or self.tsm(com, stance) < 0.0:
                 return None
         return step
 
-    def _ahead(self, feet: np.ndarray, base: np.ndarray, limb: int, holds: np.ndarray):
-        """Holds ahead of the limb's foot, free of other feet, reachable from the current base."""
-        ahead = holds[holds[:, 0] > feet[limb, 0] + self.config.min_stride]
-        others = np.delete(feet, limb, axis=0)
-        free = np.linalg.norm(ahead[:, None, :2] - others[None, :, :2], axis=2).min(axis=1)
-        ahead = ahead[free > self.config.hold_spacing]
-        trial = feet - base
-        ok = np.zeros(len(ahead), dtype=bool)
-        for i, hold in enumerate(ahead):
-            trial[limb] = hold - base
-            ok[i] = self.kinematics.ik(trial)[1][limb]
-        return ahead[ok]
-
-    def _longest_stride(self, feet, base, limb, holds) -> Step | None:
-        options = self._ahead(feet, base, limb, holds)
-        for i in np.argsort(-options[:, 0], kind="stable"):
-            step = self._feasible(feet, base, limb, options[i])
-            if step is not None:
-                return step
-        return None
+    def options(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> list[np.ndarray]:
+        """Per limb, the holds it may grip next: reachable from the current base, within
+        ``max_stride`` of its foot (and not its own hold), clear of the other grippers."""
+        cfg = self.config
+        gap = np.linalg.norm(holds[None, :, :2] - feet[:, None, :2], axis=2)
+        near = (gap > cfg.min_stride) & (gap <= cfg.max_stride)
+        crowded = gap <= cfg.hold_spacing
+        reach = self.reach(holds[None, :, :] - base)
+        out = []
+        for limb in range(len(feet)):
+            clear = ~np.delete(crowded, limb, axis=0).any(axis=0)
+            out.append(holds[near[limb] & clear & reach[limb]])
+        return out
 
     def plan(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> Step | None:
-        """The next swing (§3.1-3.2), or None when no limb has a feasible grip ahead."""
+        """The next swing (§3.1-3.2), or None when no limb has any feasible step.
+
+        A limb that re-gripped may not return to the hold it left before some limb has
+        taken a stride ahead, so a stuck posture is worked free instead of cycling."""
+        options = self.options(feet, base, holds)
+        for limb, hold in self.left.items():
+            gap = np.linalg.norm(options[limb][:, :2] - hold[:2], axis=1)
+            options[limb] = options[limb][gap > self.config.min_stride]
         if self.periodic:
-            order = [PERIODIC_ORDER[(self.turn + i) % 4] for i in range(4)]
+            step = self._plan_periodic(feet, base, options)
         else:
-            counts = [len(self._ahead(feet, base, limb, holds)) for limb in range(4)]
-            order = sorted(range(4), key=lambda limb: (-counts[limb], feet[limb, 0]))
-        for limb in order:
-            step = self._longest_stride(feet, base, limb, holds)
+            step = self._plan_free(feet, base, options)
+        if step is not None and step.regrip:
+            self.left[step.limb] = step.start
+        elif step is not None:
+            self.left.clear()
+        return step
+
+    def _ahead(self, feet: np.ndarray, options: list[np.ndarray]) -> list[list[np.ndarray]]:
+        """Each limb's options ahead (stride > ``min_stride``), longest stride first."""
+        out = []
+        for limb, opts in enumerate(options):
+            stride = (opts - feet[limb]) @ GOAL
+            order = np.argsort(-stride, kind="stable")
+            out.append([opts[i] for i in order if stride[i] > self.config.min_stride])
+        return out
+
+    def _plan_free(self, feet, base, options) -> Step | None:
+        """§3.1: the limb with most options ahead (ties: the limb furthest behind) takes its
+        longest feasible stride; an infeasible option is dropped and the limbs recounted."""
+        ahead = self._ahead(feet, options)
+        lag = -(feet @ GOAL)
+        while any(ahead):
+            limb = max(range(len(feet)), key=lambda i: (len(ahead[i]), lag[i]))
+            step = self.feasible(feet, base, limb, ahead[limb].pop(0))
             if step is not None:
-                if self.periodic:
-                    self.turn = (PERIODIC_ORDER.index(limb) + 1) % 4
                 return step
+        return self._regrip(feet, base, options, range(len(feet)))
+
+    def _plan_periodic(self, feet, base, options) -> Step | None:
+        """[9]: the limb whose turn it is takes its longest feasible stride, else re-grips;
+        with no feasible step at all it passes the turn to the next limb of the order."""
+        ahead = self._ahead(feet, options)
+        for _ in range(len(PERIODIC_ORDER)):
+            limb = PERIODIC_ORDER[self.turn]
+            self.turn = (self.turn + 1) % len(PERIODIC_ORDER)
+            for target in ahead[limb]:
+                step = self.feasible(feet, base, limb, target)
+                if step is not None:
+                    return step
+            step = self._regrip(feet, base, options, (limb,))
+            if step is not None:
+                return step
+            self.passed += 1
+        return None
+
+    def _regrip(self, feet, base, options, limbs) -> Step | None:
+        """The way on when no option ahead is feasible: the feasible step of ``limbs`` that
+        brings a foot closest to its standing place under the base (freeing a splayed
+        posture), else the one losing least towards the goal."""
+        nominal = self.nominal + base * [1.0, 1.0, 0.0]
+        tried = []
+        for limb in limbs:
+            opts = options[limb]
+            before = np.linalg.norm(feet[limb, :2] - nominal[limb, :2])
+            gain = before - np.linalg.norm(opts[:, :2] - nominal[limb, :2], axis=1)
+            stride = (opts - feet[limb]) @ GOAL
+            tried += [(gain[i], stride[i], limb, opts[i]) for i in range(len(opts))]
+        for *_, limb, target in sorted(tried, key=lambda c: (-c[0], -c[1])):
+            step = self.feasible(feet, base, limb, target)
+            if step is not None:
+                return dataclasses.replace(step, regrip=True)
         return None
 
 
@@ -183,34 +309,31 @@ class ClimbRunner:
         self.base = np.array(base, float)
         self.step: Step | None = None
         self.phase = 0.0
+        self.steps: list[Step] = []
 
     def tick(self, dt: float, holds: np.ndarray) -> Tick:
         """Advance by ``dt`` (s); a swing starts only when the three other grippers hold."""
         if self.step is None:
             self.step = self.planner.plan(self.feet, self.base, holds)
             self.phase = 0.0
+            if self.step is not None:
+                self.steps.append(self.step)
         step = self.step
         if step is None:
-            stance = self.feet
-            return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, self._tsm(stance))
+            margin = self.planner.tsm(self.base, self.feet)
+            return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin)
         self.phase = min(1.0, self.phase + dt / self.planner.config.swing_period)
         foot, base = self.planner.pose(step, self.phase)
         feet = self.feet.copy()
         feet[step.limb] = foot
         grip = [True] * 4
         grip[step.limb] = self.phase >= 1.0
-        stance = np.delete(self.feet, step.limb, axis=0)
-        margin = tumble_stability_margin(
-            base, stance, self.planner.force, self.planner.config.grip_force, NORMAL
-        )
+        margin = self.planner.tsm(base, np.delete(self.feet, step.limb, axis=0))
         if self.phase >= 1.0:
             self.feet = feet
             self.base = base
             self.step = None
         return Tick(feet, base, step.limb, grip, margin)
-
-    def _tsm(self, stance: np.ndarray) -> float:
-        return self.planner.tsm(self.base, stance)
 
 
 class FreeClimb(GaitPlugin):
@@ -228,6 +351,7 @@ class FreeClimb(GaitPlugin):
         self.runner: ClimbRunner | None = None
         self.holds = np.zeros((0, 3))
         self.last: Tick | None = None
+        self.stamp = 0.0
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
         """Take the measured feet (body frame) as gripping; the wall frame starts at the base."""
@@ -253,12 +377,28 @@ class FreeClimb(GaitPlugin):
             self.holds = points
         tick = self.runner.tick(dt, self.holds)
         self.last = tick
+        self.stamp = t
         return FootTargets(
             stamp=t,
             positions=(tick.feet - tick.base).tolist(),
-            stance=[g for g in tick.grip],
+            stance=list(tick.grip),
             grip=tick.grip,
         )
+
+    def telemetry(self) -> list[Message]:
+        """This tick's Stability (TSM, holding limbs, grips) for the control role to publish."""
+        tick = self.last
+        if tick is None:
+            return []
+        return [
+            Stability(
+                stamp=self.stamp,
+                tsm=tick.tsm,
+                support=[leg != tick.swing for leg in range(len(tick.grip))],
+                grip=list(tick.grip),
+                swing=-1 if tick.swing is None else tick.swing,
+            )
+        ]
 
 
 class PeriodicClimb(FreeClimb):
