@@ -17,7 +17,8 @@ kinematic angle is θ = direction · (q − zero_offset), as in daemon/kinematic
 Servos follow the chain's
 goal positions, torque enable, moving speed and torque limit; the twin writes back present
 position, speed, load, temperature (a thermal model) and voltage. Without a bus
-(``bus=False``, or a torque robot) ``command()`` / ``command_mit()`` set the goals in-process.
+(``bus=False``) ``command()`` / ``command_mit()`` set the goals in-process. Torque legs answer
+MIT-mode CAN frames on a python-can ``virtual`` channel (``twin.port``) from the physics.
 Stepped mode is deterministic: the same inputs give the same joint logs. Real-time mode runs
 physics in a thread that follows the monotonic clock and renders depth at each camera's rate.
 """
@@ -47,6 +48,7 @@ from drivers.base import DepthFrame, ImuSample
 from drivers.sim import servos
 from drivers.sim.depth import RayCastDepth
 from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
+from drivers.sim.mit_motors import MitMotorChain
 from drivers.sim.model import RobotModel, build
 from drivers.sim.worlds import World
 from drivers.sim.worlds import load as load_world
@@ -124,6 +126,34 @@ class PhysicsChain(ServoChain):
             return replies
 
 
+class PhysicsMitChain(MitMotorChain):
+    """Emulated MIT-mode motors on a virtual CAN channel, answering from the physics.
+
+    Before a frame is handled the motor's state is written from the twin; after it, its
+    motor mode and impedance command are read back, under the twin's lock.
+    """
+
+    twin: Twin | None = None
+
+    def _handle(self, m, data: bytes) -> bytes | None:
+        twin = self.twin
+        if twin is None:
+            return super()._handle(m, data)
+        with twin.lock:
+            k = twin.motor_index[m.motor]
+            r, d = twin.robot, twin.data
+            m.position = float(twin.map.joint(d.qpos[r.qpos_adr])[k])
+            m.velocity = float(twin.map.joint_rate(d.qvel[r.dof_adr])[k])
+            m.torque = float(twin.effort[k])
+            reply = super()._handle(m, data)
+            c = m.command
+            twin.torque_on[k] = m.motor_mode and c is not None
+            if c is not None:
+                twin.goal[k], twin.mit_rate[k] = c.position, c.velocity
+                twin.mit_kp[k], twin.mit_kd[k], twin.mit_ff[k] = c.kp, c.kd, c.torque
+            return reply
+
+
 class Twin:
     """MuJoCo physics of ``profile`` in ``world`` with emulated devices; see the module doc."""
 
@@ -172,6 +202,19 @@ class Twin:
         self.grip = np.zeros(len(self.profile.legs), bool)
         self.chain = None
         self.emulator = None
+        self.can_chain: PhysicsMitChain | None = None
+        self.motor_index = {j.id: k for k, j in enumerate(self.profile.joints)}
+        if bus and r.torque_legs:
+            cfg = self.profile.bus
+            self.can_chain = PhysicsMitChain(
+                [j.id for j in self.profile.joints],
+                cfg.actuator,
+                channel=f"climbd-twin-{self.profile.name}-{id(self):x}",
+                interface="virtual",
+                master_id=cfg.master_id,
+                external_model=True,
+            )
+            self.can_chain.twin = self
         if bus and not r.torque_legs:
             self.chain = PhysicsChain.from_profile(self.profile)
             self.chain.twin = self
@@ -192,6 +235,7 @@ class Twin:
         self._accel = self.model.sensor_adr[sensor("imu_accel").id]
         self._steps = 0
         self._select_line: int | None = None
+        self._recv_line: int | None = None
         self._thread: threading.Thread | None = None
         self._camera_thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -202,8 +246,13 @@ class Twin:
 
     @property
     def port(self) -> str:
-        """The emulated Dynamixel bus's pty path (empty before ``start`` or without a bus)."""
-        return self.emulator.port if self.emulator is not None else ""
+        """Where the emulated bus answers: the Dynamixel pty path, or for torque legs the
+        python-can ``virtual`` channel name; empty before ``start`` or without a bus."""
+        if self.emulator is not None:
+            return self.emulator.port
+        if self.can_chain is not None and self.can_chain._thread is not None:
+            return self.can_chain.channel
+        return ""
 
     @property
     def time(self) -> float:
@@ -215,6 +264,9 @@ class Twin:
         if self.emulator is not None and not self.emulator.port:
             self.emulator.start()
             self._sync_bus()
+        if self.can_chain is not None and self.can_chain._thread is None:
+            self.can_chain._stop.clear()
+            self.can_chain.start()
         if not self.stepped and self._thread is None:
             self._stop.clear()
             self._thread = threading.Thread(target=self._run, name="twin-physics", daemon=True)
@@ -236,6 +288,9 @@ class Twin:
         if self.emulator is not None:
             self.emulator.stop()
             self.emulator.port = ""
+        if self.can_chain is not None and self.can_chain._thread is not None:
+            self.can_chain.stop()
+            self.can_chain._thread = None
 
     def __enter__(self) -> Twin:
         return self.start()
@@ -391,6 +446,33 @@ class Twin:
                 self._cameras_due()
 
     def _settle_bus(self) -> None:
+        """Wait until the emulated bus has handled everything the driver sent."""
+        if self.can_chain is not None:
+            self._settle_can()
+        else:
+            self._settle_pty()
+
+    def _settle_can(self) -> None:
+        """The virtual CAN channel's queue is empty and the chain's thread waits in recv(),
+        twice 0.5 ms apart."""
+        chain = self.can_chain
+        if chain._thread is None or chain._bus is None:
+            return
+        if self._recv_line is None:
+            source, first = inspect.getsourcelines(type(chain)._serve)
+            self._recv_line = first + next(i for i, line in enumerate(source) if ".recv(" in line)
+        deadline = time.monotonic() + 0.5
+        idle = 0
+        while idle < 2 and time.monotonic() < deadline:
+            frame = sys._current_frames().get(chain._thread.ident)
+            while frame is not None and frame.f_code is not type(chain)._serve.__code__:
+                frame = frame.f_back
+            quiet = chain._bus.queue.empty() and frame is not None
+            quiet = quiet and frame.f_lineno == self._recv_line
+            idle = idle + 1 if quiet else 0
+            time.sleep(0.0005)
+
+    def _settle_pty(self) -> None:
         """Wait until the emulator has handled every byte the driver wrote to the pty.
 
         True when the pty holds no unread bytes and the emulator thread sits in its select()
@@ -569,10 +651,12 @@ class Twin:
     # --- faults -----------------------------------------------------------------------------
 
     def _servo(self, joint: str):
-        if self.chain is None:
-            raise ValueError(f"twin of {self.profile.name}: no emulated bus to inject faults on")
         if joint not in self.ids:
             raise ValueError(f"twin of {self.profile.name}: no joint {joint!r}")
+        if self.chain is None:
+            raise ValueError(
+                f"twin of {self.profile.name}: no emulated Dynamixel servo behind {joint!r}"
+            )
         return self.chain.servo(self.ids[joint])
 
     def overheat(self, joint: str, temperature: float) -> None:
@@ -593,19 +677,28 @@ class Twin:
         self._servo(joint).inject_overload(on)
 
     def silence(self, joint: str, on: bool = True) -> None:
-        """One servo stops (or resumes) answering, as with a loose cable."""
+        """One servo or motor stops (or resumes) answering, as with a loose cable."""
+        if self.can_chain is not None and joint in self.ids:
+            self.can_chain.silence(self.ids[joint], on)
+            return
         self._servo(joint)
         self.chain.silence(self.ids[joint], on)
 
     def corrupt(self, joint: str, count: int | None = 1) -> None:
-        """The next ``count`` replies of one servo carry a bad checksum."""
+        """Replies of one servo carry a bad checksum (the next ``count``), or one motor's
+        replies come truncated (until ``count`` is 0)."""
+        if self.can_chain is not None and joint in self.ids:
+            self.can_chain.corrupt(self.ids[joint], count != 0)
+            return
         self._servo(joint)
         self.chain.corrupt(self.ids[joint], count)
 
     def unplug(self) -> None:
-        """The bus adapter disappears: the pty closes under the driver."""
+        """The bus adapter goes: the pty closes under the driver, or the CAN bus goes bus-off."""
         if self.emulator is not None:
             self.emulator.vanish()
+        if self.can_chain is not None:
+            self.can_chain.bus_off()
 
     # --- measures ---------------------------------------------------------------------------
 
