@@ -368,11 +368,18 @@ _decoders: dict[type, msgspec.msgpack.Decoder] = {}
 
 
 def decode(payload: bytes, message: type[Message]) -> Message:
-    """Decode a payload as ``message``; raises msgspec.DecodeError or SchemaMismatch."""
+    """Decode ``message``; raises msgspec.DecodeError/ValidationError or SchemaMismatch.
+
+    msgspec raises UnicodeDecodeError for a map key that is not UTF-8; it becomes a DecodeError
+    here so every garbage payload is refused the same way (found by tests/test_fuzz.py).
+    """
     decoder = _decoders.get(message)
     if decoder is None:
         decoder = _decoders[message] = msgspec.msgpack.Decoder(message)
-    value = decoder.decode(payload)
+    try:
+        value = decoder.decode(payload)
+    except UnicodeDecodeError as e:
+        raise msgspec.DecodeError(f"{message.__name__}: invalid UTF-8 in a string: {e}") from None
     if value.schema != SCHEMA_VERSION:
         raise SchemaMismatch(
             f"{message.__name__}: schema {value.schema}, this climbd speaks {SCHEMA_VERSION}"
