@@ -1,26 +1,39 @@
-"""Free-climbing gaits (paper 001 §3) in a kinematic simulation over generated hold maps."""
+"""Free-climbing gaits (paper 001 §3) in a kinematic simulation over hold maps tiled from the
+graspable points detected on the real cloud (the paper's §4.1 map)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import msgspec
 import numpy as np
 import pytest
 
+from daemon.cloudio import read_cloud
 from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, FootTargets, GraspablePoints
+from daemon.messages import BodyState, FootTargets, GraspablePoints, Stability, decode, encode
 from daemon.plugins import instantiate
 from daemon.profile import load
 from plugins.gaits.free_climb import (
+    GOAL,
     PERIODIC_ORDER,
     ClimbConfig,
     ClimbPlanner,
     ClimbRunner,
+    LegReach,
     diagonal_crossing,
     swing_lift,
 )
+from plugins.gaits.hold_map import tile_map
+from plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
 
-PROFILE = load("robots/hubrobo.toml")
+ROOT = Path(__file__).resolve().parent.parent
+CLOUD = Path("/work/shared/data/leaning_bouldering_holds.pcd")
+PROFILE = load(ROOT / "robots" / "hubrobo.toml")
 KIN = Kinematics(PROFILE)
 CFG = ClimbConfig()
+SEEDS = range(6)
+SECONDS, DT = 45.0, 0.1
 
 
 def start_feet() -> np.ndarray:
@@ -29,20 +42,26 @@ def start_feet() -> np.ndarray:
     return feet
 
 
-def hold_map(seed: int, density: float = 80.0) -> np.ndarray:
-    """Uniform random graspable points on the slope (m⁻²), plus the four starting grips."""
-    rng = np.random.default_rng(seed)
-    n = int(density * 1.4 * 0.8)
-    holds = np.column_stack((rng.uniform(-0.3, 1.1, n), rng.uniform(-0.4, 0.4, n), np.zeros(n)))
-    return np.vstack((holds, start_feet()))
+@pytest.fixture(scope="module")
+def tile() -> np.ndarray:
+    """Graspable points detected on the real cloud, on its regression plane (the map's tile)."""
+    cloud = read_cloud(CLOUD)
+    points = GraspableDetector(GraspableConfig()).detect(cloud).points
+    return regression_frame(cloud, np.zeros(3)).to_plane(points)[:, :2]
 
 
-def climb(periodic: bool, seed: int, seconds: float = 45.0, dt: float = 0.1):
+def hold_map(tile: np.ndarray, seed: int) -> np.ndarray:
+    """Copies of the detection up the slope, plus the four starting grips."""
+    return np.vstack((tile_map(tile, seed, (-0.3, 1.2), (-0.4, 0.4)), start_feet()))
+
+
+def climb(tile: np.ndarray, periodic: bool, seed: int, seconds: float = SECONDS):
     planner = ClimbPlanner(KIN, CFG, periodic)
     feet = start_feet()
     runner = ClimbRunner(planner, feet, planner.base_for(feet))
-    holds = hold_map(seed)
-    return planner, holds, [runner.tick(dt, holds) for _ in range(int(seconds / dt))]
+    holds = hold_map(tile, seed)
+    ticks = [runner.tick(DT, holds) for _ in range(round(seconds / DT))]
+    return planner, runner, holds, ticks
 
 
 def test_swing_spline_height_and_ends():
@@ -52,10 +71,29 @@ def test_swing_spline_height_and_ends():
     assert np.all(np.diff(lift[:51]) >= 0) and np.all(np.diff(lift[50:]) <= 0)
 
 
+def test_leg_reach_agrees_with_the_daemon_ik():
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-0.35, -0.35, -0.1], [0.35, 0.35, 0.05], (4, 37, 3))
+    batch = LegReach(PROFILE)(points)
+    single = np.array([[KIN.ik(points[:, j])[1][leg] for j in range(37)] for leg in range(4)])
+    np.testing.assert_array_equal(batch, single)
+    assert 0 < batch.sum() < batch.size
+
+
+def test_tile_map_keeps_the_detection_and_varies_by_seed(tile):
+    a, b = tile_map(tile, 0, (0.0, 1.0), (-0.4, 0.4)), tile_map(tile, 1, (0.0, 1.0), (-0.4, 0.4))
+    assert len(a) == len(b) and len(a) % len(tile) == 0 and len(a) >= 3 * len(tile)
+    assert not np.allclose(a, b)
+    first = a[: len(tile), :2] - a[: len(tile), :2].mean(axis=0)
+    own = tile - tile.mean(axis=0)
+    # each copy is the detection turned/mirrored: the same pairwise distances
+    dist = lambda p: np.sort(np.linalg.norm(p[:, None] - p[None], axis=2).ravel())  # noqa: E731
+    np.testing.assert_allclose(dist(first), dist(own), atol=1e-9)
+
+
 @pytest.mark.parametrize("periodic", [False, True])
-def test_climb_keeps_grip_rules_tsm_and_reach(periodic):
-    planner, holds, ticks = climb(periodic, seed=0)
-    swings = 0
+def test_climb_keeps_grip_rules_tsm_and_reach(tile, periodic):
+    planner, runner, holds, ticks = climb(tile, periodic, seed=0)
     for tick in ticks:
         assert tick.tsm >= 0.0
         assert sum(not g for g in tick.grip) <= 1  # release only while the three others hold
@@ -66,22 +104,49 @@ def test_climb_keeps_grip_rules_tsm_and_reach(periodic):
         on_hold = np.linalg.norm(tick.feet[:, None, :] - holds[None], axis=2).min(axis=1)
         assert on_hold[stance].max() < 1e-9  # stance feet grip graspable points
         if tick.grip[tick.swing]:  # touchdown: gripper closed before the limb takes load
-            swings += 1
             assert on_hold[tick.swing] < 1e-9
             com = tick.base - tick.base[2] * planner.down / planner.down[2]
             np.testing.assert_allclose(com[:2], diagonal_crossing(tick.feet), atol=1e-9)
         else:
             assert tick.feet[tick.swing, 2] >= 0.0  # swinging above the wall
-    assert swings >= 5
-    assert ticks[-1].base[0] - ticks[0].base[0] > 0.05
+    for step in runner.steps:
+        assert np.linalg.norm(step.target[:2] - step.start[:2]) <= CFG.max_stride + 1e-12
 
 
-def test_periodic_gait_follows_its_fixed_order():
-    _, _, ticks = climb(True, seed=3, seconds=16.0)
-    limbs = [t.swing for t in ticks if t.swing is not None]
-    order = [limbs[0]] + [b for a, b in zip(limbs, limbs[1:], strict=False) if b != a]
-    start = PERIODIC_ORDER.index(order[0])
-    assert order == [PERIODIC_ORDER[(start + i) % 4] for i in range(len(order))]
+@pytest.mark.parametrize("periodic", [False, True])
+def test_never_stops_while_a_step_exists(tile, periodic):
+    """A swing starts every 4 s for 45 s on every map: stuck postures are re-gripped free."""
+    for seed in SEEDS:
+        _, runner, _, ticks = climb(tile, periodic, seed)
+        assert len(runner.steps) == int(np.ceil(SECONDS / CFG.swing_period))
+        assert all(t.swing is not None for t in ticks)
+
+
+def test_regrip_when_no_stride_ahead_is_feasible():
+    """Front feet at their reach, no hold ahead of the hind feet: a limb moves back towards
+    its standing place (a re-grip) rather than the planner giving up."""
+    feet = start_feet()
+    feet[[0, 3], 0] += 0.06
+    planner = ClimbPlanner(KIN, CFG, periodic=False)
+    base = planner.base_for(feet)
+    behind = feet[[0, 3]] - [0.05, 0.0, 0.0]
+    holds = np.vstack((feet, behind))
+    assert all(
+        planner.feasible(feet, base, limb, h) is None
+        for limb, opts in enumerate(planner.options(feet, base, holds))
+        for h in opts
+        if (h - feet[limb]) @ GOAL > CFG.min_stride
+    )
+    step = planner.plan(feet, base, holds)
+    assert step is not None and step.regrip and step.limb in (0, 3)
+    np.testing.assert_allclose(step.target, behind[[0, 3].index(step.limb)])
+
+
+def test_periodic_gait_follows_its_fixed_order(tile):
+    planner, runner, _, _ = climb(tile, True, seed=2, seconds=24.0)
+    assert planner.passed == 0
+    limbs = [s.limb for s in runner.steps]
+    assert limbs == [PERIODIC_ORDER[i % 4] for i in range(len(limbs))]
 
 
 def test_non_periodic_swings_the_limb_with_most_holds_ahead():
@@ -92,20 +157,49 @@ def test_non_periodic_swings_the_limb_with_most_holds_ahead():
     ahead = np.array([lf + [dx, dy, 0.0] for dx in (0.02, 0.035, 0.05) for dy in (-0.01, 0.02)])
     holds = np.vstack((feet, ahead, feet[0] + [0.03, 0.0, 0.0]))
     step = planner.plan(feet, base, holds)
-    assert step is not None and step.limb == 3
+    assert step is not None and step.limb == 3 and not step.regrip
     # the longest feasible stride among its options
     assert step.target[0] == pytest.approx(
-        max(h[0] for h in ahead if planner._feasible(feet, base, 3, h) is not None)
+        max(h[0] for h in ahead if planner.feasible(feet, base, 3, h) is not None)
     )
 
 
-def test_plugins_from_entry_points_emit_foot_targets():
+def test_non_periodic_outclimbs_the_periodic_gait(tile):
+    """Paper 001 Fig. 7: 45 s on a 30° slope at G/6, both gaits on the same six hold maps.
+
+    The paper reports about 2× (0.17 m vs 0.08 m). With the same foothold rule for both, we
+    reach 1.5× on these maps (0.115 m vs 0.075 m): asserted at 1.4×, short of the paper's 2×.
+    """
+    free = [climb(tile, False, s)[3][-1].base[0] for s in SEEDS]
+    periodic = [climb(tile, True, s)[3][-1].base[0] for s in SEEDS]
+    start = ClimbPlanner(KIN, CFG, False).base_for(start_feet())[0]
+    free_mean = np.mean(free) - start
+    periodic_mean = np.mean(periodic) - start
+    assert 0.05 < free_mean < 0.3  # the paper's scale: 0.17 m in 45 s
+    assert free_mean >= 1.4 * periodic_mean
+
+
+def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):
     for name in ("free_climb", "periodic_climb"):
         gait = instantiate("climbd.gaits", name, {}, PROFILE, f"test: {name}")
         feet = KIN.stand_feet(CFG.base_height)
         gait.start(BodyState(position=[0.0, 0.0, CFG.base_height]), feet)
-        holds = GraspablePoints(points=hold_map(1)[:, :].tolist())
+        holds = GraspablePoints(points=hold_map(tile, 1).tolist())
         world = {GraspablePoints.TOPIC: holds}
-        out = [gait.step(i * 0.1, 0.1, BodyState(), world, None) for i in range(50)]
+        assert gait.telemetry() == []
+        out, stability = [], []
+        for i in range(50):
+            out.append(gait.step(i * 0.1, 0.1, BodyState(), world, None))
+            (message,) = gait.telemetry()
+            stability.append(decode(encode(message), Stability))
         assert all(isinstance(o, FootTargets) and len(o.positions) == 4 for o in out)
         assert any(not all(o.grip) for o in out)  # at least one swing began
+        for o, s in zip(out, stability, strict=True):
+            assert s.stamp == o.stamp and s.grip == o.grip and s.tsm >= 0.0
+            assert sum(s.support) == (3 if s.swing >= 0 else 4)
+            assert s.swing < 0 or not s.support[s.swing]
+
+
+def test_config_rejects_unknown_fields():
+    with pytest.raises(msgspec.ValidationError, match="max_strid"):
+        msgspec.convert({"max_strid": 0.1}, ClimbConfig)
