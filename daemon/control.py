@@ -272,6 +272,9 @@ class Controller:
                 if feet is None:
                     self.safety.hold(t, f"gait {self.gait.name} failed: {self.gait.status}")
                     return motion.joint_step(q)
+                if hasattr(self.gait.plugin, "telemetry") and self._ticks % self._state_every == 0:
+                    for message in self.gait.call("telemetry") or ():
+                        self.publish(message)
                 if self.gait.plugin.done:
                     self.safety.hold(t, f"behaviour {self.gait.name} done")
                 return motion.feet_step(feet)

@@ -10,10 +10,22 @@ import numpy as np
 import pytest
 
 from daemon.cloudio import read_cloud
+from daemon.control import Controller
 from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, FootTargets, GraspablePoints, Stability, decode, encode
-from daemon.plugins import instantiate
+from daemon.loop import ControlLoop, SteppedClock
+from daemon.messages import (
+    BodyState,
+    FootTargets,
+    GraspablePoints,
+    Mode,
+    Stability,
+    decode,
+    encode,
+)
+from daemon.plugins import Isolated, instantiate
 from daemon.profile import load
+from daemon.safety import Safety
+from drivers.base import FakeJointBus
 from plugins.gaits.free_climb import (
     GOAL,
     PERIODIC_ORDER,
@@ -203,3 +215,26 @@ def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):
 def test_config_rejects_unknown_fields():
     with pytest.raises(msgspec.ValidationError, match="max_strid"):
         msgspec.convert({"max_strid": 0.1}, ClimbConfig)
+
+
+def test_control_role_publishes_stability_while_climbing(tile):
+    """The control tick publishes the gait's Stability at the state rate while ACTIVE."""
+    clock = SteppedClock()
+    bus = FakeJointBus(PROFILE, tau=0.01, clock=clock.now)
+    bus.open()
+    safety = Safety(PROFILE)
+    published: list = []
+    gait = Isolated("free_climb", instantiate("climbd.gaits", "free_climb", {}, PROFILE, "t"))
+    controller = Controller(PROFILE, bus, safety, clock.now, gait, published.append)
+    loop = ControlLoop(PROFILE.rate_hz, clock, controller.tick)
+    assert safety.request(Mode.STAND, clock.now())
+    loop.run(max_ticks=int(PROFILE.safety.stand_time * 3 * PROFILE.rate_hz))
+    body = (hold_map(tile, 3) - [0.0, 0.0, CFG.base_height]).tolist()
+    controller.on_feature(GraspablePoints(stamp=clock.now(), points=body))
+    assert safety.request(Mode.ACTIVE, clock.now())
+    loop.run(max_ticks=loop.ticks + int(0.5 * PROFILE.rate_hz))
+    assert safety.mode == Mode.ACTIVE, safety.reason
+    stability = [m for m in published if isinstance(m, Stability)]
+    assert len(stability) >= 0.5 * PROFILE.rate_hz - 2
+    assert all(s.tsm >= 0.0 and len(s.grip) == 4 for s in stability)
+    assert any(s.swing >= 0 for s in stability)
