@@ -1,0 +1,371 @@
+"""Climb-or-sidestep behaviour of paper 000: walk, then climb a low joist or go round a high one.
+
+The robot walks forward with the tripod gait until the nearest joist across its path is
+closer than ``approach_distance`` (0.55 m). Under ``climb_max_height`` (14 cm) it turns square
+to the joist (when oblique), walks up to it, stops, and crosses it (plugins/gaits/
+joist_crossing.py: front pair, a tripod cycle, middle pair, a tripod cycle, back pair, the body
+leaning forward). At or above it, it walks sideways until no high joist blocks its path, then
+walks on. The joist is tracked on the ground by dead reckoning of the behaviour's own motion
+from the moment it is chosen, so it stays known once it is under the body and out of view.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from typing import ClassVar
+
+import msgspec
+import numpy as np
+
+from daemon.kinematics import Kinematics
+from daemon.messages import BodyState, FootTargets, Joist, Joists, Message, MotionCommand
+from daemon.plugins import GaitPlugin, PluginError
+from plugins.gaits.joist_crossing import (
+    CrossingError,
+    CrossingGeometry,
+    CrossingParams,
+    CrossingPlan,
+)
+from plugins.gaits.periodic import HOME_TOLERANCE, Tripod, TripodConfig, layout_offsets
+
+
+class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Thresholds (paper 000 defaults), clearances (m), speeds (m/s, rad/s) and times (s)."""
+
+    approach_distance: float = 0.55
+    climb_max_height: float = 0.14
+    min_height: float = 0.05
+    min_confidence: float = 0.3
+    corridor: float = 0.25
+    walk_speed: float = 0.08
+    side_speed: float = 0.05
+    turn_rate: float = 0.3
+    align_tolerance_deg: float = 3.0
+    side_direction: int = 1
+    side_margin: float = 0.10
+    crossing_start: float = 0.10
+    joist_width: float = 0.04
+    foot_margin: float = 0.025
+    clearance: float = 0.02
+    leg_radius: float = 0.01
+    support_margin: float = 0.0
+    body_clearance: float = 0.015
+    body_half_height: float = 0.02
+    high_body: float = 0.135
+    stride: float = 0.04
+    step_height: float = 0.03
+    swing_time: float = 1.2
+    step_time: float = 0.5
+    shift_time: float = 0.6
+    exit_distance: float = 0.06
+    goal_distance: float | None = None
+    tripod: TripodConfig = msgspec.field(default_factory=TripodConfig)
+
+    def __post_init__(self) -> None:
+        if self.side_direction not in (1, -1):
+            raise ValueError(
+                f"joist_climb: side_direction must be 1 or -1, got {self.side_direction}"
+            )
+        for name in ("approach_distance", "climb_max_height", "walk_speed", "side_speed"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"joist_climb: {name} must be > 0, got {getattr(self, name)}")
+
+
+class Mode(str, enum.Enum):
+    """What the behaviour is doing."""
+
+    WALK = "walk"
+    SIDESTEP = "sidestep"
+    ALIGN = "align"
+    APPROACH = "approach"
+    SETTLE = "settle"
+    CROSS = "cross"
+    DONE = "done"
+
+
+class TrackedJoist(msgspec.Struct, kw_only=True):
+    """A joist on the dead-reckoned ground: a point on its near face, unit normal, height."""
+
+    point: list[float]
+    normal: list[float]
+    height: float
+
+
+def _rot(yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s], [s, c]])
+
+
+class JoistClimb(GaitPlugin):
+    """Walk, climb joists under 14 cm, sidestep higher ones (paper 000, Figure 8)."""
+
+    name: ClassVar[str] = "joist_climb"
+    Config: ClassVar[type[msgspec.Struct]] = JoistClimbConfig
+
+    def __init__(self, config: JoistClimbConfig | None = None, profile=None) -> None:
+        super().__init__(config, profile)
+        if profile is None:
+            raise PluginError("gait joist_climb: needs the robot profile")
+        self.kin = Kinematics(profile)
+        if self.kin.n_legs < 4:
+            raise PluginError("gait joist_climb: needs at least 4 legs")
+        self.tripod = Tripod(self.config.tripod, profile)
+        self.height0 = self.tripod.height0
+        mounts = self.kin.mount
+        order = np.argsort(-mounts[:, 0], kind="stable")
+        self.pairs = tuple(tuple(int(i) for i in order[k : k + 2]) for k in range(0, len(order), 2))
+        offsets = layout_offsets(mounts, "tripod")
+        self.groups = (
+            tuple(int(i) for i in np.flatnonzero(offsets == 0.0)),
+            tuple(int(i) for i in np.flatnonzero(offsets != 0.0)),
+        )
+        self.pose = np.zeros(3)
+        self.mode = Mode.WALK
+        self.target: TrackedJoist | None = None
+        self.plan: CrossingPlan | None = None
+        self.events: list[tuple[float, str]] = []
+        self.impassable: list[TrackedJoist] = []
+        self.travelled = 0.0
+        self._t_mode = 0.0
+        self._turn_left = 0.0
+        self._clear_since: float | None = None
+
+    # --- frames and perception ------------------------------------------------------------
+
+    def start(self, body: BodyState, feet: np.ndarray) -> None:
+        """Begin walking from the measured feet (body frame)."""
+        self.tripod.start(body, feet)
+        self.pose = np.zeros(3)
+        self.mode = Mode.WALK
+        self.target = None
+        self.plan = None
+        self.done = False
+        self.travelled = 0.0
+
+    def _to_ground(self, p: np.ndarray) -> np.ndarray:
+        return self.pose[:2] + _rot(self.pose[2]) @ p
+
+    def track(self, joist: Joist) -> TrackedJoist:
+        """A joist of the current perception message, placed on the dead-reckoned ground."""
+        ends = np.array(joist.endpoints, float)[:, :2]
+        normal = _rot(self.pose[2]) @ np.array([math.cos(joist.yaw), math.sin(joist.yaw)])
+        return TrackedJoist(
+            point=self._to_ground(ends.mean(axis=0)).tolist(),
+            normal=normal.tolist(),
+            height=joist.height,
+        )
+
+    def ahead(self, joist: TrackedJoist) -> tuple[float, float]:
+        """Distance to the joist's near face along the heading, and its yaw in the body frame."""
+        heading = np.array([math.cos(self.pose[2]), math.sin(self.pose[2])])
+        n = np.array(joist.normal)
+        along = float(n @ heading)
+        gap = float(n @ (np.array(joist.point) - self.pose[:2]))
+        distance = gap / along if abs(along) > 1e-6 else math.inf
+        yaw = math.atan2(n[1], n[0]) - self.pose[2]
+        return distance, math.atan2(math.sin(yaw), math.cos(yaw))
+
+    def _relevant(self, world: dict[str, Message]) -> list[Joist]:
+        """Joists of the latest message that are real (height, confidence) and cross the path."""
+        msg = world.get(Joists.TOPIC)
+        if not isinstance(msg, Joists):
+            return []
+        c = self.config
+        out = []
+        for j in msg.joists:
+            if j.height < c.min_height or j.confidence < c.min_confidence:
+                continue
+            ys = [p[1] for p in j.endpoints]
+            if min(ys) <= c.corridor and max(ys) >= -c.corridor:
+                out.append(j)
+        return sorted(out, key=lambda j: j.distance)
+
+    def _blocks(self, joist: Joist) -> bool:
+        """Too high to climb, or one this robot already found it cannot cross safely."""
+        if joist.height >= self.config.climb_max_height:
+            return True
+        here = self.track(joist)
+        return any(
+            abs(np.dot(here.normal, np.subtract(here.point, j.point))) < 0.1
+            and np.dot(here.normal, j.normal) > math.cos(math.radians(10.0))
+            for j in self.impassable
+        )
+
+    def _refresh(self, world: dict[str, Message]) -> None:
+        """Replace the tracked joist by a fresh detection of the same joist, when there is one."""
+        if self.target is None:
+            return
+        distance, yaw = self.ahead(self.target)
+        for j in self._relevant(world):
+            if abs(j.distance - distance) < 0.1 and abs(j.yaw - yaw) < math.radians(10.0):
+                self.target = self.track(j)
+                return
+
+    # --- the tick -------------------------------------------------------------------------
+
+    def _walk(self, t: float, dt: float, body: BodyState, vx: float, vy: float, wz: float):
+        """A tripod tick under (vx, vy, yaw rate) or, with all zero, settling to the stand."""
+        moving = vx != 0.0 or vy != 0.0 or wz != 0.0
+        command = MotionCommand(vx=vx, vy=vy, yaw_rate=wz) if moving else None
+        out = self.tripod.step(t, dt, body, {}, command)
+        v = self.tripod.velocity
+        self.pose[:2] += _rot(self.pose[2]) @ v * dt
+        self.pose[2] += self.tripod.yaw_rate * dt
+        self.travelled += float(v[0]) * dt
+        return out
+
+    def _switch(self, t: float, mode: Mode, why: str) -> None:
+        self.mode = mode
+        self._t_mode = t
+        self.events.append((t, f"{mode.value}: {why}"))
+
+    def _settled(self) -> bool:
+        tri = self.tripod
+        still = not tri.moving and not tri.stepping.any()
+        home = np.hypot(*(tri.feet[:, :2] - tri.home).T).max() < HOME_TOLERANCE
+        return bool(still and home and abs(tri.height - tri.height0) < 1e-4)
+
+    def step(
+        self,
+        t: float,
+        dt: float,
+        body: BodyState,
+        world: dict[str, Message],
+        command: MotionCommand | None,
+    ) -> FootTargets:
+        """Foot targets (body frame) of this tick."""
+        c = self.config
+        if self.mode == Mode.WALK:
+            return self._step_walk(t, dt, body, world)
+        if self.mode == Mode.SIDESTEP:
+            return self._step_sidestep(t, dt, body, world)
+        if self.mode == Mode.ALIGN:
+            yaw_rate = c.turn_rate if self._turn_left > 0 else -c.turn_rate
+            before = self.pose[2]
+            out = self._walk(t, dt, body, 0.0, 0.0, yaw_rate)
+            self._turn_left -= self.pose[2] - before
+            braking = abs(self.tripod.yaw_rate) * self._ramp()
+            if abs(self._turn_left) <= braking + math.radians(c.align_tolerance_deg) / 4:
+                self._switch(t, Mode.APPROACH, "square to the joist")
+            return out
+        if self.mode == Mode.APPROACH:
+            self._refresh(world)
+            distance, _ = self.ahead(self.target)
+            front = max(h[0] for h in self.tripod.home)
+            if distance - front <= c.crossing_start + self._stopping_distance():
+                self._switch(t, Mode.SETTLE, f"front feet {distance - front:.3f} m from it")
+                return self._walk(t, dt, body, 0.0, 0.0, 0.0)
+            return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
+        if self.mode == Mode.SETTLE:
+            out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
+            if self._settled():
+                self._begin_crossing(t)
+            return out
+        if self.mode == Mode.CROSS:
+            return self._step_cross(t, dt, body)
+        return self._walk(t, dt, body, 0.0, 0.0, 0.0)
+
+    def _ramp(self) -> float:
+        """How far (s × speed) the tripod's critically damped command filter runs on a stop."""
+        return 3.0 * self.tripod.config.ramp_time
+
+    def _stopping_distance(self) -> float:
+        return float(self.tripod.velocity[0]) * self._ramp()
+
+    def _step_walk(self, t, dt, body, world) -> FootTargets:
+        c = self.config
+        if c.goal_distance is not None and self.travelled >= c.goal_distance:
+            out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
+            if self._settled():
+                self._switch(t, Mode.DONE, f"walked {self.travelled:.2f} m")
+                self.done = True
+            return out
+        joists = self._relevant(world)
+        if joists and joists[0].distance < c.approach_distance:
+            nearest = joists[0]
+            self.target = self.track(nearest)
+            if self._blocks(nearest):
+                self._switch(t, Mode.SIDESTEP, f"joist {nearest.height:.3f} m high: too high")
+                return self._step_sidestep(t, dt, body, world)
+            self._turn_left = nearest.yaw
+            if abs(nearest.yaw) > math.radians(c.align_tolerance_deg):
+                self._switch(t, Mode.ALIGN, f"joist {nearest.height:.3f} m, yaw {nearest.yaw:.3f}")
+            else:
+                self._switch(t, Mode.APPROACH, f"joist {nearest.height:.3f} m high: climb")
+            return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
+        return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
+
+    def _step_sidestep(self, t, dt, body, world) -> FootTargets:
+        c = self.config
+        blocking = [j for j in self._relevant(world) if self._blocks(j)]
+        if blocking:
+            self._clear_since = None
+        elif self._clear_since is None:
+            self._clear_since = self.pose[1]
+        elif abs(self.pose[1] - self._clear_since) >= c.side_margin:
+            self._clear_since = None
+            self.target = None
+            self._switch(t, Mode.WALK, "no high joist in the way")
+            return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
+        return self._walk(t, dt, body, 0.0, c.side_direction * c.side_speed, 0.0)
+
+    def _begin_crossing(self, t: float) -> None:
+        """Plan the crossing from here: the joist square ahead, the feet at home."""
+        c = self.config
+        distance, _ = self.ahead(self.target)
+        home = np.column_stack([self.tripod.home, np.zeros(len(self.tripod.home))])
+        # What is left of the turn skews the face across the feet: widen the joist by it.
+        skew = abs(math.tan(self.ahead(self.target)[1])) * float(np.abs(home[:, 1]).max())
+        geometry = CrossingGeometry(
+            face=distance - skew,
+            width=c.joist_width + 2.0 * skew,
+            height=self.target.height,
+            home=home,
+            half_length=float(np.abs(self.kin.mount[:, 0]).max()),
+            pairs=self.pairs,
+            groups=self.groups,
+        )
+        params = CrossingParams(
+            foot_margin=c.foot_margin,
+            clearance=c.clearance,
+            leg_radius=c.leg_radius,
+            support_margin=c.support_margin,
+            body_clearance=c.body_clearance,
+            body_half_height=c.body_half_height,
+            high_body=c.high_body,
+            stride=c.stride,
+            step_height=c.step_height,
+            swing_time=c.swing_time,
+            step_time=c.step_time,
+            shift_time=c.shift_time,
+            exit_distance=c.exit_distance,
+        )
+        try:
+            self.plan = CrossingPlan(geometry, params, self.kin, home, self.tripod.height)
+        except CrossingError as e:
+            self.impassable.append(self.target)
+            self._switch(t, Mode.SIDESTEP, f"cannot cross safely ({e})")
+            return
+        self._plan_origin = self.pose.copy()
+        self._switch(
+            t, Mode.CROSS, f"crossing a {self.target.height:.3f} m joist at {distance:.3f} m"
+        )
+
+    def _step_cross(self, t: float, dt: float, body: BodyState) -> FootTargets:
+        plan = self.plan
+        elapsed = t - self._t_mode
+        b, feet, stance = plan.sample(elapsed)
+        origin = self._plan_origin
+        rel = b[:2]
+        self.pose[:2] = origin[:2] + _rot(origin[2]) @ rel
+        local = feet.copy()
+        local[:, 0] -= b[0]
+        local[:, 1] -= b[1]
+        local[:, 2] -= b[2]
+        if elapsed >= plan.duration:
+            self.travelled += float(b[0])
+            self.target = None
+            self.tripod.start(body, local)
+            self._switch(t, Mode.WALK, "joist crossed")
+        return FootTargets(stamp=t, positions=local.tolist(), stance=stance.tolist())
