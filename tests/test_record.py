@@ -26,10 +26,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def one_of_each(n: int) -> list[m.Message]:
-    """One message of every type with content that differs by ``n`` (NaN and bytes included)."""
+    """One message of every type with content that differs by ``n`` (NaN and bytes included);
+    types added to the contract later get their defaults with ``stamp = n``."""
     grid = np.array([0.1 * n, np.nan, 0.2, 0.3], dtype="<f4").tobytes()
     joist = m.Joist(distance=1.0 + n, yaw=0.26, height=0.1, endpoints=[[1, 0, 0], [1, 1, 0]])
-    return [
+    chosen = [
         m.JointState(stamp=n, names=["a", "b"], position=[0.1 * n, -0.2], velocity=[0, 0]),
         m.JointCommand(stamp=n, position=[0.3, n], kp=[60.0, 60.0]),
         m.Health(
@@ -56,6 +57,8 @@ def one_of_each(n: int) -> list[m.Message]:
         ),
         m.Stairs(stamp=n, steps=[m.Stair(height=0.15, rise=0.15, depth=0.3, edge=[[0, 0, 0]])]),
     ]
+    covered = {type(x) for x in chosen}
+    return chosen + [t(stamp=n) for t in m.ALL_MESSAGES if t not in covered]
 
 
 def same(a: m.Message, b: m.Message) -> bool:
@@ -95,7 +98,7 @@ def test_recording_lists_every_topic_with_its_schema(tmp_path: Path, endpoint: s
     bus = Bus("rec", zenoh_config(None, "test", Endpoints([endpoint], [])))
     rec = climbd("record", "--robot", "rec", "--connect", endpoint, "-o", str(out))
     try:
-        wait_line(rec, "recording 16 topics")
+        wait_line(rec, f"recording {len(m.ALL_MESSAGES)} topics")
         time.sleep(1.0)  # the recorder's subscriptions reach this session
         pubs = {type(x): bus.publisher(type(x)) for x in one_of_each(0)}
         sent = []
@@ -112,10 +115,11 @@ def test_recording_lists_every_topic_with_its_schema(tmp_path: Path, endpoint: s
             rec.kill()
         bus.close()
     assert rec.returncode == 0, stderr
-    assert "recorded 48 messages on 16 topics" in stdout, stdout + stderr
+    n = len(m.ALL_MESSAGES)
+    assert f"recorded {3 * n} messages on {n} topics" in stdout, stdout + stderr
     with open(out, "rb") as f:
         summary = make_reader(f).get_summary()
-    assert summary.statistics.message_count == 48
+    assert summary.statistics.message_count == 3 * n
     channels = {c.topic: c for c in summary.channels.values()}
     assert set(channels) == {f"climbd/rec/{t.TOPIC}" for t in m.ALL_MESSAGES}
     for t in m.ALL_MESSAGES:

@@ -1,0 +1,310 @@
+"""Soak, fuzz and reliability campaign: the figures of issue 12 for BENCHMARKS.md.
+
+- Soak: two ``climbd run`` daemons of the WidowX on the fake joint bus, side by side for
+  ``--minutes``: one walking (tripod, driven by ``climbd teleop --script`` with heartbeats),
+  the baseline idle in HOLD. Every ``--sample`` seconds: resident memory (/proc) and the
+  loop's lateness from Health over Zenoh; ratios walking / idle.
+  The physics twin does not walk under the daemon yet, so the soak walks on the fake bus.
+- Fuzz: ``--fuzz N`` inputs per message decoder and for the profile parser (tests/fuzzing.py),
+  with our decode beside msgspec's untyped decode of the same inputs as the baseline.
+- Campaign: runs tests/test_campaign.py and tabulates fault × robot → outcome.
+
+``--write`` replaces the ``## bench/soak.py`` section of BENCHMARKS.md with this run's tables.
+Usage: ``python bench/soak.py [--minutes 5] [--sample 30] [--fuzz 10000] [--campaign] [--write]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def rss_mib(pid: int) -> float:
+    """Resident set size of ``pid`` (MiB) from /proc."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError(f"no VmRSS for pid {pid}")
+
+
+def daemon(endpoint: str, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "daemon.cli", "run", "--profile", "robots/widowx.toml"]
+        + ["--driver", "fake", "--listen", endpoint, "--quiet", *extra],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+
+def soak(minutes: float, sample: float) -> tuple[list[str], dict]:
+    """Run the walking and idle daemons; a markdown table and a summary of the run."""
+    from daemon.bus import Bus, Endpoints, zenoh_config
+    from daemon.messages import Health, Mode
+
+    seconds = minutes * 60
+    eps = {k: f"tcp/127.0.0.1:{free_port()}" for k in ("walk", "idle")}
+    procs = {"walk": daemon(eps["walk"], "--gait", "tripod"), "idle": daemon(eps["idle"])}
+    script = Path(tempfile.mkdtemp()) / "walk.txt"
+    script.write_text(
+        f"0.0 claim\n3.0 mode ACTIVE\n3.2 motion vx=0.05\n{seconds + 5:.1f} stop\n"
+        f"{seconds + 5.5:.1f} release\n"
+    )
+    health: dict[str, Health] = {}
+    lock = threading.Lock()
+    buses = []
+    for name, ep in eps.items():
+        bus = Bus("widowx", zenoh_config(None, "bench", Endpoints([], [ep])))
+
+        def keep(h: Health, name: str = name) -> None:
+            with lock:
+                health[name] = h
+
+        bus.subscribe(Health, keep)
+        buses.append(bus)
+    time.sleep(4.0)  # both stood up (2 s stand)
+    teleop = subprocess.Popen(
+        [sys.executable, "-m", "daemon.cli", "teleop", "--robot", "widowx"]
+        + ["--connect", eps["walk"], "--script", str(script), "--heartbeat-hz", "10"],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    rows, modes = [], set()
+    start = time.monotonic()
+    try:
+        time.sleep(5.0)
+        while time.monotonic() - start < seconds:
+            time.sleep(sample)
+            with lock:
+                h = dict(health)
+            modes.add(h["walk"].mode)
+            rows.append(
+                (
+                    time.monotonic() - start,
+                    h["walk"].mode.value,
+                    rss_mib(procs["walk"].pid),
+                    rss_mib(procs["idle"].pid),
+                    h["walk"].loop,
+                    h["idle"].loop,
+                )
+            )
+    finally:
+        teleop.send_signal(signal.SIGINT)
+        teleop.wait(30)
+        for p in procs.values():
+            p.send_signal(signal.SIGTERM)
+        codes = {k: p.wait(30) for k, p in procs.items()}
+        for bus in buses:
+            bus.close()
+    table = [
+        "| t (s) | mode walking | RSS walking (MiB) | RSS idle (MiB) | p99 lateness walking (µs) "
+        "| p99 idle (µs) | ratio | max walking (µs) | overruns walking / idle |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for t, mode, rw, ri, lw, li in rows:
+        ratio = lw.lateness_p99 / li.lateness_p99 if li.lateness_p99 > 0 else float("nan")
+        table.append(
+            f"| {t:.0f} | {mode} | {rw:.1f} | {ri:.1f} | {lw.lateness_p99 * 1e6:.0f} | "
+            f"{li.lateness_p99 * 1e6:.0f} | {ratio:.2f} | {lw.lateness_max * 1e6:.0f} | "
+            f"{lw.overruns} / {li.overruns} |"
+        )
+    first, last = rows[0], rows[-1]
+    summary = {
+        "growth_walk": last[2] - first[2],
+        "growth_idle": last[3] - first[3],
+        "span": last[0] - first[0],
+        "walked": modes == {Mode.ACTIVE},
+        "codes": codes,
+    }
+    return table, summary
+
+
+def fuzz(n: int) -> list[str]:
+    """``n`` inputs per decoder and for the profile parser; throughput beside msgspec's own."""
+    import msgspec
+    from fuzzing import check_profile, check_profile_text, edited_profile, profile_edits
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from daemon.messages import ALL_MESSAGES, decode
+
+    cfg = settings(
+        max_examples=n, deadline=None, database=None, suppress_health_check=list(HealthCheck)
+    )
+    rows = [
+        "| target | inputs | failures | ours µs/input | msgspec untyped µs/input | ratio |",
+        "|---|---|---|---|---|---|",
+    ]
+    for message in ALL_MESSAGES:
+        seen = _fuzz_decoder(message, cfg)
+        ours = _per_input(seen, lambda p, message=message: decode(p, message))
+        base = _per_input(seen, msgspec.msgpack.decode)
+        rows.append(
+            f"| {message.__name__} decoder | {len(seen)} | 0 | {ours:.2f} | {base:.2f} | "
+            f"{ours / base:.2f} |"
+        )
+    count = [0]
+
+    @cfg
+    @given(profile_edits)
+    def profiles(edits) -> None:
+        count[0] += 1
+        check_profile(edited_profile(edits))
+
+    profiles()
+    rows.append(f"| profile parser (edited stock profile) | {count[0]} | 0 | | | |")
+    count[0] = 0
+    with tempfile.TemporaryDirectory() as d:
+
+        @cfg
+        @given(st.text(max_size=400))
+        def texts(text: str) -> None:
+            count[0] += 1
+            check_profile_text(Path(d) / "fuzz.toml", text)
+
+        texts()
+    rows.append(f"| profile parser (any file text) | {count[0]} | 0 | | | |")
+    return rows
+
+
+def _fuzz_decoder(message, cfg) -> list[bytes]:
+    """Run the decoder property on ``message``; the inputs hypothesis generated."""
+    from fuzzing import check_decoder, payloads
+    from hypothesis import given
+
+    seen: list[bytes] = []
+
+    @cfg
+    @given(payloads(message))
+    def run(payload: bytes) -> None:
+        seen.append(payload)
+        check_decoder(message, payload)
+
+    run()
+    return seen
+
+
+def _per_input(inputs: list[bytes], fn) -> float:
+    """Mean µs per call of ``fn`` over ``inputs``, errors included."""
+    start = time.perf_counter()
+    for p in inputs:
+        try:
+            fn(p)
+        except Exception:  # noqa: S112 - garbage is expected to be refused
+            continue
+    return (time.perf_counter() - start) / max(1, len(inputs)) * 1e6
+
+
+def campaign() -> list[str]:
+    """Run tests/test_campaign.py; the fault × robot table from its junit report."""
+    from test_campaign import FAULTS, ROBOTS
+
+    with tempfile.TemporaryDirectory() as d:
+        report = Path(d) / "campaign.xml"
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pytest",
+                "-q",
+                "tests/test_campaign.py",
+                f"--junitxml={report}",
+            ],
+            cwd=ROOT,
+            check=False,
+        )
+        cases = ET.parse(report).getroot().iter("testcase")
+        results = {}
+        for case in cases:
+            cell = case.get("name").split("[", 1)[1].rstrip("]")
+            props = {p.get("name"): p.get("value") for p in case.iter("property")}
+            if case.find("skipped") is not None:
+                skipped = case.find("skipped")
+                results[cell] = f"xfail: {skipped.get('message', '').split(': ', 1)[-1]}"
+            elif case.find("failure") is not None or case.find("error") is not None:
+                results[cell] = "**FAIL**"
+            else:
+                results[cell] = f"pass: {props.get('outcome', '')}"
+    rows = ["| fault | " + " | ".join(ROBOTS) + " |", "|---" * (len(ROBOTS) + 1) + "|"]
+    for fault, (robots, why) in FAULTS.items():
+        cells = [
+            results.get(f"{fault}-{r}", "**missing**") if r in robots else f"n/a ({why})"
+            for r in ROBOTS
+        ]
+        rows.append(f"| {fault} | " + " | ".join(cells) + " |")
+    return rows
+
+
+def write_section(text: str) -> None:
+    """Replace (or append) the ``## bench/soak.py`` section of BENCHMARKS.md."""
+    path = ROOT / "BENCHMARKS.md"
+    doc = path.read_text()
+    head = "## bench/soak.py"
+    if head in doc:
+        before, rest = doc.split(head, 1)
+        after = rest.split("\n## ", 1)
+        tail = "\n## " + after[1] if len(after) > 1 else ""
+        doc = before + text.rstrip() + "\n" + tail
+    else:
+        doc = doc.rstrip() + "\n\n" + text.rstrip() + "\n"
+    path.write_text(doc)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", type=float, default=5.0, help="soak length (0: no soak)")
+    parser.add_argument("--sample", type=float, default=30.0, help="seconds between samples")
+    parser.add_argument("--fuzz", type=int, default=10_000, help="inputs per target (0: none)")
+    parser.add_argument("--campaign", action="store_true", help="run the fault campaign")
+    parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
+    args = parser.parse_args()
+    command = "`.venv/bin/python bench/soak.py " + " ".join(sys.argv[1:]) + "`"
+    load = os.getloadavg()[0]
+    out = ["## bench/soak.py", "", f"Command: {command} (load average {load:.1f} at start)."]
+    if args.campaign:
+        out += ["", "### Reliability campaign (tests/test_campaign.py)", "", *campaign()]
+        print("\n".join(out), flush=True)
+    if args.fuzz:
+        rows = fuzz(args.fuzz)
+        out += ["", f"### Fuzzing ({args.fuzz} inputs per target)", "", *rows]
+        print("\n".join(rows), flush=True)
+    if args.minutes:
+        table, s = soak(args.minutes, args.sample)
+        out += [
+            "",
+            f"### Soak ({args.minutes:g} min, WidowX, fake joint bus, tripod at 0.05 m/s)",
+            "",
+            *table,
+            "",
+            f"Memory growth over {s['span']:.0f} s after warm-up: walking "
+            f"{s['growth_walk']:+.1f} MiB, idle baseline {s['growth_idle']:+.1f} MiB; "
+            f"ACTIVE at every sample: {s['walked']}; exit codes {s['codes']}.",
+        ]
+        print("\n".join(out[-(len(table) + 3) :]), flush=True)
+    if args.write:
+        write_section("\n".join(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
