@@ -16,6 +16,9 @@ Run: ``.venv/bin/python bench/sim.py`` (about a minute).
 from __future__ import annotations
 
 import argparse
+import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -57,10 +60,11 @@ def stepped_rtf(robot: str, world: str, seconds: float) -> tuple[float, float]:
     return ours, bare
 
 
-def real_time_with_daemon(seconds: float, physics: bool) -> dict:
+def real_time_with_daemon(seconds: float, device_kind: str) -> dict:
     """The WidowX daemon side (driver + controller at 100 Hz on the monotonic clock) against
-    the real-time twin with its cameras (``physics``) or, as the baseline, against the bare
-    servo emulator with its built-in motor model."""
+    the real-time twin with its camera in the same process (``twin``), in its own process
+    (``process``, ``python -m drivers.sim``) or, as the baseline, the bare servo emulator with
+    its built-in motor model (``emulator``)."""
     from daemon.control import Controller
     from daemon.loop import ControlLoop, MonotonicClock
     from daemon.messages import Mode
@@ -69,13 +73,25 @@ def real_time_with_daemon(seconds: float, physics: bool) -> dict:
     from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
     profile = fold_zero_offsets(load("robots/widowx.toml"))
-    if physics:
-        device = Twin(profile, "attic", initial_joints=Kinematics(profile).stand_joints())
-        device.on_depth(lambda name, frame: None)
+    physics = device_kind == "twin"
+    if device_kind.startswith("process"):
+        cameras = [] if device_kind == "process" else ["--no-cameras"]
+        device = subprocess.Popen(
+            [sys.executable, "-m", "drivers.sim", "--profile", "robots/widowx.toml"]
+            + ["--world", "attic", "--fold-zero-offsets", *cameras],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        port = device.stdout.readline().strip()
     else:
-        device = DynamixelEmulator(ServoChain.from_profile(profile))
-    device.start()
-    bus = DynamixelBus.from_profile(profile, port=device.port)
+        if physics:
+            device = Twin(profile, "attic", initial_joints=Kinematics(profile).stand_joints())
+            device.on_depth(lambda name, frame: None)
+        else:
+            device = DynamixelEmulator(ServoChain.from_profile(profile))
+        device.start()
+        port = device.port
+    bus = DynamixelBus.from_profile(profile, port=port)
     bus.open()
     clock = MonotonicClock()
     safety = Safety(profile)
@@ -93,7 +109,14 @@ def real_time_with_daemon(seconds: float, physics: bool) -> dict:
     thread.join(2.0)
     stats = loop.stats()
     bus.close()
-    device.stop()
+    elapsed = wall1 - wall0
+    if device_kind.startswith("process"):
+        device.send_signal(signal.SIGTERM)
+        out, _ = device.communicate(timeout=10)
+        simulated, wall = (float(w) for w in out.split()[1:6:3])
+        sim0, sim1, wall0, wall1 = 0.0, simulated, 0.0, wall
+    else:
+        device.stop()
     return {
         "rtf": (sim1 - sim0) / (wall1 - wall0),
         "lag": device.lag if physics else 0.0,
@@ -101,8 +124,8 @@ def real_time_with_daemon(seconds: float, physics: bool) -> dict:
         "overruns": stats.overruns,
         "late_p99_ms": stats.lateness_p99 * 1e3,
         "compute_p50_ms": stats.compute_p50 * 1e3,
-        "frames": device.cameras["front"].number if physics else 0,
-        "seconds": wall1 - wall0,
+        "frames": device.cameras["front"].number if physics else "–",
+        "seconds": elapsed,
     }
 
 
@@ -157,8 +180,13 @@ def main() -> None:
         "| tick compute p50 ms | lateness p99 ms | depth frames |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for physics, label in ((False, "bare emulator (baseline)"), (True, "twin + L515 640×480")):
-        r = real_time_with_daemon(args.daemon_seconds, physics)
+    for kind, label in (
+        ("emulator", "bare emulator (baseline)"),
+        ("twin", "twin + L515 640×480, same process"),
+        ("process", "twin + L515 640×480, own process"),
+        ("process-no-cameras", "twin without cameras, own process"),
+    ):
+        r = real_time_with_daemon(args.daemon_seconds, kind)
         print(
             f"| {label} | {r['seconds']:.1f} | {r['rtf']:.3f} | {r['lag']:.3f} | {r['ticks']} "
             f"({round(r['seconds'] * 100)}) | {r['overruns']} | {r['compute_p50_ms']:.2f} | "

@@ -168,10 +168,12 @@ class Twin:
         initial_joints: np.ndarray | None = None,
         bus: bool = True,
         depth_threads: int = 1,
+        camera_duty: float = 0.5,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
         self.world = world if isinstance(world, World) else load_world(world)
         self.stepped = stepped
+        self.camera_duty = camera_duty
         self.robot: RobotModel = build(self.profile, self.world, timestep)
         self.model = self.robot.model
         self.data = mujoco.MjData(self.model)
@@ -514,11 +516,18 @@ class Twin:
             time.sleep(0.002)
 
     def _run_cameras(self) -> None:
-        """Real-time mode: render every camera at its rate and hand frames to the callbacks."""
+        """Real-time mode: render every camera at its rate and hand frames to the callbacks.
+
+        Rendering may use at most ``camera_duty`` of a core: after a frame that took r seconds
+        the thread rests r · (1/duty − 1), so a camera too costly for its rate drops frames
+        (as a USB camera on a busy host does) instead of starving the daemon beside it.
+        """
+        rest = 1.0 / self.camera_duty - 1.0
         while not self._stop.is_set():
+            t0 = time.perf_counter()
             if self._depth_callbacks:
                 self._cameras_due()
-            time.sleep(0.002)
+            time.sleep(max(0.002, (time.perf_counter() - t0) * rest))
 
     def _cameras_due(self) -> None:
         if not self._depth_callbacks:
