@@ -11,6 +11,7 @@ import msgspec
 import numpy as np
 import pytest
 from graspable_scenes import board_plane, dome_board, hold_cores, pose, unpose
+from scipy import ndimage
 from scipy.spatial import Delaunay, cKDTree
 
 from daemon.cli import main as climbd
@@ -21,11 +22,13 @@ from plugins.perception.graspable import (
     Correlator,
     GraspableConfig,
     GraspableDetector,
+    column_depths,
     interpolate_heights,
     lattice_mask,
     regression_frame,
     scan_window,
     terrain_matrix,
+    void_known,
 )
 from plugins.perception.gripper_mask import GripperGeometry, gripper_mask
 
@@ -83,16 +86,29 @@ def test_correlation_equals_the_papers_per_voxel_scan():
     plane = regression_frame(cloud, np.array([0.0, 0.0, 1.0])).to_plane(cloud)
     for step in (1, 3):
         lattice = interpolate_heights(plane, 0.001 * step)
-        terrain, depth, _ = terrain_matrix(lattice, 0.001)
+        depth = column_depths(lattice, 0.001)
         mask = lattice_mask(gripper_mask(GripperGeometry(), 0.001), step)
         ix, iy = np.nonzero(depth >= 0)
         pick = np.random.default_rng(step).choice(len(ix), 400, replace=False)
         at = (ix[pick], iy[pick], depth[ix[pick], iy[pick]])
-        hits, solid = Correlator(mask).counts(terrain)
-        scan_hits, scan_solid = scan_window(terrain, mask, at)
-        np.testing.assert_array_equal(hits[at], scan_hits)
-        np.testing.assert_array_equal(solid[at], scan_solid)
-        assert hits[at].max() > 0 and (hits[at] == 0).any() and solid[at].min() > 0
+        hits, solid = Correlator(mask).counts(depth, at[:2])
+        scan_hits, scan_solid = scan_window(terrain_matrix(depth), mask, at)
+        np.testing.assert_array_equal(hits, scan_hits)
+        np.testing.assert_array_equal(solid, scan_solid)
+        assert hits.max() > 0 and (hits == 0).any() and solid.min() > 0
+
+
+def test_void_known_is_the_dilation_of_unknown_terrain():
+    """Against scipy's binary dilation (outside the lattice unknown), with a footprint that is
+    not symmetric so an orientation slip would show."""
+    rng = np.random.default_rng(5)
+    known = ndimage.binary_opening(rng.random((60, 70)) > 0.2)
+    mask = np.ones((7, 7, 3), dtype=bool)
+    mask[1:5, 2:7, 1] = False
+    footprint = (~mask).any(axis=2)
+    expected = ~ndimage.binary_dilation(~known, structure=footprint, border_value=1)
+    np.testing.assert_array_equal(void_known(known, mask), expected)
+    assert 0 < expected.sum() < known.sum()
 
 
 def test_delaunay_fill_is_linear_inside_triangles():

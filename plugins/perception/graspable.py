@@ -3,8 +3,11 @@
 The cloud is turned to its regression plane (z along the plane normal, towards the robot),
 occlusions are filled by linear interpolation over a Delaunay triangulation onto a square
 lattice, and the lattice's heights are voxelised into the 0/1 terrain matrix. The paper scans
-every solid voxel with the gripper mask; the test is the same at every voxel, so here it is one
-FFT correlation of the terrain matrix with the mask's void cells plus a box count of solid cells.
+every solid voxel with the gripper mask; the test is the same at every voxel, so it is a
+correlation of the terrain matrix with the mask's void cells (plus a box count of solid cells).
+A terrain matrix made from a height lattice holds one solid voxel per column, so the
+correlation at a voxel reads each window column's solid depth directly; it is evaluated only
+at the voxels the cheap rules (measured, void over known terrain, palm clear) leave.
 
 Rule (paper §2.3, ClimbLab's thresholds): a solid voxel is graspable when the solid voxels
 of its window that fall in the mask's void cells are at most ``void_fraction`` of the window's
@@ -26,9 +29,9 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
+import cv2
 import msgspec
 import numpy as np
-import scipy.fft
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError
 
@@ -172,22 +175,25 @@ def lattice_spacing(plane_points: np.ndarray, voxel: float, requested: float) ->
     return voxel * max(1, round(requested / voxel))
 
 
-def terrain_matrix(lattice: HeightLattice, voxel: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Voxelise the lattice heights (§2.1 step 3): depth index k = ⌊(z_top − z) / voxel⌋.
-
-    Returns the 0/1 terrain matrix (columns × depth, float32 for the FFT), each column's depth
-    index (−1 where unknown) and z_top. Depth grows downwards, as the mask's does.
-    """
+def column_depths(lattice: HeightLattice, voxel: float) -> np.ndarray:
+    """Depth index k = ⌊(z_top − z) / voxel⌋ of each lattice column's solid voxel (−1 where
+    unknown): the terrain matrix of §2.1 step 3 held as one index per column."""
     known = np.isfinite(lattice.heights)
     if not known.any():
         raise ValueError("cloud has no interpolated terrain")
     top = float(np.nanmax(lattice.heights))
     depth = np.full(lattice.heights.shape, -1, dtype=np.int64)
     depth[known] = np.floor((top - lattice.heights[known]) / voxel).astype(np.int64)
-    terrain = np.zeros((*depth.shape, int(depth.max()) + 1), dtype=np.float32)
-    ix, iy = np.nonzero(known)
-    terrain[ix, iy, depth[known]] = 1.0
-    return terrain, depth, top
+    return depth
+
+
+def terrain_matrix(depth: np.ndarray) -> np.ndarray:
+    """The 0/1 terrain matrix (columns × depth, §2.1 step 3) of the column depths; depth grows
+    downwards, as the mask's does. The paper's form, for its per-voxel scan."""
+    terrain = np.zeros((*depth.shape, int(depth.max()) + 1), dtype=bool)
+    ix, iy = np.nonzero(depth >= 0)
+    terrain[ix, iy, depth[ix, iy]] = True
+    return terrain
 
 
 def lattice_mask(mask: np.ndarray, step: int) -> np.ndarray:
@@ -198,34 +204,50 @@ def lattice_mask(mask: np.ndarray, step: int) -> np.ndarray:
 
 
 class Correlator:
-    """Counts, for every voxel, the solid voxels of its window and those in the mask's void cells.
+    """Counts, at chosen voxels, the solid voxels of their window and those in the mask's void.
 
     The window is the mask anchored with its centre column over the voxel and its depth 0 at
-    the voxel's depth. One forward FFT of the terrain serves both counts (void kernel and box
-    kernel); the kernels' spectra are cached per FFT shape.
+    the voxel's depth. With one solid voxel per column, a window column holds a solid cell
+    exactly when its depth lies 0 ≤ k < mask depth below the voxel's, and that cell is a hit
+    when the mask is void there: one gather of the window's column depths per voxel.
     """
+
+    CHUNK = 256
+    """Voxels per gather (keeps the working set in cache)."""
 
     def __init__(self, mask: np.ndarray) -> None:
         self.mask = mask
-        self._kernels = np.stack(((~mask)[::-1, ::-1, ::-1], np.ones_like(mask)), axis=0).astype(
-            np.float32
-        )
-        self._spectra: dict[tuple[int, ...], np.ndarray] = {}
+        n, _, d = mask.shape
+        void = np.zeros((n * n, d + 1), dtype=np.uint8)
+        void[:, :d] = ~mask.reshape(n * n, d)
+        self._void = void.ravel()
+        self._rows = np.arange(n * n, dtype=np.intp) * (d + 1)
 
-    def counts(self, terrain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(void hits, solid voxels) of each voxel's window, both shaped like ``terrain``."""
-        full = [t + k - 1 for t, k in zip(terrain.shape, self.mask.shape, strict=True)]
-        shape = tuple(scipy.fft.next_fast_len(n, real=True) for n in full)
-        spectra = self._spectra.get(shape)
-        if spectra is None:
-            spectra = scipy.fft.rfftn(self._kernels, shape, axes=(1, 2, 3), workers=-1)
-            self._spectra[shape] = spectra
-        product = scipy.fft.rfftn(terrain, shape, workers=-1)[None] * spectra
-        conv = scipy.fft.irfftn(product, shape, axes=(1, 2, 3), workers=-1)
-        h = self.mask.shape[0] // 2
-        d = self.mask.shape[2] - 1
-        nx, ny, nz = terrain.shape
-        hits, solid = np.rint(conv[:, h : h + nx, h : h + ny, d : d + nz]).astype(np.int32)
+    def counts(
+        self, depth: np.ndarray, cols: tuple[np.ndarray, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(void hits, solid voxels) of the windows at columns ``cols`` (index arrays) of the
+        column-depth lattice ``depth`` (−1 unknown), each anchored at its column's solid voxel."""
+        n, _, d = self.mask.shape
+        h = n // 2
+        width = depth.shape[1] + 2 * h
+        padded = np.full((depth.shape[0] + 2 * h, width), -1, dtype=np.int32)
+        padded[h : h + depth.shape[0], h : h + depth.shape[1]] = depth
+        flat = padded.ravel()
+        oi, oj = np.mgrid[0:n, 0:n]
+        offsets = (oi * width + oj).ravel()
+        ix, iy = cols
+        corner = ix * width + iy
+        own = depth[ix, iy].astype(np.int32)
+        hits = np.empty(len(ix), dtype=np.int64)
+        solid = np.empty(len(ix), dtype=np.int64)
+        for s in range(0, len(ix), self.CHUNK):
+            below = flat[corner[s : s + self.CHUNK, None] + offsets] - own[s : s + self.CHUNK, None]
+            below = below.view(np.uint32)  # above the voxel or unknown: huge, outside the window
+            inside = below < d
+            solid[s : s + self.CHUNK] = np.count_nonzero(inside, axis=1)
+            np.minimum(below, d, out=below)
+            hits[s : s + self.CHUNK] = self._void[self._rows + below].sum(axis=1)
         return hits, solid
 
 
@@ -252,9 +274,14 @@ def scan_window(
 
 
 def void_known(known: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """True at columns whose mask void cells all lie over known terrain (unknown is not void)."""
-    footprint = (~mask).any(axis=2)
-    return ~ndimage.binary_dilation(~known, structure=footprint, border_value=1)
+    """True at columns whose mask void cells all lie over known terrain (unknown is not void):
+    a binary dilation of the unknown columns by the void footprint, outside the lattice
+    unknown."""
+    footprint = (~mask).any(axis=2)[::-1, ::-1].astype(np.uint8)
+    unknown = cv2.dilate(
+        (~known).astype(np.uint8), footprint, borderType=cv2.BORDER_CONSTANT, borderValue=1
+    )
+    return unknown == 0
 
 
 def palm_clear(depth: np.ndarray, radius: float, tolerance: int) -> np.ndarray:
@@ -321,9 +348,8 @@ class GraspableDetector:
         plane = frame.to_plane(cloud)
         spacing = lattice_spacing(plane, cfg.voxel, cfg.lattice_spacing)
         lattice = interpolate_heights(plane, spacing)
-        terrain, depth, _ = terrain_matrix(lattice, cfg.voxel)
+        depth = column_depths(lattice, cfg.voxel)
         correlator = self.correlator(round(spacing / cfg.voxel))
-        hits, solid = correlator.counts(terrain)
         known = depth >= 0
         palm = (cfg.gripper.palm_diameter + cfg.gripper.margin_top_solid) / 2 / spacing
         cols = np.nonzero(
@@ -332,8 +358,8 @@ class GraspableDetector:
             & void_known(known, correlator.mask)
             & palm_clear(depth, palm, cfg.above_tolerance)
         )
-        at = (cols[0], cols[1], depth[cols])
-        ok = (hits[at] <= cfg.void_fraction * solid[at]) & (solid[at] > cfg.solid_threshold)
+        hits, solid = correlator.counts(depth, cols)
+        ok = (hits <= cfg.void_fraction * solid) & (solid > cfg.solid_threshold)
         gx, gy = cols[0][ok], cols[1][ok]
         on_plane = np.column_stack(
             (lattice.x0 + gx * spacing, lattice.y0 + gy * spacing, lattice.heights[gx, gy])
