@@ -16,6 +16,8 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
+from daemon.cloudio import CloudFileError, read_cloud
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
@@ -191,41 +193,6 @@ def load(name_or_path: str | Path, **overrides: object) -> World:
     return _check(world)
 
 
-def read_pcd(path: str | Path) -> np.ndarray:
-    """The x, y, z columns (m) of a PCD file (ascii or binary, float fields) as an N×3 array."""
-    path = Path(path)
-    raw = path.read_bytes()
-    header: dict[str, list[str]] = {}
-    offset = 0
-    for line in raw.split(b"\n"):
-        offset += len(line) + 1
-        parts = line.decode("ascii", "replace").strip().split()
-        if not parts or parts[0].startswith("#"):
-            continue
-        header[parts[0].upper()] = parts[1:]
-        if parts[0].upper() == "DATA":
-            break
-    fields = header.get("FIELDS", [])
-    if not {"x", "y", "z"} <= set(fields):
-        raise WorldError(f"{path}: FIELDS: expected x y z, found {fields}")
-    n = int(header["POINTS"][0])
-    sizes = [int(s) for s in header["SIZE"]]
-    counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
-    kind = header["DATA"][0]
-    if kind == "ascii":
-        table = np.loadtxt(raw[offset:].decode().splitlines(), ndmin=2)[:n]
-    elif kind == "binary":
-        if any(s != 4 for s in sizes) or set(header["TYPE"]) != {"F"}:
-            raise WorldError(f"{path}: binary PCD: only 4-byte float fields are supported")
-        width = sum(counts)
-        table = np.frombuffer(raw, "<f4", count=n * width, offset=offset).reshape(n, width)
-    else:
-        raise WorldError(f"{path}: DATA: expected ascii or binary, found {kind}")
-    cols = np.cumsum([0, *counts])
-    xyz = np.stack([table[:, cols[fields.index(k)]] for k in "xyz"], axis=1).astype(float)
-    return xyz[np.isfinite(xyz).all(axis=1)]
-
-
 def holds_heightfield(holds: HoldsSlope, base: Path) -> tuple[np.ndarray, float, float]:
     """Height field (rows along the slope, metres above the lowest cell) of the tiled cloud.
 
@@ -237,9 +204,10 @@ def holds_heightfield(holds: HoldsSlope, base: Path) -> tuple[np.ndarray, float,
     path = Path(holds.cloud)
     if not path.is_absolute():
         path = (base / path).resolve()
-    if not path.exists():
-        raise WorldError(f"$.holds.cloud: point cloud not found: {path}")
-    pts = read_pcd(path)
+    try:
+        pts = read_cloud(path)
+    except CloudFileError as e:
+        raise WorldError(f"$.holds.cloud: {e}") from None
     centre = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
     normal = vt[2] if vt[2] @ (-centre) > 0 else -vt[2]
