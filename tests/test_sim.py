@@ -135,6 +135,18 @@ def test_worlds_load_and_build():
     assert len(joists) == 4
     assert joists[0].size[2] * 2 == pytest.approx(0.1016)
     assert joists[1].pos[0] - joists[0].pos[0] == pytest.approx(0.4064)
+    stairs = build(profile, load_world("stairs")).model
+    steps = sorted(
+        (stairs.geom(i) for i in range(stairs.ngeom) if stairs.geom(i).name.startswith("stair")),
+        key=lambda g: g.pos[0],
+    )
+    tops = [2 * g.size[2] for g in steps]
+    fronts = [g.pos[0] - g.size[0] for g in steps]
+    np.testing.assert_allclose(tops, [0.13, 0.26, 0.39])
+    np.testing.assert_allclose(np.diff(fronts), [0.30, 0.30])
+    truss = build(profile, load_world("truss")).model
+    members = [truss.geom(i) for i in range(truss.ngeom) if truss.geom(i).name.startswith("member")]
+    assert len(members) == 19 and all(g.size[0] == pytest.approx(0.025) for g in members)
     with pytest.raises(WorldError, match=r"\$\.joists\[0\]\.height"):
         load_world("attic", joists=[{"height": -0.1, "distance": 1.0}])
     with pytest.raises(WorldError, match="no such file"):
