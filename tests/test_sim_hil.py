@@ -6,6 +6,10 @@ safety supervisor and tripod gait run on a stepped clock that advances the physi
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+
 import msgspec
 import numpy as np
 import pytest
@@ -203,3 +207,31 @@ def test_qingzhui_torque_legs_answer_mit_frames_from_the_physics():
     finally:
         bus.close()
         twin.stop()
+
+
+def test_twin_in_its_own_process_serves_the_driver():
+    """``python -m drivers.sim`` prints its pty; the driver in this process reads the resting
+    robot from it; SIGTERM ends it with a summary of simulated and wall time."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "drivers.sim", "--profile", str(ROOT / "robots" / "widowx.toml")]
+        + ["--world", "attic", "--fold-zero-offsets", "--no-cameras"],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+    try:
+        port = proc.stdout.readline().strip()
+        assert port.startswith("/dev/")
+        profile = fold_zero_offsets(load(ROOT / "robots" / "widowx.toml"))
+        bus = DynamixelBus.from_profile(profile, port=port, timeout_margin_ms=STEPPED_MARGIN_MS)
+        bus.open()
+        try:
+            state = bus.read()
+        finally:
+            bus.close()
+        femur = np.array(state.position)[1::3]
+        assert np.all(femur > 0.5), "resting belly-down: femurs raised"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=10)
+    assert proc.returncode == 0 and "simulated" in out
