@@ -382,7 +382,6 @@ def camera_unplugged(robot, make, tmp_path, endpoint) -> str:
         pump(5, 0.0)
         camera.unplug()
         rig.wait(lambda: not camera.health().connected)
-        health = capture.report(m.Health(role="perception"))
         assert capture.running, "the capture thread survives the unplug"
         camera.replug()
         rig.wait(lambda: camera.health().connected)
@@ -394,8 +393,8 @@ def camera_unplugged(robot, make, tmp_path, endpoint) -> str:
     finally:
         capture.stop()
     return (
-        f"{config.model}: frames stop, reconnect {camera.health().reconnects}×, frames resume; "
-        f"health {health.dropped_frames} dropped; control stays in HOLD"
+        f"{config.model}: frames stop, capture thread reconnects "
+        f"({camera.health().reconnects}×), frames resume; control stays in HOLD"
     )
 
 
