@@ -56,6 +56,21 @@ def run(make, data, repeats: int) -> list[float]:
     return times
 
 
+def stages(grid: ElevationConfig, data) -> list[tuple[float, float, float]]:
+    """Per-frame times (s) of our three stages: fuse, crop + inpaint, lines + joists."""
+    plugin = JoistPerception(JoistPerceptionConfig(grid=grid))
+    out = []
+    for points, body in data:
+        t0 = time.perf_counter()
+        plugin.map.integrate(points, body)
+        t1 = time.perf_counter()
+        filled = plugin.map.crop(body)
+        t2 = time.perf_counter()
+        plugin.detector.detect(filled)
+        out.append((t1 - t0, t2 - t1, time.perf_counter() - t2))
+    return out
+
+
 def stats(times: list[float]) -> tuple[float, float]:
     ms = sorted(t * 1e3 for t in times)
     return statistics.median(ms), ms[min(len(ms) - 1, int(math.ceil(0.99 * len(ms))) - 1)]
@@ -104,21 +119,28 @@ def main() -> int:
         def paper(grid=grid):
             return PaperPipeline(grid=grid).process
 
-        t_ours, t_paper = [], []
+        t_ours, t_paper, t_stage = [], [], []
         for _ in range(args.repeats):
             t_ours += run(ours, data, 1)
             t_paper += run(paper, data, 1)
+            t_stage += stages(grid, data)
         m_o, p_o = stats(t_ours)
         m_p, p_p = stats(t_paper)
-        rows.append((label, npts, m_o, p_o, m_p, p_p))
+        split = np.median(np.array(t_stage), axis=0) * 1e3
+        rows.append((label, npts, m_o, p_o, m_p, p_p, split))
 
     print(f"frames: 640×480 ray-cast, {args.frames} per walk × {args.repeats} walks")
+    print("| crop box | fuse points | crop + float Telea | lines + joists |")
+    print("|---|---|---|---|")
+    for label, *_, split in rows:
+        print(f"| {label} | {split[0]:.2f} ms | {split[1]:.2f} ms | {split[2]:.2f} ms |")
+    print()
     print(
         "| crop box | points/frame | ours median | ours p99 | paper's way median | "
         "paper's way p99 | median ratio (paper/ours) |"
     )
     print("|---|---|---|---|---|---|---|")
-    for label, npts, m_o, p_o, m_p, p_p in rows:
+    for label, npts, m_o, p_o, m_p, p_p, _ in rows:
         print(
             f"| {label} | {npts:,.0f} | {m_o:.2f} ms | {p_o:.2f} ms | {m_p:.2f} ms | "
             f"{p_p:.2f} ms | {m_p / m_o:.1f}× |"

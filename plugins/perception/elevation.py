@@ -182,22 +182,8 @@ class ElevationMap:
 
         inv = 1.0 / res
         rot = rotation_of(body)
-        x, y, z = np.ascontiguousarray(points.T, dtype=np.float32)
-        shift = (position[:2] - self._origin) * inv
-        # Elementwise rather than a BLAS product: 3×3 on N points is memory-bound, and a
-        # threaded sgemm stalls on a busy machine.
-        r = (rot * inv).astype(np.float32)
-        rows = x * r[0, 0] + y * r[0, 1] + z * r[0, 2] + np.float32(shift[0])
-        cols = x * r[1, 0] + y * r[1, 1] + z * r[1, 2] + np.float32(shift[1])
-        zs = x * r[2, 0] + y * r[2, 1] + z * r[2, 2]
-        zs *= np.float32(res)
-        zs += np.float32(position[2])
-        rows = np.floor(rows, out=rows).astype(np.int32)
-        cols = np.floor(cols, out=cols).astype(np.int32)
         half = c.width / 2
-        keep = (x >= c.x_min) & (x < c.x_min + c.length) & (y >= -half) & (y < half)
-        keep &= (z >= c.z_min) & (z <= c.z_max)
-
+        shift = (position[:2] - self._origin) * inv
         corners = np.array(
             [
                 [c.x_min, -half],
@@ -212,10 +198,24 @@ class ElevationMap:
         r1, c1 = np.minimum(np.ceil(cells.max(axis=0) + spread).astype(int) + 1, self.side)
         wcols = c1 - c0
         size = (r1 - r0) * wcols
-        rows -= r0
-        cols -= c0
-        keep &= (rows >= 0) & (rows < r1 - r0) & (cols >= 0) & (cols < wcols)
-        flat = np.where(keep, rows * wcols + cols, size)
+        # OpenCV does the per-point work in single passes: the crop test (inRange) and the
+        # transform to window cells, offset by one so that truncation is a floor for every
+        # cell of the window (index 0 and the last are outside it).
+        cloud = np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 1, 3)
+        lo = (c.x_min, -half, c.z_min)
+        hi = (np.nextafter(c.x_min + c.length, -np.inf), np.nextafter(half, -np.inf), c.z_max)
+        keep = cv2.inRange(cloud, lo, hi).reshape(-1) > 0
+        affine = np.zeros((3, 4))
+        affine[:2, :3] = rot[:2] * inv
+        affine[:2, 3] = shift - (r0, c0) + 1.0
+        affine[2, :3] = rot[2]
+        affine[2, 3] = position[2]
+        cell = cv2.transform(cloud, affine).reshape(-1, 3)
+        rows = cell[:, 0].astype(np.int32)
+        cols = cell[:, 1].astype(np.int32)
+        zs = cell[:, 2]
+        keep &= (rows >= 1) & (rows <= r1 - r0) & (cols >= 1) & (cols <= wcols)
+        flat = np.where(keep, (rows - 1) * wcols + (cols - 1), size)
         count = np.bincount(flat, minlength=size + 1)[:size]
         if not count.any():
             return
