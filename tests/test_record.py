@@ -246,6 +246,14 @@ def test_twin_recording_replays_to_the_same_joist_detections(tmp_path: Path, end
         recorder.stop()
         live_bus.close()
         rec_bus.close()
+    with open(tmp_path / "twin.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    topics = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    assert topics == {
+        "climbd/widowx/features/joists": "climbd.Joists",
+        "climbd/widowx/state/body": "climbd.BodyState",
+    }
+    assert summary.statistics.message_count == 2 * len(live)
     assert all(j.joists for j in live), "the twin's attic shows the 15° joist"
     assert abs(live[0].joists[0].yaw - math.radians(15)) < math.radians(3)
 
