@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import signal
 import sys
 import threading
@@ -147,37 +146,19 @@ def rename(key: str, robot: str | None) -> str:
 
 
 class Replayer:
-    """Publishes recorded messages on a Zenoh session with the QoS of their topic."""
+    """Publishes recorded messages on a Bus, each with the QoS its topic has on a live robot."""
 
-    def __init__(self, session) -> None:
-        self.session = session
+    def __init__(self, bus) -> None:
+        self.bus = bus
         self.publishers: dict[str, object] = {}
         self.sent = 0
 
     def publish(self, key: str, message) -> None:
-        from daemon.bus import CONTROL_STREAMS
-        from daemon.messages import EStop, encode
-
         pub = self.publishers.get(key)
         if pub is None:
-            import zenoh
-
-            kind = type(message)
-            if kind is EStop:
-                qos = dict(
-                    congestion_control=zenoh.CongestionControl.BLOCK,
-                    priority=zenoh.Priority.REAL_TIME,
-                )
-            elif kind in CONTROL_STREAMS:
-                qos = dict(
-                    congestion_control=zenoh.CongestionControl.DROP,
-                    priority=zenoh.Priority.REAL_TIME,
-                    express=True,
-                )
-            else:
-                qos = dict(congestion_control=zenoh.CongestionControl.BLOCK)
-            pub = self.publishers[key] = self.session.declare_publisher(key, **qos)
-        pub.put(encode(message))
+            robot = key.split("/")[1]
+            pub = self.publishers[key] = self.bus.publisher(type(message), robot)
+        pub.put(message)
         self.sent += 1
 
     def run(
@@ -194,17 +175,12 @@ class Replayer:
                 return
             self.publish(rename(item.key, robot), item.message)
 
-    def close(self) -> None:
-        for pub in self.publishers.values():
-            pub.undeclare()
-        self.publishers.clear()
-
 
 def main(args: argparse.Namespace) -> int:
-    import zenoh
+    import json
 
-    from daemon.access import AccessError, client_credentials
-    from daemon.bus import Endpoints, zenoh_config
+    from daemon.access import AccessError, client_config
+    from daemon.bus import Bus
 
     try:
         pace([], args.speed)
@@ -213,19 +189,17 @@ def main(args: argparse.Namespace) -> int:
             for r in read(args.file, args.topics)
             if args.commands or not r.key.split("/", 2)[-1].startswith("cmd/")
         ]
-        config = zenoh_config(None, "replay", Endpoints(list(args.listen), list(args.connect)))
-        user = None
-        if args.user:
-            password = os.environ.get("CLIMBD_PASSWORD")
-            if password is None:
-                raise AccessError("--user needs the password in $CLIMBD_PASSWORD")
-            user = (args.user, password)
-        client_credentials(config, tuple(args.tls) if args.tls else None, user)
+        config = client_config(args, "replay")
+        config.insert_json5("listen/endpoints", json.dumps(list(args.listen)))
     except (RecordingError, ValueError, AccessError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    session = zenoh.open(config)
-    replayer = Replayer(session)
+    try:
+        bus = Bus(args.robot or "replay", config)
+    except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
+        print(f"error: zenoh: {e}", file=sys.stderr)
+        return 1
+    replayer = Replayer(bus)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
@@ -240,7 +214,6 @@ def main(args: argparse.Namespace) -> int:
         replayer.run(items, args.speed, args.robot, stop)
         stop.wait(0.2)  # let the last puts leave before the session closes
     finally:
-        replayer.close()
-        session.close()
+        bus.close()
     print(f"climbd: replayed {replayer.sent} of {len(items)} messages", flush=True)
     return 0

@@ -263,12 +263,11 @@ def test_twin_recording_replays_to_the_same_joist_detections(tmp_path: Path, end
     try:
         sub.subscribe(m.Joists, replayed.append)
         time.sleep(1.0)
-        replayer = Replayer(out.session)
+        replayer = Replayer(out)
         replayer.run(
             list(read(tmp_path / "twin.mcap", ["features/*"])), 10.0, None, threading.Event()
         )
         time.sleep(0.5)
-        replayer.close()
     finally:
         out.close()
         sub.close()
