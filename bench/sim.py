@@ -29,7 +29,6 @@ import numpy as np
 from daemon.kinematics import Kinematics
 from daemon.profile import load
 from drivers.sim.depth import GEOM_GROUPS, RayCastDepth
-from drivers.sim.model import fold_zero_offsets
 from drivers.sim.twin import Twin
 
 ROBOTS = ("widowx", "hubrobo", "qingzhui")
@@ -72,7 +71,7 @@ def real_time_with_daemon(seconds: float, device_kind: str) -> dict:
     from drivers.dynamixel.bus import DynamixelBus
     from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
-    profile = fold_zero_offsets(load("robots/widowx.toml"))
+    profile = load("robots/widowx.toml")
     physics = device_kind == "twin"
     if device_kind.startswith("process"):
         cameras = [] if device_kind == "process" else ["--no-cameras"]

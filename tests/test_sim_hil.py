@@ -30,7 +30,6 @@ from daemon.profile import load
 from daemon.safety import Safety
 from drivers.base import DriverError
 from drivers.dynamixel.bus import DynamixelBus
-from drivers.sim.model import fold_zero_offsets
 from drivers.sim.twin import Twin
 from drivers.torque.bus import MitJointBus
 from plugins.gaits.periodic import Tripod, TripodConfig
@@ -46,7 +45,7 @@ class Hil:
     def __init__(
         self, robot: str = "widowx", world: str = "attic", gait: TripodConfig | None = None
     ) -> None:
-        self.profile = fold_zero_offsets(load(ROOT / "robots" / f"{robot}.toml"))
+        self.profile = load(ROOT / "robots" / f"{robot}.toml")
         self.twin = Twin(self.profile, world, stepped=True).start()
         self.clock = SteppedClock(on_advance=self.twin.advance_to)
         self.bus = DynamixelBus.from_profile(
@@ -172,7 +171,7 @@ def test_twin_injects_every_emulator_fault(hil):
 def test_qingzhui_torque_legs_answer_mit_frames_from_the_physics():
     """The torque robot's real CAN driver on the twin's virtual channel: impedance commands
     move the simulated joints, replies carry the simulated state, a silent motor is lost."""
-    profile = fold_zero_offsets(load(ROOT / "robots" / "qingzhui.toml"))
+    profile = load(ROOT / "robots" / "qingzhui.toml")
     profile = msgspec.structs.replace(
         profile, bus=msgspec.structs.replace(profile.bus, reply_timeout=0.05, lost_after=3)
     )
@@ -214,7 +213,7 @@ def test_twin_in_its_own_process_serves_the_driver():
     robot from it; SIGTERM ends it with a summary of simulated and wall time."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "drivers.sim", "--profile", str(ROOT / "robots" / "widowx.toml")]
-        + ["--world", "attic", "--fold-zero-offsets", "--no-cameras"],
+        + ["--world", "attic", "--no-cameras"],
         stdout=subprocess.PIPE,
         text=True,
         cwd=ROOT,
@@ -222,7 +221,7 @@ def test_twin_in_its_own_process_serves_the_driver():
     try:
         port = proc.stdout.readline().strip()
         assert port.startswith("/dev/")
-        profile = fold_zero_offsets(load(ROOT / "robots" / "widowx.toml"))
+        profile = load(ROOT / "robots" / "widowx.toml")
         bus = DynamixelBus.from_profile(profile, port=port, timeout_margin_ms=STEPPED_MARGIN_MS)
         bus.open()
         try:

@@ -15,7 +15,6 @@ import threading
 import time
 
 from daemon.profile import ProfileError, load
-from drivers.sim.model import fold_zero_offsets
 from drivers.sim.twin import Twin
 from drivers.sim.worlds import WorldError
 
@@ -24,17 +23,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m drivers.sim", description=__doc__)
     parser.add_argument("--profile", required=True, help="robot profile (robots/*.toml)")
     parser.add_argument("--world", default="attic", help="stock world name or world file")
-    parser.add_argument(
-        "--fold-zero-offsets",
-        action="store_true",
-        help="run the profile with zero offsets folded into the limits (see model.py)",
-    )
     parser.add_argument("--no-cameras", action="store_true", help="do not render depth")
     args = parser.parse_args(argv)
     try:
         profile = load(args.profile)
-        if args.fold_zero_offsets:
-            profile = fold_zero_offsets(profile)
         twin = Twin(profile, args.world)
     except (ProfileError, WorldError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)

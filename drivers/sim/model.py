@@ -20,7 +20,6 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import msgspec
 import mujoco
 import numpy as np
 
@@ -332,27 +331,6 @@ def _add_robot(
                 gain=f"{GRIP_FORCE:.6g}",
             )
     return hz, r_foot
-
-
-def fold_zero_offsets(profile: Profile) -> Profile:
-    """The profile with each joint's zero offset and direction folded into its limits, so that
-    joint space equals the kinematic angles (identical physics).
-
-    The Dynamixel driver maps horn = zero_offset + direction × q, daemon/kinematics.py maps
-    q = direction × θ + zero_offset: with a non-zero offset the two apply it twice. The HIL
-    tests and bench run folded profiles, where every convention agrees, until they do.
-    """
-
-    def fold(joint):
-        lim = joint.limits
-        lo, hi = sorted(joint.direction * (x - joint.zero_offset) for x in (lim.lower, lim.upper))
-        limits = msgspec.structs.replace(lim, lower=lo, upper=hi)
-        return msgspec.structs.replace(joint, zero_offset=0.0, direction=1, limits=limits)
-
-    legs = [
-        msgspec.structs.replace(leg, joints=[fold(j) for j in leg.joints]) for leg in profile.legs
-    ]
-    return msgspec.structs.replace(profile, legs=legs)
 
 
 def has_grippers(profile: Profile) -> bool:
