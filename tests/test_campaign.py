@@ -248,16 +248,28 @@ def _joint(rig: Rig, k: int = 4):
 
 def servo_lost(robot, make, tmp_path, endpoint) -> str:
     rig = make(robot)
-    rig.activate()
     j = _joint(rig)
-    rig.chain.silence(j.id)
-    took = rig.wait(lambda: rig.safety.mode == Mode.HOLD and "servo lost" in rig.safety.reason)
-    assert j.name in rig.safety.reason
-    rig.chain.silence(j.id, False)
-    rig.wait(lambda: not any(h.lost for h in rig.bus.health()))
+    took = _hold_and_recover(
+        rig,
+        lambda: rig.chain.silence(j.id),
+        lambda: rig.chain.silence(j.id, False),
+        f"servo lost: {j.name}",
+        lambda: not any(h.lost for h in rig.bus.health()),
+    )
+    return f"HOLD ({j.name} lost) in {took:.2f} s; stands again once it answers"
+
+
+def _hold_and_recover(rig: Rig, inject, clear, reason: str, cleared) -> float:
+    """Walking, ``inject`` must bring HOLD for ``reason``; once ``clear``ed and ``cleared()``,
+    the robot stands and walks again. Seconds from injection to HOLD."""
+    rig.activate()
+    inject()
+    took = rig.wait(lambda: rig.safety.mode == Mode.HOLD and reason in rig.safety.reason)
+    clear()
+    rig.wait(cleared)
     rig.activate()
     rig.check()
-    return f"HOLD ({j.name} lost) in {took:.2f} s; stands again once it answers"
+    return took
 
 
 def overheat(robot, make, tmp_path, endpoint) -> str:
@@ -289,15 +301,16 @@ def overload(robot, make, tmp_path, endpoint) -> str:
             "power cycle"
         )
     rig = make(robot)
-    rig.activate()
-    servo = rig.chain.servo(_joint(rig, 1).id)
-    servo.inject_overload()
-    took = rig.wait(lambda: rig.safety.mode == Mode.HOLD and "overload" in rig.safety.reason)
-    servo.inject_overload(False)
-    rig.wait(lambda: not any(h.errors for h in rig.bus.health()))
-    rig.activate()
-    rig.check()
-    return f"HOLD (overload) in {took:.2f} s; stands again once cleared"
+    j = _joint(rig, 1)
+    servo = rig.chain.servo(j.id)
+    took = _hold_and_recover(
+        rig,
+        servo.inject_overload,
+        lambda: servo.inject_overload(False),
+        f"overload: {j.name}",
+        lambda: not any(h.errors for h in rig.bus.health()),
+    )
+    return f"HOLD (overload: {j.name}) in {took:.2f} s; stands again once cleared"
 
 
 def corrupt_packets(robot, make, tmp_path, endpoint) -> str:
