@@ -130,6 +130,8 @@ class TeleopClient:
         self._pubs[ModeRequest] = bus.publisher(ModeRequest)
         self._pubs[EStop] = bus.publisher(EStop)
         self._seq = 0
+        self._next_beat = 0.0
+        self._lock = threading.Lock()  # no heartbeat or motion may follow the release
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="teleop", daemon=True)
         bus.subscribe(ModeState, self._on_mode)
@@ -142,39 +144,46 @@ class TeleopClient:
 
     def _run(self) -> None:
         """Heartbeats while claimed; the current motion command repeated at its rate."""
-        next_hb = next_motion = time.monotonic()
+        next_motion = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
-            if self.claimed and now >= next_hb:
-                self._seq += 1
-                self._pubs[Heartbeat].put(Heartbeat(stamp=now, session=self.session, seq=self._seq))
-                next_hb = now + self.heartbeat_period
-            if self.claimed and self.motion and now >= next_motion:
-                self._send_motion(now)
-                next_motion = now + self.rate_period
-            self._stop.wait(max(0.0, min(next_hb, next_motion) - time.monotonic()))
+            with self._lock:
+                if self.claimed and now >= self._next_beat:
+                    self._seq += 1
+                    beat = Heartbeat(stamp=now, session=self.session, seq=self._seq)
+                    self._pubs[Heartbeat].put(beat)
+                    self._next_beat = now + self.heartbeat_period
+                if self.claimed and self.motion and now >= next_motion:
+                    self._send_motion(now)
+                    next_motion = now + self.rate_period
+                wake = min(self._next_beat, next_motion)
+            self._stop.wait(min(self.heartbeat_period, max(0.0, wake - time.monotonic())))
 
     def _send_motion(self, now: float) -> None:
         self._pubs[MotionCommand].put(MotionCommand(stamp=now, session=self.session, **self.motion))
 
     def claim(self, override: bool = False) -> None:
-        self._pubs[SessionClaim].put(
-            SessionClaim(
-                stamp=time.monotonic(), session=self.session, client=self.client, override=override
+        """Claim the session; heartbeats follow one period later, so none overtakes the claim
+        (heartbeats travel at REAL_TIME priority, the claim at the default one)."""
+        with self._lock:
+            now = time.monotonic()
+            self._pubs[SessionClaim].put(
+                SessionClaim(stamp=now, session=self.session, client=self.client, override=override)
             )
-        )
-        self.claimed = True
+            self.claimed = True
+            self._next_beat = now + self.heartbeat_period
 
     def release(self) -> None:
-        if not self.claimed:
-            return
-        self.claimed = False
-        self.motion = {}
-        self._pubs[SessionClaim].put(
-            SessionClaim(
-                stamp=time.monotonic(), session=self.session, client=self.client, release=True
+        with self._lock:
+            if not self.claimed:
+                return
+            self.claimed = False
+            self.motion = {}
+            self._pubs[SessionClaim].put(
+                SessionClaim(
+                    stamp=time.monotonic(), session=self.session, client=self.client, release=True
+                )
             )
-        )
 
     def set_motion(self, **fields: float) -> None:
         """Set (and send at once) the motion command repeated from now on; none means stop."""

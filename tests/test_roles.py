@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import os
 import signal
+import time
 
 import numpy as np
 from conftest import free_port
@@ -43,12 +44,13 @@ def test_perception_crash_leaves_control_safe_and_is_restarted(endpoint: str, ro
         obs.wait(ModeState, lambda m: m.mode == Mode.HOLD, 60)
         fresh = control_health(obs, lambda h: h.features.get(GRID, math.inf) <= max_age, 60)
 
-        os.kill(first, signal.SIGKILL)
+        os.kill(first, signal.SIGSTOP)  # perception hangs: its features stop coming
         stale = control_health(
             obs, lambda h: h.stamp > fresh.stamp and h.features.get(GRID, 0.0) > max_age
         )
         assert stale.mode == Mode.HOLD, "the robot keeps holding while perception is away"
         assert stale.loop.ticks > fresh.loop.ticks, "the control loop kept running"
+        os.kill(first, signal.SIGKILL)  # ... then crashes
 
         restarted = sup.wait_for(r"started perception role \(pid (\d+)\)", count=2)
         assert int(restarted[1].group(1)) != first
@@ -111,11 +113,14 @@ def test_two_robots_on_one_network_do_not_hear_each_other(tmp_path, robots) -> N
              "--listen", a_ep)  # fmt: skip
     b = Proc("run", "--profile", str(other), "--driver", "fake", "--quiet",
              "--listen", b_ep, "--connect", a_ep)  # fmt: skip
-    obs_a, obs_b = Observer("widowx", [a_ep]), Observer("widowx2", [b_ep])
+    obs_a, obs_b = Observer("widowx", [a_ep]), Observer("widowx2", [a_ep, b_ep])
     try:
         for obs in (obs_a, obs_b):
             obs.wait(ModeState, lambda m: m.mode == Mode.HOLD, 60)
-        obs_a.bus.publisher(EStop, robot="widowx2").put(EStop(engage=True, source="test"))
+        estop = obs_b.bus.publisher(EStop)  # reaches both robots' processes
+        for _ in range(10):
+            estop.put(EStop(engage=True, source="test"))
+            time.sleep(0.1)
         obs_b.wait(ModeState, lambda m: m.mode == Mode.ESTOP)
         after = obs_b.wait(ModeState, lambda m: m.mode == Mode.ESTOP).stamp
         a_now = control_health(obs_a, lambda h: h.stamp > after + 0.5)
