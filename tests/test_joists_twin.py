@@ -1,0 +1,50 @@
+"""Paper 000 Table 1 in the MuJoCo twin: its ray-cast L515 sees a joist 1 m ahead.
+
+One frame per case from the twin's depth camera (WidowX profile mount), through
+``frame_to_points`` and joist perception: yaw ≤ 2°, height ≤ 1 cm, distance ≤ 5 cm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from daemon import profile as profiles
+from daemon.cloud import frame_to_points
+from daemon.kinematics import Kinematics
+from daemon.messages import BodyState
+from daemon.profile import stock_profiles
+from drivers.sim.twin import Twin
+from drivers.sim.worlds import JoistRow, World
+from plugins.perception.joist_perception import JoistPerception
+
+WIDOWX = profiles.load(stock_profiles()["widowx"])
+
+
+@pytest.mark.parametrize(
+    ("height", "yaw_deg"), [(h, y) for h in (0.10, 0.18) for y in (60, 45, 30)]
+)
+def test_table_1_in_the_twin(height: float, yaw_deg: float):
+    row = JoistRow(height=height, distance=1.0, width=0.04, length=1.8, yaw_deg=yaw_deg)
+    twin = Twin(WIDOWX, World(name="table1", joists=[row]), stepped=True, bus=False)
+    twin.start()
+    try:
+        twin.command(Kinematics(WIDOWX).stand_joints())
+        twin.advance_to(1.0)
+        pos, quat = twin.body_pose()
+        points = frame_to_points(twin.depth_frame("front"))
+    finally:
+        twin.stop()
+    # The twin's camera frame hangs off the base; perception's origin is the ground below it.
+    points[:, 2] += np.float32(pos[2])
+    body = BodyState(position=[float(pos[0]), float(pos[1]), 0.0], orientation=list(quat))
+    joists = JoistPerception().process_cloud(points, body, 0.0).joists
+    assert joists
+    nearest = joists[0]
+    psi = math.radians(yaw_deg)
+    face = row.distance - pos[0] - (row.width / 2) / math.cos(psi)
+    assert abs(math.degrees(nearest.yaw) - yaw_deg) <= 2.0
+    assert abs(nearest.height - height) <= 0.01
+    assert abs(nearest.distance - face) <= 0.05
