@@ -320,7 +320,7 @@ def main(args: argparse.Namespace) -> int:
     finally:
         recorder.stop()
         session.close()
-    topics = ", ".join(f"{k} {n}" for k, n in sorted(sink.topics.items()))
+    topics = "" if code else ", ".join(f"{k} {n}" for k, n in sorted(sink.topics.items()))
     print(
         f"climbd: recorded {sink.count} messages on {len(sink.topics)} topics to {path}"
         f"{'; ' + topics if topics else ''}; dropped {recorder.dropped}, "
