@@ -1,0 +1,199 @@
+"""The stair gait (paper 004): the tripod gait whose step length and step height adapt to the
+stairs, the same gait on level ground and on stairs.
+
+Every half cycle one tripod (group A: MF, RB, LB; group B: MB, RF, LF, by the estimator's
+layout rule) swings while the other stands. At the start of each half cycle the planner
+(plugins/gaits/stair_plan.py) computes this step's length and height and the next step's length
+from the latest ``Stairs`` (odometry frame) and the footholds; the body advances half the step
+along its heading, its height and pitch following the terrain under it, with its speed at each
+half-cycle boundary the mean of the two planned half steps (two steps ahead keeps it smooth).
+Feet are held in the odometry frame: stance feet stay on their footholds, a swing foot rises to
+its step height above lift-off, crosses, and descends onto its foothold (quintic segments, at
+rest at both ends). The plan frame is anchored on the estimated body pose at start, so the
+first targets equal the measured feet; the measured-vs-planned height and tilt fade out over
+the first half cycle. The operator's ``vx`` sets the direction (forward or backward) and caps
+the step (``|vx|`` × cycle time); without a command, or when no step is feasible, the feet stay
+down. Without stairs the terrain is level at the feet.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import msgspec
+import numpy as np
+
+from daemon.estimation import rotation, tripod_groups
+from daemon.kinematics import Kinematics
+from daemon.messages import BodyState, FootTargets, Message, MotionCommand, Stairs
+from daemon.plugins import GaitPlugin, PluginError
+from plugins.gaits.stair_plan import Positive, StairGeometry, StairModel, StepPlan, StepPlanner
+from plugins.gaits.swing import progress
+
+UP, ACROSS = 0.25, 0.75
+"""Fractions of the swing at which the foot has risen, and at which it has crossed."""
+
+
+class StairGaitConfig(StairGeometry, kw_only=True):
+    """Stair gait parameters (SI): the plan's geometry (StairGeometry) plus ``cycle_time`` (s,
+    one swing of each tripod), the longest ``step_length`` (m) and the tripods by leg name
+    (``groups``; empty: the layout rule)."""
+
+    cycle_time: Positive = 2.0
+    step_length: Positive = 0.30
+    groups: list[list[str]] = []
+
+
+def hermite(tau: float, s0: float, s1: float, v0: float, v1: float, span: float) -> float:
+    """Cubic Hermite position at ``tau`` in [0, 1] between (s0, v0) and (s1, v1) over ``span`` s."""
+    t2, t3 = tau * tau, tau * tau * tau
+    return (
+        (2 * t3 - 3 * t2 + 1) * s0
+        + (t3 - 2 * t2 + tau) * span * v0
+        + (-2 * t3 + 3 * t2) * s1
+        + (t3 - t2) * span * v1
+    )
+
+
+def swing_point(tau: float, lift_off: np.ndarray, landing: np.ndarray, top: float) -> np.ndarray:
+    """Swing feet (n, 3, global) at ``tau``: up to ``top`` (n,) over lift-off, across, down."""
+    a = float(progress(np.clip((tau - UP) / (ACROSS - UP), 0.0, 1.0)))
+    out = lift_off + a * (landing - lift_off)
+    if tau < UP:
+        out[:, 2] = lift_off[:, 2] + (top - lift_off[:, 2]) * progress(tau / UP)
+    elif tau < ACROSS:
+        out[:, 2] = top
+    else:
+        down = progress(np.clip((tau - ACROSS) / (1.0 - ACROSS), 0.0, 1.0))
+        out[:, 2] = top + (landing[:, 2] - top) * down
+    return out
+
+
+class StairGait(GaitPlugin):
+    """Tripod gait with step length and height from the stair interference model."""
+
+    name: ClassVar[str] = "stairs"
+    Config: ClassVar[type[msgspec.Struct]] = StairGaitConfig
+
+    def __init__(self, config: StairGaitConfig | None = None, profile=None) -> None:
+        super().__init__(config, profile)
+        if profile is None:
+            raise PluginError(f"gait {self.name}: needs the robot profile")
+        c: StairGaitConfig = self.config
+        kin = Kinematics(profile)
+        if kin.n_legs != 6:
+            raise PluginError(f"gait {self.name}: needs 6 legs, profile has {kin.n_legs}")
+        try:
+            group = tripod_groups(profile, c.groups)
+        except ValueError as e:
+            raise PluginError(f"gait {self.name}: groups: {e}") from None
+        self.groups = [np.flatnonzero(group == 0), np.flatnonzero(group == 1)]
+        self.planner = StepPlanner(kin, c)
+        self.geometry = self.planner.geometry
+        self.half = 0.5 * c.cycle_time
+        self.plans: list[StepPlan] = []
+        self.footholds: list[np.ndarray] = []
+
+    def start(self, body: BodyState, feet: np.ndarray) -> None:
+        """Anchor the plan on the estimated pose; the first targets equal the measured feet."""
+        feet = np.asarray(feet, float)
+        if feet.shape != (6, 3):
+            raise PluginError(f"gait {self.name}: start feet shape {feet.shape}, expected (6, 3)")
+        rot = rotation(np.asarray(body.orientation, float))
+        pos = np.asarray(body.position, float)
+        self.feet = pos + feet @ rot.T
+        self.yaw = math.atan2(rot[1, 0], rot[0, 0])
+        self.origin = pos
+        self.start_rot = rot
+        self.start_z = float(pos[2])
+        self.model: StairModel | None = None
+        self._stairs: Stairs | None = None
+        self.body_s, self.speed, self.t0 = 0.0, 0.0, None
+        self.step_plan: StepPlan | None = None
+        self.direction = 1.0
+        self.top = np.zeros(3)
+        self.lift_off = self.feet[:0]
+        self.next_group = 0
+        self.offset = None
+        self.plans.clear()
+        self.footholds.clear()
+        self.done = False
+
+    # --- the model ------------------------------------------------------------------------
+
+    def _update_model(self, world: dict[str, Message]) -> None:
+        stairs = world.get(Stairs.TOPIC)
+        if self.model is not None and (stairs is None or stairs is self._stairs):
+            return
+        if stairs is not None:
+            self._stairs = stairs
+        left = np.array([-math.sin(self.yaw), math.cos(self.yaw), 0.0])
+        lanes = (self.feet - self.origin) @ left
+        ground = float(self.feet[:, 2].mean()) - self.geometry.foot_radius
+        try:
+            self.model = StairModel(self._stairs, self.origin, self.yaw, lanes, ground)
+        except ValueError as e:
+            raise PluginError(f"gait {self.name}: {e}") from None
+        if self.offset is None:
+            z, pitch = self.model.body_pose(np.array([0.0]), self.geometry)
+            r = self.start_rot
+            measured_pitch = math.asin(-min(max(r[2, 0], -1.0), 1.0))
+            measured_roll = math.atan2(r[2, 1], r[2, 2])
+            self.offset = np.array(
+                [self.start_z - z[0], measured_roll, measured_pitch - pitch[0]], float
+            )
+
+    # --- half cycles ----------------------------------------------------------------------
+
+    def _begin(self, t: float, command: MotionCommand | None) -> None:
+        """Start a half cycle: finish the last swing, plan this step and the next."""
+        if self.step_plan is not None and self.step_plan.length > 0.0:
+            self.feet[self.step_plan.group] = self.step_plan.landing
+            self.footholds.append(self.step_plan.landing.copy())
+        if self.step_plan is not None:
+            self.body_s = self.body_end
+        vx = float(command.vx) if command is not None and math.isfinite(command.vx) else 0.0
+        if vx != 0.0:
+            self.direction = math.copysign(1.0, vx)
+        limit = min(self.config.step_length, abs(vx) * self.config.cycle_time)
+        group = self.groups[self.next_group]
+        plan = self.planner.plan(self.model, self.feet, self.body_s, group, self.direction, limit)
+        self.plans.append(plan)
+        self.step_plan = plan
+        self.t0 = t
+        self.body_end = self.body_s + self.direction * 0.5 * plan.length
+        v_end = self.direction * 0.25 * (plan.length + plan.next_length) / self.half
+        self.speed0, self.speed1 = self.speed, v_end
+        self.speed = v_end
+        if plan.length > 0.0:
+            self.lift_off = self.feet[group].copy()
+            self.top = self.lift_off[:, 2] + plan.height
+        self.next_group = 1 - self.next_group
+
+    def step(
+        self,
+        t: float,
+        dt: float,
+        body: BodyState,
+        world: dict[str, Message],
+        command: MotionCommand | None,
+    ) -> FootTargets:
+        """Foot targets (body frame) of this tick."""
+        self._update_model(world)
+        if self.t0 is None or t - self.t0 >= self.half - 1e-9:
+            self._begin(t, command)
+        tau = min(max((t - self.t0) / self.half, 0.0), 1.0)
+        s = hermite(tau, self.body_s, self.body_end, self.speed0, self.speed1, self.half)
+        offset = None
+        if self.offset is not None and len(self.plans) == 1:
+            offset = (1.0 - float(progress(tau))) * self.offset
+        pos, rot = self.model.body_frames(np.array([s]), self.geometry, offset)
+        feet = self.feet.copy()
+        stance = np.ones(6, bool)
+        plan = self.step_plan
+        if plan.length > 0.0:
+            feet[plan.group] = swing_point(tau, self.lift_off, plan.landing, self.top)
+            stance[plan.group] = False
+        targets = (feet - pos[0]) @ rot[0]
+        return FootTargets(stamp=t, positions=targets.tolist(), stance=stance.tolist())

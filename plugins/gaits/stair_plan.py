@@ -1,0 +1,487 @@
+"""Stair gait parameters (paper 004, section 3.3): the leg-stair interference model, near/middle/
+far areas per tread, each stance foot's feasible section of step length and step height, and
+their intersection over the tripod, planned two steps ahead.
+
+Geometry. The robot walks along the horizontal heading ``u`` of its plan frame (origin ``o``,
+left ``v``, z up); ``s`` is the coordinate along ``u``. The stairs (a ``Stairs`` message,
+odometry frame) become a piecewise-constant height profile along each foot's lane (the line
+its foot walks on), treads bounded by the edges' crossings of that lane. The body's height and
+pitch follow the terrain under it: a Hann-weighted line fit over the feet's span, so the body
+rises along the flight (pitched with it) and levels on the landings, smoothly (C1).
+
+Interference (eqs. 11-12). The shin is a cylinder (knee to foot centre, radius ``shin_radius``),
+every stair edge a cylinder along the edge line (radius ``edge_radius``); they collide where the
+distance between the axes is below the sum of the radii. Eq. 11 is the distance between the
+infinite axes; where the common perpendicular's foot falls beyond the shin, the nearer shin end
+is used instead (eq. 11 would flag the shin's extension past the knee or the foot). The foot
+sphere is checked against the same edge cylinders. Knees follow the profile's knee type ("a":
+knee above the hip-foot line, "b": below), so both types get their own interference.
+
+Feasible sections. A tripod's next step has one step length ``L`` (foot travel) and one step
+height ``h`` (swing apex above lift-off). For each foot, ``L`` is feasible when its landing lies
+in the middle area of a tread (``area`` from both ends, 5 cm by default, widened where the shin
+interferes), the leg reaches it within its joint limits and ``reach`` of its stand position, and
+no shin or foot interference occurs at touch-down or at the end of its stance; ``h`` is feasible
+above the highest edge the swing passes (plus ``clearance``) and up to where the apex is still
+reachable without interference. The tripod's sections are the intersections over its three feet;
+the step after (the other tripod's) is planned at the same time, and the pair with the longest
+joint progress (then the most even) is chosen. The body advances half a step per swing.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from typing import Annotated
+
+import msgspec
+import numpy as np
+
+from daemon.kinematics import Kinematics
+from daemon.messages import Stairs
+
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0)]
+
+
+class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """What the plan needs (SI). ``area``: near and far areas of a tread (paper 004: 5 cm).
+    ``shin_radius``, ``edge_radius``: the interference cylinders (eq. 12); ``foot_radius``:
+    feet are placed by their centres. ``clearance``: swing foot above an edge it passes.
+    ``reach``: farthest a stance foot may be from its stand position (body frame, x y).
+    ``min_step_height``/``max_step_height``/``height_resolution``: the step height's range
+    and grid; ``resolution``: the step length's grid. ``body_height``: above the feet's centres
+    (default: the profile's stand). ``max_pitch``: body pitch bound; ``window``: half-width of
+    the terrain fit the body follows (default: the feet's stand span along x)."""
+
+    body_height: Positive | None = None
+    area: NonNegative = 0.05
+    shin_radius: Positive = 0.02
+    edge_radius: NonNegative = 0.01
+    foot_radius: NonNegative = 0.025
+    clearance: NonNegative = 0.03
+    reach: Positive = 0.2
+    min_step_height: Positive = 0.05
+    max_step_height: Positive = 0.25
+    height_resolution: Positive = 0.02
+    resolution: Positive = 0.02
+    max_pitch: Positive = 0.5
+    window: Positive | None = None
+
+
+# --- the stair model along the walking line ------------------------------------------------
+
+
+class StairModel:
+    """Stairs along the walking line: per-lane height profile, tread areas, edge cylinders.
+
+    ``lanes`` are lateral offsets (m, along ``v``) of the feet's lines; lane ``-1`` is appended
+    for the body's centre line. Without steps the terrain is flat at ``ground``. Beyond the last
+    tread seen the terrain is unknown: no foothold there.
+    """
+
+    def __init__(
+        self,
+        stairs: Stairs | None,
+        origin: np.ndarray,
+        yaw: float,
+        lanes: np.ndarray,
+        ground: float,
+    ) -> None:
+        self.origin = np.array([origin[0], origin[1], 0.0])
+        self.yaw = float(yaw)
+        self.u = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+        self.v = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+        self.lanes = np.append(np.asarray(lanes, float), 0.0)
+        steps = list(stairs.steps) if stairs is not None else []
+        n_lanes = len(self.lanes)
+        if not steps:
+            self.bounds = np.zeros((n_lanes, 0))
+            self.levels = np.array([ground])
+            self.known = np.array([True])
+            self.edge_point = np.zeros((0, 3))
+            self.edge_dir = np.zeros((0, 3))
+            self.edge_half = np.zeros(0)
+            return
+        ends = np.array([s.edge for s in steps], float)  # (K, 2, 3): left, right end
+        heights = np.array([s.height for s in steps], float)
+        floor = heights[0] - steps[0].rise
+        side = ends[:, 0] - ends[:, 1]
+        side /= np.linalg.norm(side, axis=1, keepdims=True)
+        ascent = np.column_stack([side[:, 1], -side[:, 0], np.zeros(len(steps))])
+        self.edge_point = 0.5 * (ends[:, 0] + ends[:, 1])
+        self.edge_dir = side
+        self.edge_half = 0.5 * np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1)
+        # crossing of each edge line with each lane, in s
+        rel = self.edge_point - self.origin
+        ps, pl = rel @ self.u, rel @ self.v
+        ds, dl = side @ self.u, side @ self.v
+        if np.any(np.abs(dl) < 1e-6):
+            raise ValueError("stairs: an edge runs along the walking direction (no crossing)")
+        cross = ps[None, :] + (self.lanes[:, None] - pl[None, :]) / dl[None, :] * ds[None, :]
+        # the last tread ends `depth` further along its ascent, measured along the heading
+        cos_a = ascent[-1] @ self.u
+        if abs(cos_a) < 1e-6:
+            raise ValueError("stairs: the flight ascends across the walking direction")
+        end = cross[:, -1] + steps[-1].depth / cos_a
+        ascending = cos_a > 0
+        if ascending:
+            self.bounds = np.column_stack([cross, end])
+            self.levels = np.array([floor, *heights, heights[-1]])
+            self.known = np.array([True] * (len(steps) + 1) + [False])
+        else:
+            self.bounds = np.column_stack([end, cross[:, ::-1]])
+            self.levels = np.array([heights[-1], *heights[::-1], floor])
+            self.known = np.array([False] + [True] * (len(steps) + 1))
+        if np.any(np.diff(self.bounds, axis=1) <= 0):
+            raise ValueError("stairs: treads overlap along the walking line")
+
+    # --- profile --------------------------------------------------------------------------
+
+    def segment(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Index of the segment (tread) under ``s`` on each ``lane`` (broadcast)."""
+        s = np.asarray(s, float)
+        return (s[..., None] >= self.bounds[lane]).sum(-1)
+
+    def height(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Terrain height (m) at ``s`` on ``lane``."""
+        return self.levels[self.segment(lane, s)]
+
+    def margin(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Distance (m) from ``s`` to the nearer end of its tread; -1 on unknown terrain."""
+        lane, s = np.broadcast_arrays(np.asarray(lane), np.asarray(s, float))
+        seg = self.segment(lane, s)
+        b = np.pad(self.bounds, ((0, 0), (1, 1)), constant_values=(-np.inf, np.inf))
+        lo, hi = b[lane, seg], b[lane, seg + 1]
+        m = np.minimum(s - lo, hi - s)
+        return np.where(self.known[seg], m, -1.0)
+
+    def swept_top(self, lane: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
+        """Highest terrain (m) between ``s0`` and ``s1`` on ``lane`` (a swing's path)."""
+        lane, s0, s1 = np.broadcast_arrays(np.asarray(lane), s0, s1)
+        a, b = self.segment(lane, np.minimum(s0, s1)), self.segment(lane, np.maximum(s0, s1))
+        top = np.maximum(self.levels[a], self.levels[b])
+        for k in range(len(self.levels)):
+            inside = (a <= k) & (k <= b)
+            top = np.where(inside, np.maximum(top, self.levels[k]), top)
+        return top
+
+    def areas(self, lane: int, direction: float, area: float) -> list[tuple[float, float, float]]:
+        """Known treads on ``lane`` as (start, end, level), start/end along the walking
+        ``direction`` (+1/-1); each has a near and a far area of ``area`` at its ends."""
+        b = np.concatenate([[-np.inf], self.bounds[lane], [np.inf]])
+        out = [
+            (float(b[k]), float(b[k + 1]), float(self.levels[k]))
+            for k in range(len(self.levels))
+            if self.known[k]
+        ]
+        if direction < 0:
+            out = [(e, s, z) for s, e, z in reversed(out)]
+        return out
+
+    # --- the body over the terrain ----------------------------------------------------------
+
+    def body_pose(self, s: np.ndarray, geometry: StairGeometry) -> tuple[np.ndarray, np.ndarray]:
+        """Body height (m) and pitch (rad, + nose down) at body coordinates ``s``: the line fit
+        of the centre line's terrain over ``window`` with Hann weights w = cos²(πx/2W), exact
+        over the piecewise-constant profile (so height and pitch are C1 in ``s``); height above
+        the fit by ``body_height`` plus the foot radius (feet are placed by their centres)."""
+        s = np.asarray(s, float)
+        half = geometry.window
+        k = math.pi / half
+        x = np.clip(self.bounds[-1] - s[..., None], -half, half)
+        step = np.diff(self.levels)
+        mean = self.levels[0] + (step * (_hann(half, k) - _hann(x, k))).sum(-1) / half
+        moment = (step * (_hann_moment(half, k) - _hann_moment(x, k))).sum(-1)
+        slope = moment / (half**3 * (1.0 / 3.0 - 2.0 / math.pi**2))
+        pitch = np.clip(-np.arctan(slope), -geometry.max_pitch, geometry.max_pitch)
+        return mean + geometry.foot_radius + geometry.body_height, pitch
+
+    def body_frames(
+        self, s: np.ndarray, geometry: StairGeometry, offset: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Body positions (n, 3) and rotations (n, 3, 3) at ``s``; ``offset`` adds
+        (dz, d_roll, d_pitch) per row (the start's measured-vs-planned difference)."""
+        s = np.atleast_1d(np.asarray(s, float))
+        z, pitch = self.body_pose(s, geometry)
+        roll = np.zeros_like(s)
+        if offset is not None:
+            z, roll, pitch = z + offset[..., 0], roll + offset[..., 1], pitch + offset[..., 2]
+        pos = self.origin + s[:, None] * self.u
+        pos[:, 2] = z
+        return pos, rotations(self.yaw, roll, pitch)
+
+    def to_plane(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(s, lateral) coordinates of global points."""
+        rel = np.asarray(points, float) - self.origin
+        return rel @ self.u, rel @ self.v
+
+    def to_global(self, s: np.ndarray, lane_offset: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Global points from (s, lateral, z)."""
+        out = self.origin + np.multiply.outer(s, self.u) + np.multiply.outer(lane_offset, self.v)
+        out[..., 2] = z
+        return out
+
+
+def _hann(x, k: float):
+    """Antiderivative of the Hann weight cos²(kx/2)."""
+    return 0.5 * x + np.sin(k * x) / (2.0 * k)
+
+
+def _hann_moment(x, k: float):
+    """Antiderivative of x·cos²(kx/2)."""
+    return 0.25 * x * x + x * np.sin(k * x) / (2.0 * k) + np.cos(k * x) / (2.0 * k * k)
+
+
+def rotations(yaw: float, roll: np.ndarray, pitch: np.ndarray) -> np.ndarray:
+    """Rz(yaw) @ Ry(pitch) @ Rx(roll) for arrays of roll and pitch, shape (n, 3, 3)."""
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    rot = np.empty((len(roll), 3, 3))
+    rot[:, 0] = np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], 1)
+    rot[:, 1] = np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], 1)
+    rot[:, 2] = np.stack([-sp, cp * sr, cp * cr], 1)
+    return rot
+
+
+# --- the interference model (eqs. 11-12) -----------------------------------------------------
+
+
+def axis_distance(
+    knee: np.ndarray, foot: np.ndarray, edge_point: np.ndarray, edge_dir: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (n, E) between each shin axis (knee → foot) and each edge axis (eq. 11), and
+    the position of the closest point along each edge from its centre (n, E).
+
+    d = |(s × e) · OP| / |s × e| where the common perpendicular meets the shin; past the shin's
+    ends, the distance from the nearer end to the edge line.
+    """
+    s = (foot - knee)[:, None, :]
+    e = edge_dir[None, :, :]
+    op = edge_point[None, :, :] - knee[:, None, :]
+    n = np.cross(s, e)
+    nn = np.einsum("nek,nek->ne", n, n)
+    parallel = nn < 1e-12
+    t = np.einsum("nek,nek->ne", np.cross(op, e), n) / np.where(parallel, 1.0, nn)
+    t = np.where(parallel, 0.5, t)
+    inside = (t >= 0.0) & (t <= 1.0) & ~parallel
+    d_axes = np.abs(np.einsum("nek,nek->ne", n, op)) / np.sqrt(np.where(parallel, 1.0, nn))
+    closest = knee[:, None, :] + np.clip(t, 0.0, 1.0)[..., None] * s
+    rel = closest - edge_point[None]
+    along = np.einsum("nek,nek->ne", rel, e)
+    d_end = np.linalg.norm(rel - along[..., None] * e, axis=-1)
+    return np.where(inside, d_axes, d_end), along
+
+
+def interferes(
+    knee: np.ndarray, foot: np.ndarray, model: StairModel, geometry: StairGeometry
+) -> np.ndarray:
+    """Eq. 12 per configuration: the shin cylinder or the foot sphere meets an edge cylinder."""
+    if len(model.edge_point) == 0:
+        return np.zeros(len(knee), bool)
+    d, along = axis_distance(knee, foot, model.edge_point, model.edge_dir)
+    within = np.abs(along) <= model.edge_half[None] + geometry.shin_radius
+    shin = (d < geometry.shin_radius + geometry.edge_radius) & within
+    rel = foot[:, None, :] - model.edge_point[None]
+    on = np.einsum("nek,ek->ne", rel, model.edge_dir)
+    d_foot = np.linalg.norm(rel - on[..., None] * model.edge_dir[None], axis=-1)
+    foot_hit = (d_foot < geometry.foot_radius + geometry.edge_radius) & (
+        np.abs(on) <= model.edge_half[None] + geometry.foot_radius
+    )
+    return (shin | foot_hit).any(1)
+
+
+# --- batched leg kinematics ------------------------------------------------------------------
+
+
+def batched(kin: Kinematics, legs: np.ndarray) -> Kinematics:
+    """A copy of ``kin`` whose rows are the legs ``legs`` (indices, repeats allowed): IK of
+    many configurations at once with the daemon's own kinematics."""
+    legs = np.asarray(legs, int)
+    out = copy.copy(kin)
+    out.n_legs, out.n_joints = len(legs), 3 * len(legs)
+    for name in ("mount", "yaw", "rot", "cos_yaw", "sin_yaw", "l1", "l2", "l3", "cft"):
+        setattr(out, name, getattr(kin, name)[legs])
+    out.knee_sign = kin.knee_sign[legs]
+    joints = (3 * legs[:, None] + np.arange(3)).ravel()
+    for name in ("direction", "zero_offset", "lower", "upper", "_mid", "_half_range"):
+        setattr(out, name, getattr(kin, name)[joints])
+    out.all_cft = bool(out.cft.all())
+    return out
+
+
+def knees(kin: Kinematics, theta: np.ndarray) -> np.ndarray:
+    """Knee positions (n, 3) in the body frame from kinematic angles (n, 3)."""
+    a, b = theta[:, 0], theta[:, 1]
+    cft = kin.cft
+    r = np.where(cft, kin.l1 + kin.l2 * np.cos(b), 0.0)
+    rho = kin.l2 * np.sin(b)
+    leg = np.empty_like(theta)
+    leg[:, 0] = np.where(cft, r * np.cos(a), kin.l1 + kin.l2 * np.cos(b))
+    leg[:, 1] = np.where(cft, r * np.sin(a), rho * np.sin(a))
+    leg[:, 2] = np.where(cft, kin.l2 * np.sin(b), -rho * np.cos(a))
+    return kin.to_body(leg)
+
+
+def leg_checks(
+    kin: Kinematics,
+    home: np.ndarray,
+    feet: np.ndarray,
+    pos: np.ndarray,
+    rot: np.ndarray,
+    model: StairModel,
+    geometry: StairGeometry,
+) -> np.ndarray:
+    """Whether each configuration is usable: the row's leg (``kin`` batched) reaches the global
+    foot centre ``feet`` from the body pose (``pos``, ``rot``) within its joint limits and
+    ``reach`` of ``home`` (body frame, x y), and neither shin nor foot meets an edge."""
+    body = np.einsum("nji,nj->ni", rot, feet - pos)
+    near = np.hypot(*(body[:, :2] - home).T) <= geometry.reach
+    theta, ok = kin.ik_leg(kin.to_leg(body))
+    q = theta.reshape(-1) * kin.direction + kin.zero_offset
+    inside = (np.abs(q - kin._mid) <= kin._half_range).reshape(-1, 3).all(1)
+    good = near & ok & inside
+    knee = pos + np.einsum("nij,nj->ni", rot, knees(kin, np.nan_to_num(theta)))
+    return good & ~interferes(knee, feet, model, geometry)
+
+
+# --- the plan --------------------------------------------------------------------------------
+
+
+@dataclass
+class StepPlan:
+    """The next two steps: tripod ``group`` steps ``length`` with swing ``height``, then the
+    other tripod steps ``next_length``; ``landing`` are the swinging feet's new foot centres
+    (global), ``sections`` the feasible step lengths (m) left after the intersection."""
+
+    group: np.ndarray
+    length: float
+    height: float
+    next_length: float
+    landing: np.ndarray
+    sections: np.ndarray
+    blocked: bool
+
+
+class StepPlanner:
+    """Plans a tripod's next two steps over a StairModel (the paper's parameter computation)."""
+
+    def __init__(self, kin: Kinematics, geometry: StairGeometry) -> None:
+        stand = kin.profile.stand
+        height = geometry.body_height if geometry.body_height is not None else stand.body_height
+        home = kin.stand_feet(height)
+        window = geometry.window if geometry.window is not None else float(np.abs(home[:, 0]).max())
+        self.kin = kin
+        self.geometry = msgspec.structs.replace(geometry, body_height=height, window=window)
+        self.home = home[:, :2]
+        self.home_s = self.home[:, 0]
+
+    def plan(
+        self,
+        model: StairModel,
+        feet: np.ndarray,
+        body_s: float,
+        group: np.ndarray,
+        direction: float,
+        max_length: float,
+    ) -> StepPlan:
+        """Step lengths (this and the next step) and this step's height for ``group`` (leg
+        indices, swinging now) from footholds ``feet`` (global foot centres, all legs) with the
+        body at ``body_s``, walking ``direction`` (+1 forward / -1 backward along the heading).
+        """
+        g = self.geometry
+        group = np.asarray(group, int)
+        other = np.setdiff1d(np.arange(self.kin.n_legs), group)
+        n = int(math.floor(max_length / g.resolution + 1e-9)) + 1
+        lengths = np.arange(n) * g.resolution
+        s_feet, lat = model.to_plane(feet)
+        lanes = np.arange(self.kin.n_legs)
+        # T[leg, m, j]: the leg's foot moved by lengths[m], the body by (m + j) half-steps
+        legs = np.repeat(lanes, n * n)
+        m = np.tile(np.repeat(np.arange(n), n), len(lanes))
+        j = np.tile(np.arange(n), n * len(lanes))
+        s_foot = s_feet[legs] + direction * lengths[m]
+        z_foot = model.height(legs, s_foot) + g.foot_radius
+        moved = m > 0
+        z_foot = np.where(moved, z_foot, feet[legs, 2])
+        pos, rot = model.body_frames(body_s + direction * 0.5 * g.resolution * np.arange(2 * n), g)
+        pos, rot = pos[m + j], rot[m + j]
+        foot = model.to_global(s_foot, lat[legs], z_foot)
+        ok = leg_checks(batched(self.kin, legs), self.home[legs], foot, pos, rot, model, g).reshape(
+            len(lanes), n, n
+        )
+        middle = model.margin(lanes[:, None], s_feet[:, None] + direction * lengths) >= g.area
+        # swinging tripod: lands in a middle area, fine at touch-down and at its stance's end
+        touch = (ok[group][:, :, 0] & middle[group]).all(0)
+        stance_end = ok[group].all(0)
+        # other tripod: holds until the body has moved L1/2, then lands after L2 with the body
+        # at (L1 + L2)/2
+        hold = ok[other][:, 0, :].all(0)
+        land = (ok[other].transpose(0, 2, 1) & middle[other][:, None, :]).all(0)
+        pair = touch[:, None] & stance_end & hold[:, None] & land  # pair[L1, L2]
+        heights, lift_ok = self._heights(model, feet, s_feet, lat, body_s, group, direction, n)
+        pair &= lift_ok[:, None]
+        sections = lengths[pair.any(1)]
+        if not pair.any():
+            return StepPlan(group, 0.0, g.min_step_height, 0.0, feet[group].copy(), sections, True)
+        score = self._score(s_feet, body_s, group, other, direction, lengths)
+        score = np.where(pair, score, -np.inf)
+        l1, l2 = np.unravel_index(int(np.argmax(score)), score.shape)
+        s_land = s_feet[group] + direction * lengths[l1]
+        z_land = model.height(group, s_land) + g.foot_radius
+        landing = feet[group].copy() if l1 == 0 else model.to_global(s_land, lat[group], z_land)
+        return StepPlan(
+            group,
+            float(lengths[l1]),
+            float(heights[l1]),
+            float(lengths[l2]),
+            landing,
+            sections,
+            False,
+        )
+
+    def _score(self, s_feet, body_s, group, other, direction, lengths) -> np.ndarray:
+        """Progress of the two steps less the stance's spread off centre after them: a tripod
+        that just swung sits a quarter of the longest step ahead of its stand position, the
+        other a quarter behind (the steady tripod); (n, n) over (L1, L2)."""
+        l1, l2 = lengths[:, None], lengths[None, :]
+        body = body_s + direction * 0.5 * (l1 + l2)
+        home = self.home_s
+        quarter = 0.25 * lengths[-1]
+        dev = 0.0
+        for leg in group:
+            off = direction * (s_feet[leg] + direction * l1 - body - home[leg])
+            dev = dev + (off + quarter) ** 2
+        for leg in other:
+            off = direction * (s_feet[leg] + direction * l2 - body - home[leg])
+            dev = dev + (off - quarter) ** 2
+        return l1 + l2 - 2.0 * np.sqrt(dev / len(self.home))
+
+    def _heights(self, model, feet, s_feet, lat, body_s, group, direction, n):
+        """Step height per step length (the lowest in every swinging foot's feasible section of
+        step height) and whether one exists: above the highest edge passed plus clearance,
+        apex reachable and free of interference over lift-off and touch-down points."""
+        g = self.geometry
+        lengths = np.arange(n) * g.resolution
+        s0 = s_feet[group][:, None] + 0.0 * lengths
+        s1 = s_feet[group][:, None] + direction * lengths
+        top = model.swept_top(group[:, None], s0, s1) + g.foot_radius + g.clearance
+        need = np.maximum(top - feet[group, 2][:, None], g.min_step_height).max(0)
+        steps = np.arange(g.min_step_height, g.max_step_height + 1e-9, g.height_resolution)
+        k = len(steps)
+        legs = np.repeat(group, 3 * n * k)
+        end = np.tile(np.repeat([0, 1, 2], n * k), len(group))
+        li = np.tile(np.repeat(np.arange(n), k), 3 * len(group))
+        hi = np.tile(np.arange(k), 3 * n * len(group))
+        s_apex = s_feet[legs] + direction * 0.5 * lengths[li] * end
+        z_apex = feet[legs, 2] + steps[hi]
+        # the body at a quarter of the step per half of the swing's crossing
+        pos, rot = model.body_frames(body_s + direction * 0.25 * np.arange(2 * n) * g.resolution, g)
+        pos, rot = pos[li * end], rot[li * end]
+        apex = model.to_global(s_apex, lat[legs], z_apex)
+        ok = leg_checks(batched(self.kin, legs), self.home[legs], apex, pos, rot, model, g)
+        ok = ok.reshape(len(group), 3, n, k).all(1).all(0)  # (n, k): every foot, three points
+        usable = ok & (steps[None, :] >= need[:, None] - 1e-9)
+        first = np.argmax(usable, axis=1)
+        return steps[first], usable.any(1)
