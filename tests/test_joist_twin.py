@@ -1,8 +1,8 @@
 """Paper 000 Table 2, test 3, in the MuJoCo twin: an 18 cm joist 1 m ahead is gone round.
 
-The whole chain runs on the twin's physics: ray-cast depth → body-frame points → joist
-perception → joist_climb → IK → ruckig → guard → joint goals (set in-process, not through the
-Dynamixel emulator, to keep the test short); the body pose comes from the twin.
+The whole chain runs on the twin's physics: ray-cast depth frames → joist perception's
+``process(frame, body)`` → joist_climb → IK → ruckig → guard → joint goals (set in-process,
+not through the Dynamixel emulator, to keep the test short); the body pose comes from the twin.
 """
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from daemon import profile as profiles
-from daemon.cloud import frame_to_points
 from daemon.messages import BodyState, Joists
 from daemon.motion import MotionPipeline
 from daemon.profile import stock_profiles
@@ -46,13 +45,8 @@ def test_table_2_test_3_high_joist_is_sidestepped_in_the_twin():
             pos, quat = twin.body_pose()
             body = BodyState(position=[float(v) for v in pos], orientation=[float(v) for v in quat])
             if k % PERCEPTION_PERIOD == 0:
-                points = frame_to_points(twin.depth_frame("front"))
-                # The twin's camera frame is the base; perception wants the ground under it.
-                points[:, 2] += np.float32(pos[2])
-                ground = BodyState(
-                    position=[float(pos[0]), float(pos[1]), 0.0], orientation=body.orientation
-                )
-                world = {Joists.TOPIC: perception.process_cloud(points, ground, t)}
+                frame = twin.depth_frame("front")
+                world = {Joists.TOPIC: perception.process(frame, body)}
             targets = behaviour.step(t, DT, body, world, None)
             twin.command(np.array(pipeline.feet_step(targets).position))
             t += DT

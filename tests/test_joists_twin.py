@@ -1,18 +1,17 @@
 """Paper 000 Table 1 in the MuJoCo twin: its ray-cast L515 sees a joist 1 m ahead.
 
-One frame per case from the twin's depth camera (WidowX profile mount), through
-``frame_to_points`` and joist perception: yaw ≤ 2°, height ≤ 1 cm, distance ≤ 5 cm.
+One frame per case from the twin's depth camera (WidowX profile mount) through the plugin's
+``process(frame, body)`` (the frame path the daemon uses): yaw ≤ 2°, height ≤ 1 cm, distance
+≤ 5 cm.
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 
 from daemon import profile as profiles
-from daemon.cloud import frame_to_points
 from daemon.kinematics import Kinematics
 from daemon.messages import BodyState
 from daemon.profile import stock_profiles
@@ -34,13 +33,11 @@ def test_table_1_in_the_twin(height: float, yaw_deg: float):
         twin.command(Kinematics(WIDOWX).stand_joints())
         twin.advance_to(1.0)
         pos, quat = twin.body_pose()
-        points = frame_to_points(twin.depth_frame("front"))
+        frame = twin.depth_frame("front")
     finally:
         twin.stop()
-    # The twin's camera frame hangs off the base; perception's origin is the ground below it.
-    points[:, 2] += np.float32(pos[2])
-    body = BodyState(position=[float(pos[0]), float(pos[1]), 0.0], orientation=list(quat))
-    joists = JoistPerception().process_cloud(points, body, 0.0).joists
+    body = BodyState(position=[float(v) for v in pos], orientation=[float(v) for v in quat])
+    joists = JoistPerception().process(frame, body).joists
     assert joists
     nearest = joists[0]
     psi = math.radians(yaw_deg)

@@ -1,4 +1,10 @@
-"""Perception plugins of paper 000: ``elevation`` (the fused height grid) and ``joists``."""
+"""Perception plugins of paper 000: ``elevation`` (the fused height grid) and ``joists``.
+
+``process_cloud`` takes points whose origin is on the ground under the body centre (as
+``climbd perceive`` files are). A depth frame's points come out of its mount extrinsics in the
+body-centre frame, so ``process`` lifts them by the body's height: the attic floor is the
+odometry frame's z = 0 plane, and the body's odometry z is its height above it.
+"""
 
 from __future__ import annotations
 
@@ -20,6 +26,16 @@ class JoistPerceptionConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=
     detection: JoistConfig = msgspec.field(default_factory=JoistConfig)
 
 
+def ground_cloud(frame, body: BodyState) -> tuple[np.ndarray, BodyState]:
+    """A depth frame's points and pose moved from the body centre to the ground below it."""
+    from daemon.cloud import frame_to_points
+
+    points = frame_to_points(frame)
+    points[:, 2] += np.float32(body.position[2])
+    x, y, _ = body.position
+    return points, msgspec.structs.replace(body, position=[x, y, 0.0])
+
+
 class ElevationPerception(PerceptionPlugin):
     """Publishes the fused elevation grid of the crop box (NaN where nothing was seen)."""
 
@@ -29,6 +45,10 @@ class ElevationPerception(PerceptionPlugin):
     def __init__(self, config: ElevationConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
         self.map = ElevationMap(self.config)
+
+    def process(self, frame, body: BodyState) -> ElevationGrid:
+        points, ground = ground_cloud(frame, body)
+        return self.process_cloud(points, ground, frame.timestamp)
 
     def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> ElevationGrid:
         self.map.integrate(points, body)
@@ -46,6 +66,10 @@ class JoistPerception(PerceptionPlugin):
         self.map = ElevationMap(self.config.grid)
         self.detector = JoistDetector(self.config.detection)
         self.grid: Grid | None = None
+
+    def process(self, frame, body: BodyState) -> Joists:
+        points, ground = ground_cloud(frame, body)
+        return self.process_cloud(points, ground, frame.timestamp)
 
     def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> Joists:
         self.grid = self.map.update(points, body)
