@@ -168,7 +168,7 @@ class StairGait(GaitPlugin):
         self.speed = v_end
         if plan.length > 0.0:
             self.lift_off = self.feet[group].copy()
-            self.top = self.lift_off[:, 2] + plan.height
+            self.top = plan.apex
         self.next_group = 1 - self.next_group
 
     def step(

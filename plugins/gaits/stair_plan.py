@@ -22,7 +22,7 @@ height ``h`` (swing apex above lift-off). For each foot, ``L`` is feasible when 
 in the middle area of a tread (``area`` from both ends, 5 cm by default, widened where the shin
 interferes), the leg reaches it within its joint limits and ``reach`` of its stand position, and
 no shin or foot interference occurs at touch-down or at the end of its stance; ``h`` is feasible
-above the highest edge the swing passes (plus ``clearance``) and up to where the apex is still
+from ``min_step_height`` above the highest tread the swing passes up to where the apex is still
 reachable without interference. The tripod's sections are the intersections over its three feet;
 the step after (the other tripod's) is planned at the same time, and the pair with the longest
 joint progress (then the most even) is chosen. The body advances half a step per swing.
@@ -48,10 +48,10 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """What the plan needs (SI). ``area``: near and far areas of a tread (paper 004: 5 cm).
     ``shin_radius``, ``edge_radius``: the interference cylinders (eq. 12); ``foot_radius``:
-    feet are placed by their centres. ``clearance``: swing foot above an edge it passes.
-    ``reach``: farthest a stance foot may be from its stand position (body frame, x y).
-    ``min_step_height``/``max_step_height``/``height_resolution``: the step height's range
-    and grid; ``resolution``: the step length's grid. ``body_height``: above the feet's centres
+    feet are placed by their centres. ``reach``: farthest a stance foot may be from its stand
+    position (body frame, x y). ``min_step_height``/``max_step_height``/``height_resolution``:
+    the step height's range and grid (the swing apex above the highest tread under the foot's
+    path); ``resolution``: the step length's grid. ``body_height``: above the feet's centres
     (default: the profile's stand). ``max_pitch``: body pitch bound; ``window``: half-width of
     the terrain fit the body follows (default: the feet's stand span along x)."""
 
@@ -60,7 +60,6 @@ class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     shin_radius: Positive = 0.02
     edge_radius: NonNegative = 0.01
     foot_radius: NonNegative = 0.025
-    clearance: NonNegative = 0.03
     reach: Positive = 0.2
     min_step_height: Positive = 0.05
     max_step_height: Positive = 0.25
@@ -351,15 +350,17 @@ def leg_checks(
 
 @dataclass
 class StepPlan:
-    """The next two steps: tripod ``group`` steps ``length`` with swing ``height``, then the
-    other tripod steps ``next_length``; ``landing`` are the swinging feet's new foot centres
-    (global), ``sections`` the feasible step lengths (m) left after the intersection."""
+    """The next two steps: tripod ``group`` steps ``length`` with step ``height`` (the swing
+    apex above the highest tread under each foot's path), then the other tripod steps
+    ``next_length``; ``landing`` are the swinging feet's new foot centres (global), ``apex``
+    their swing apex heights (z), ``sections`` the feasible step lengths (m) of the tripod."""
 
     group: np.ndarray
     length: float
     height: float
     next_length: float
     landing: np.ndarray
+    apex: np.ndarray
     sections: np.ndarray
     blocked: bool
 
@@ -420,11 +421,14 @@ class StepPlanner:
         hold = ok[other][:, 0, :].all(0)
         land = (ok[other].transpose(0, 2, 1) & middle[other][:, None, :]).all(0)
         pair = touch[:, None] & stance_end & hold[:, None] & land  # pair[L1, L2]
-        heights, lift_ok = self._heights(model, feet, s_feet, lat, body_s, group, direction, n)
+        heights, apex, lift_ok = self._heights(
+            model, feet, s_feet, lat, body_s, group, direction, n
+        )
         pair &= lift_ok[:, None]
         sections = lengths[pair.any(1)]
         if not pair.any():
-            return StepPlan(group, 0.0, g.min_step_height, 0.0, feet[group].copy(), sections, True)
+            stay = feet[group].copy()
+            return StepPlan(group, 0.0, g.min_step_height, 0.0, stay, stay[:, 2], sections, True)
         score = self._score(s_feet, body_s, group, other, direction, lengths)
         score = np.where(pair, score, -np.inf)
         l1, l2 = np.unravel_index(int(np.argmax(score)), score.shape)
@@ -437,6 +441,7 @@ class StepPlanner:
             float(heights[l1]),
             float(lengths[l2]),
             landing,
+            apex[:, l1],
             sections,
             False,
         )
@@ -460,14 +465,15 @@ class StepPlanner:
 
     def _heights(self, model, feet, s_feet, lat, body_s, group, direction, n):
         """Step height per step length (the lowest in every swinging foot's feasible section of
-        step height) and whether one exists: above the highest edge passed plus clearance,
-        apex reachable and free of interference over lift-off and touch-down points."""
+        step height: the apex above the highest tread under its path, reachable and free of
+        interference over lift-off, mid-crossing and touch-down), apex heights, and whether
+        one exists."""
         g = self.geometry
         lengths = np.arange(n) * g.resolution
         s0 = s_feet[group][:, None] + 0.0 * lengths
         s1 = s_feet[group][:, None] + direction * lengths
-        top = model.swept_top(group[:, None], s0, s1) + g.foot_radius + g.clearance
-        need = np.maximum(top - feet[group, 2][:, None], g.min_step_height).max(0)
+        top = model.swept_top(group[:, None], s0, s1) + g.foot_radius  # (3, n)
+        top = np.maximum(top, feet[group, 2][:, None])
         steps = np.arange(g.min_step_height, g.max_step_height + 1e-9, g.height_resolution)
         k = len(steps)
         legs = np.repeat(group, 3 * n * k)
@@ -475,13 +481,12 @@ class StepPlanner:
         li = np.tile(np.repeat(np.arange(n), k), 3 * len(group))
         hi = np.tile(np.arange(k), 3 * n * len(group))
         s_apex = s_feet[legs] + direction * 0.5 * lengths[li] * end
-        z_apex = feet[legs, 2] + steps[hi]
+        z_apex = top[np.repeat(np.arange(len(group)), 3 * n * k), li] + steps[hi]
         # the body at a quarter of the step per half of the swing's crossing
         pos, rot = model.body_frames(body_s + direction * 0.25 * np.arange(2 * n) * g.resolution, g)
         pos, rot = pos[li * end], rot[li * end]
         apex = model.to_global(s_apex, lat[legs], z_apex)
         ok = leg_checks(batched(self.kin, legs), self.home[legs], apex, pos, rot, model, g)
         ok = ok.reshape(len(group), 3, n, k).all(1).all(0)  # (n, k): every foot, three points
-        usable = ok & (steps[None, :] >= need[:, None] - 1e-9)
-        first = np.argmax(usable, axis=1)
-        return steps[first], usable.any(1)
+        first = np.argmax(ok, axis=1)
+        return steps[first], top + steps[first], ok.any(1)
