@@ -77,8 +77,9 @@ class LegChains:
         self.direction = kin.direction.reshape(shape)
         self.zero = kin.zero_offset.reshape(shape)
 
-    def solve(self, feet: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """For body-frame feet (..., n, 3): reachable mask (..., n), femur joints, knees."""
+    def solve(self, feet: np.ndarray, joints: bool = True):
+        """For body-frame feet (..., n, 3): reachable mask (..., n), femur joints and knees
+        (None unless ``joints``)."""
         k = self.kin
         rel = feet - k.mount
         x = self.cos * rel[..., 0] + self.sin * rel[..., 1]
@@ -94,6 +95,8 @@ class LegChains:
         q = theta * self.direction + self.zero
         tol = 1e-9
         ok &= ((q >= self.lower - tol) & (q <= self.upper + tol)).all(axis=-1)
+        if not joints:
+            return ok, None, None
         r = k.l1 + k.l2 * np.cos(alpha)
         cg, sg = np.cos(gamma), np.sin(gamma)
 
@@ -192,6 +195,8 @@ SEARCH_RESERVE = np.arange(-0.08, 0.081, 0.04)
 """Candidate forward offsets (m) of the other feet's footholds before a swing, so they stay
 within reach while the body leans."""
 SEARCH_TAUS = np.linspace(0.0, 1.0, 11)
+COARSE = np.array([0.0, 0.3, 0.6, 1.0])
+"""Instants (swing fraction) of the pruning pass of the search."""
 TOUCH = 0.01
 """Height (m) under which a landing foot counts as support in the stability check."""
 
@@ -354,8 +359,39 @@ class CrossingPlan:
         keep = ~(low & span) & (body_x >= self.body[0] - 1e-9)
         grid, body_x = grid[:, keep], body_x[keep]
         lean, land_x, reserve, height = lean[keep], land_x[keep], reserve[keep], height[keep]
+        lean_from = grid[5]
+        # Reachability at a few instants prunes most candidates before the full check.
+        ok, _ = self._evaluate(legs, body_x, lean, land_x, reserve, height, lean_from, COARSE, True)
+        sel = np.flatnonzero(ok)
+        body_x, lean, land_x = body_x[sel], lean[sel], land_x[sel]
+        reserve, height, lean_from = reserve[sel], height[sel], lean_from[sel]
+        ok, score = self._evaluate(legs, body_x, lean, land_x, reserve, height, lean_from)
+        score = np.where(ok, score, -np.inf)
+        # Enough margin first, then the calmest move: least lean, reserve, landing distance.
+        good = score >= 0.0
+        order = np.lexsort((self._lean_start, height, land_x, reserve, lean, ~good))
+        i = order[0] if len(order) else None
+        if i is None or not good[i]:
+            names = [self.chains.kin.leg_names[j] for j in legs]
+            raise CrossingError(
+                f"joist crossing: legs {names} cannot swing over a {g.height:.3f} m joist "
+                f"with {p.clearance:.3f} m clearance and a stable body"
+            )
+        values = (score, body_x, lean, land_x, reserve, height, self._lean_start)
+        return tuple(float(v[i]) for v in values)
+
+    def _evaluate(
+        self, legs, body_x, lean, land_x, reserve, height, delayed, taus=None, reach_only=False
+    ):
+        """Reachability (C,) and margin (C,) of candidate swings sampled at ``taus``.
+
+        The margin is the least of the legs' clearance from the joist beyond ``leg_radius``
+        and the body centre's distance inside the other feet's support less
+        ``support_margin``. Sets ``_lean_start``: when each candidate's body starts to lean.
+        """
+        g, p = self.g, self.p
+        taus = SEARCH_TAUS if taus is None else taus
         feet = self._footholds(body_x, reserve, legs)
-        taus = SEARCH_TAUS
         near, far = g.face - p.leg_radius, g.face + g.width + p.leg_radius
         ground = np.repeat(feet[:, None], len(taus), axis=1)
         for leg in legs:
@@ -363,15 +399,18 @@ class CrossingPlan:
                 feet[:, leg], near, far, g.height + p.clearance, land_x, taus
             )
         # The body leans from the start of the swing, or once the foot is up (delayed).
-        lean_from = up * grid[5]
+        self._lean_start = up * delayed if legs else np.zeros_like(body_x)
         body = np.zeros((len(body_x), len(taus), 3))
         body[..., 0] = (
-            body_x[:, None] + body_progress(taus[None, :], lean_from[:, None]) * lean[:, None]
+            body_x[:, None]
+            + body_progress(taus[None, :], self._lean_start[:, None]) * lean[:, None]
         )
         body[..., 1] = self.body[1]
         body[..., 2] = height[:, None]
         local = ground - body[:, :, None, :]
-        ok, femur, knee = self.chains.solve(local)
+        ok, femur, knee = self.chains.solve(local, joints=not reach_only)
+        if reach_only:
+            return ok.all(axis=(1, 2)), None
         idx = list(legs)
         links = np.linspace(0.0, 1.0, 7)[None, None, None, :, None]
         f, k, t = femur[:, :, idx, None], knee[:, :, idx, None], local[:, :, idx, None]
@@ -383,20 +422,7 @@ class CrossingPlan:
         # Once the swinging feet are within TOUCH of the floor they carry the body too.
         landing = (ground[:, :, idx, 2] <= TOUCH).all(axis=2) & (taus[None, :] > 0.5)
         margin = np.where(landing, np.inf, margin).min(axis=1)
-        score = np.minimum(gap, margin - p.support_margin)
-        score = np.where(ok.all(axis=(1, 2)), score, -np.inf)
-        # Enough margin first, then the calmest move: least lean, reserve, landing distance.
-        good = score >= 0.0
-        order = np.lexsort((lean_from, height, land_x, reserve, lean, ~good))
-        i = order[0] if len(order) else None
-        if i is None or not good[i]:
-            names = [self.chains.kin.leg_names[j] for j in legs]
-            raise CrossingError(
-                f"joist crossing: legs {names} cannot swing over a {g.height:.3f} m joist "
-                f"with {p.clearance:.3f} m clearance and a stable body"
-            )
-        values = (score, body_x, lean, land_x, reserve, height, lean_from)
-        return tuple(float(v[i]) for v in values)
+        return ok.all(axis=(1, 2)), np.minimum(gap, margin - p.support_margin)
 
     def _restep(self, reserve: float, legs: tuple[int, ...]) -> None:
         """Tripod groups (without ``legs``) step to footholds ``reserve`` ahead of home."""
