@@ -23,7 +23,7 @@ from daemon.motion import MotionPipeline
 from daemon.plugins import PluginError, instantiate
 from daemon.profile import stock_profiles
 from drivers.base import FakeJointBus
-from plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig, Mode
+from plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig, Phase
 from plugins.gaits.joist_crossing import support_margin
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
@@ -65,7 +65,7 @@ def run(joists: list[JoistSpec], goal: float | None, seconds: float = 120.0, **c
         feet = np.array(targets.positions)
         stance = np.array(targets.stance)
         height = -float(feet[stance, 2].mean()) if stance.any() else b.tripod.height
-        if b.mode == Mode.CROSS:
+        if b.mode == Phase.CROSS:
             height = float(b.plan.sample(t - b._t_mode)[0][2])
         _, ok = kin.ik(feet)
         out.unreachable += int((~ok).sum())
@@ -166,7 +166,7 @@ def test_crossing_runs_through_ik_ruckig_and_the_guard_without_an_unreachable_ti
             world = {Joists.TOPIC: perceive([joist], b.pose, t)}
         bus.write(pipeline.feet_step(b.step(t, DT, body_state(b.pose, t), world, None)))
         clock.advance(DT)
-        crossed |= b.mode == Mode.CROSS
+        crossed |= b.mode == Phase.CROSS
         if b.done:
             break
     assert crossed and b.done

@@ -72,7 +72,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
                 raise ValueError(f"joist_climb: {name} must be > 0, got {getattr(self, name)}")
 
 
-class Mode(str, enum.Enum):
+class Phase(str, enum.Enum):
     """What the behaviour is doing."""
 
     WALK = "walk"
@@ -121,7 +121,7 @@ class JoistClimb(GaitPlugin):
             tuple(int(i) for i in np.flatnonzero(offsets != 0.0)),
         )
         self.pose = np.zeros(3)
-        self.mode = Mode.WALK
+        self.mode = Phase.WALK
         self.target: TrackedJoist | None = None
         self.plan: CrossingPlan | None = None
         self.events: list[tuple[float, str]] = []
@@ -137,7 +137,7 @@ class JoistClimb(GaitPlugin):
         """Begin walking from the measured feet (body frame)."""
         self.tripod.start(body, feet)
         self.pose = np.zeros(3)
-        self.mode = Mode.WALK
+        self.mode = Phase.WALK
         self.target = None
         self.plan = None
         self.done = False
@@ -215,7 +215,7 @@ class JoistClimb(GaitPlugin):
         self.travelled += float(v[0]) * dt
         return out
 
-    def _switch(self, t: float, mode: Mode, why: str) -> None:
+    def _switch(self, t: float, mode: Phase, why: str) -> None:
         self.mode = mode
         self._t_mode = t
         self.events.append((t, f"{mode.value}: {why}"))
@@ -236,33 +236,33 @@ class JoistClimb(GaitPlugin):
     ) -> FootTargets:
         """Foot targets (body frame) of this tick."""
         c = self.config
-        if self.mode == Mode.WALK:
+        if self.mode == Phase.WALK:
             return self._step_walk(t, dt, body, world)
-        if self.mode == Mode.SIDESTEP:
+        if self.mode == Phase.SIDESTEP:
             return self._step_sidestep(t, dt, body, world)
-        if self.mode == Mode.ALIGN:
+        if self.mode == Phase.ALIGN:
             yaw_rate = c.turn_rate if self._turn_left > 0 else -c.turn_rate
             before = self.pose[2]
             out = self._walk(t, dt, body, 0.0, 0.0, yaw_rate)
             self._turn_left -= self.pose[2] - before
             braking = abs(self.tripod.yaw_rate) * self._ramp()
             if abs(self._turn_left) <= braking + math.radians(c.align_tolerance_deg) / 4:
-                self._switch(t, Mode.APPROACH, "square to the joist")
+                self._switch(t, Phase.APPROACH, "square to the joist")
             return out
-        if self.mode == Mode.APPROACH:
+        if self.mode == Phase.APPROACH:
             self._refresh(world)
             distance, _ = self.ahead(self.target)
             front = max(h[0] for h in self.tripod.home)
             if distance - front <= c.crossing_start + self._stopping_distance():
-                self._switch(t, Mode.SETTLE, f"front feet {distance - front:.3f} m from it")
+                self._switch(t, Phase.SETTLE, f"front feet {distance - front:.3f} m from it")
                 return self._walk(t, dt, body, 0.0, 0.0, 0.0)
             return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
-        if self.mode == Mode.SETTLE:
+        if self.mode == Phase.SETTLE:
             out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
             if self._settled():
                 self._begin_crossing(t)
             return out
-        if self.mode == Mode.CROSS:
+        if self.mode == Phase.CROSS:
             return self._step_cross(t, dt, body)
         return self._walk(t, dt, body, 0.0, 0.0, 0.0)
 
@@ -278,7 +278,7 @@ class JoistClimb(GaitPlugin):
         if c.goal_distance is not None and self.travelled >= c.goal_distance:
             out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
             if self._settled():
-                self._switch(t, Mode.DONE, f"walked {self.travelled:.2f} m")
+                self._switch(t, Phase.DONE, f"walked {self.travelled:.2f} m")
                 self.done = True
             return out
         joists = self._relevant(world)
@@ -286,13 +286,13 @@ class JoistClimb(GaitPlugin):
             nearest = joists[0]
             self.target = self.track(nearest)
             if self._blocks(nearest):
-                self._switch(t, Mode.SIDESTEP, f"joist {nearest.height:.3f} m high: too high")
+                self._switch(t, Phase.SIDESTEP, f"joist {nearest.height:.3f} m high: too high")
                 return self._step_sidestep(t, dt, body, world)
             self._turn_left = nearest.yaw
             if abs(nearest.yaw) > math.radians(c.align_tolerance_deg):
-                self._switch(t, Mode.ALIGN, f"joist {nearest.height:.3f} m, yaw {nearest.yaw:.3f}")
+                self._switch(t, Phase.ALIGN, f"joist {nearest.height:.3f} m, yaw {nearest.yaw:.3f}")
             else:
-                self._switch(t, Mode.APPROACH, f"joist {nearest.height:.3f} m high: climb")
+                self._switch(t, Phase.APPROACH, f"joist {nearest.height:.3f} m high: climb")
             return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
         return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
 
@@ -306,7 +306,7 @@ class JoistClimb(GaitPlugin):
         elif abs(self.pose[1] - self._clear_since) >= c.side_margin:
             self._clear_since = None
             self.target = None
-            self._switch(t, Mode.WALK, "no high joist in the way")
+            self._switch(t, Phase.WALK, "no high joist in the way")
             return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
         return self._walk(t, dt, body, 0.0, c.side_direction * c.side_speed, 0.0)
 
@@ -345,11 +345,11 @@ class JoistClimb(GaitPlugin):
             self.plan = CrossingPlan(geometry, params, self.kin, home, self.tripod.height)
         except CrossingError as e:
             self.impassable.append(self.target)
-            self._switch(t, Mode.SIDESTEP, f"cannot cross safely ({e})")
+            self._switch(t, Phase.SIDESTEP, f"cannot cross safely ({e})")
             return
         self._plan_origin = self.pose.copy()
         self._switch(
-            t, Mode.CROSS, f"crossing a {self.target.height:.3f} m joist at {distance:.3f} m"
+            t, Phase.CROSS, f"crossing a {self.target.height:.3f} m joist at {distance:.3f} m"
         )
 
     def _step_cross(self, t: float, dt: float, body: BodyState) -> FootTargets:
@@ -367,5 +367,5 @@ class JoistClimb(GaitPlugin):
             self.travelled += float(b[0])
             self.target = None
             self.tripod.start(body, local)
-            self._switch(t, Mode.WALK, "joist crossed")
+            self._switch(t, Phase.WALK, "joist crossed")
         return FootTargets(stamp=t, positions=local.tolist(), stance=stance.tolist())

@@ -2,15 +2,17 @@
 
 Everything is planned in a ground frame whose x axis is the joist's normal (the robot has
 already turned square to it): the near face is the line ``x = face``, the far face
-``face + width``, the top at ``height`` above the floor (z = 0). The body first rises so its
-underside will clear the joist. Then pairs cross, front, middle, back: each leg of a pair swings
-over the joist through waypoints (up before the near face, over, down past the far face) while
-the body leans forward (moves ahead with five feet down), one leg at a time. Between pairs the
-body advances in tripod cycles (one group of three legs steps, then the other, then the body
-moves), with footholds kept out of the joist's band. Where each pair starts its swings, how
-far the body leans and where the foot lands are searched over a small grid so that every leg
-stays reachable and the swinging leg's femur, tibia and foot clear the joist (checked with the
-profile's kinematics, batched); on the far side the body returns to its stand height.
+``face + width``, the top at ``height`` above the floor (z = 0). Pairs cross, front, middle,
+back: both legs of a pair swing over the joist through waypoints (up before the near face,
+over, down past the far face) while the body leans forward, i.e. moves ahead on the other four
+feet. Before each pair the body advances in tripod cycles (one group of three legs steps, then
+the other, then the body moves) with footholds kept out of the joist's band, and the other
+feet are set ahead of or behind their home so they stay in reach and under the body. Where the
+pair starts, how far and when the body leans, its height and where the feet land are searched
+over a grid: every leg must stay reachable (the profile's kinematics, batched), the swinging
+legs' femur, tibia and foot must keep ``leg_radius`` off the joist, the body centre must stay
+inside the other feet's support polygon, and the body's underside must clear the joist when it
+is over it. When no candidate passes, ``CrossingError`` says which pair could not cross.
 """
 
 from __future__ import annotations
