@@ -48,8 +48,8 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     joist_width: float = 0.04
     foot_margin: float = 0.025
     clearance: float = 0.02
-    leg_radius: float = 0.01
-    support_margin: float = 0.0
+    leg_radius: float = 0.013
+    support_margin: float = 0.01
     body_clearance: float = 0.015
     body_half_height: float = 0.02
     high_body: float = 0.135
