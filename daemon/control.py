@@ -33,6 +33,7 @@ from daemon.messages import (
     SessionClaim,
 )
 from daemon.motion import MotionPipeline
+from daemon.odometry import LegOdometry
 from daemon.plugins import Isolated
 from daemon.profile import Profile
 from daemon.safety import Safety
@@ -92,6 +93,8 @@ class Controller:
         self.features: dict[str, Timed] = {}
         self.body = BodyState()
         self.estimator = estimator
+        self.odometry = LegOdometry(self.kinematics) if estimator is None else None
+        self.stance = np.ones(len(profile.legs), bool)
         self.imu = imu
         self.messages: list[str] = []
         self.loop_stats: Callable | None = None
@@ -166,7 +169,15 @@ class Controller:
     # --- the tick (loop thread) -------------------------------------------------------
 
     def tick(self, t: float, dt: float) -> None:
-        """One control cycle; never raises."""
+        """One control cycle; never raises: a bug in a tick is a FAULT, not a dead loop."""
+        try:
+            self._tick(t, dt)
+        except Exception as e:
+            if self.safety.mode != Mode.FAULT:
+                log.exception("control tick failed")
+            self.safety.fault(t, f"control tick failed: {type(e).__name__}: {e}")
+
+    def _tick(self, t: float, dt: float) -> None:
         self._ticks += 1
         try:
             state = self.bus.read()
@@ -179,6 +190,8 @@ class Controller:
         q = np.asarray(state.position)
         if self.estimator is not None:
             self._estimate(t, dt, q, state)
+        else:
+            self.body = self.odometry.update(q, self.stance, t)
         safety = self.safety
         safety.check_heartbeat(t)
         if self._ticks % self._health_every == 0:
@@ -199,6 +212,7 @@ class Controller:
             self.command = command
         if self._ticks % self._state_every == 0:
             self.publish(state)
+            self.publish(self.body)
         if t - self._last_health_publish >= HEALTH_PERIOD:
             self._last_health_publish = t
             self.publish_health(t)
@@ -222,6 +236,7 @@ class Controller:
     def _enter(self, mode: Mode, q: np.ndarray, t: float) -> None:
         """Mode entry actions; the command starts from the measured state (no jump)."""
         previous, self.mode = self.mode, mode
+        self.stance[:] = True
         self.publish(ModeState(stamp=t, mode=mode, reason=self.safety.reason))
         if mode == Mode.OFF or (
             mode in (Mode.ESTOP, Mode.FAULT) and self.safety.policy == EstopPolicy.TORQUE_OFF
@@ -277,6 +292,7 @@ class Controller:
                         self.publish(message)
                 if self.gait.plugin.done:
                     self.safety.hold(t, f"behaviour {self.gait.name} done")
+                self.stance = np.asarray(feet.stance, bool)
                 return motion.feet_step(feet)
             command = motion.joint_step(self.target)
         except SmoothingError as e:

@@ -151,7 +151,9 @@ class ControlRole:
         except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
             joint_bus.close()
             raise StartupError(f"zenoh: {e}") from None
-        publishers = {t: bus.publisher(t) for t in (m.JointState, m.Health, m.ModeState)}
+        publishers = {
+            t: bus.publisher(t) for t in (m.JointState, m.BodyState, m.Health, m.ModeState)
+        }
         gate = None
         if profile.network.auth is not None and profile.network.auth.telemetry_listen:
             from daemon.access import TelemetryGate
@@ -159,7 +161,10 @@ class ControlRole:
             gate = TelemetryGate(profile.name, list(profile.network.auth.telemetry_listen))
 
         def publish(message: m.Message) -> None:
-            publishers[type(message)].put(message)
+            kind = type(message)
+            if kind not in publishers:  # e.g. a gait's telemetry: declared on first use
+                publishers[kind] = bus.publisher(kind)
+            publishers[kind].put(message)
             if gate is not None:
                 gate.put(message)
 
