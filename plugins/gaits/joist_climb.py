@@ -5,8 +5,11 @@ closer than ``approach_distance`` (0.55 m). Under ``climb_max_height`` (14 cm) i
 to the joist (when oblique), walks up to it, stops, and crosses it (plugins/gaits/
 joist_crossing.py: front pair, a tripod cycle, middle pair, a tripod cycle, back pair, the body
 leaning forward). At or above it, it walks sideways until no high joist blocks its path, then
-walks on. The joist is tracked on the ground by dead reckoning of the behaviour's own motion
-from the moment it is chosen, so it stays known once it is under the body and out of view.
+walks on; a joist for which the crossing planner finds no safe motion (legs clear of it, feet
+reachable, body over its support) is gone round the same way. The crossing is planned once,
+standing still, in the tick that ends the settle (about 0.1–0.5 s of computation). The joist
+is tracked on the ground by dead reckoning of the behaviour's own motion from the moment it is
+chosen, so it stays known once it is under the body and out of view.
 """
 
 from __future__ import annotations
