@@ -11,9 +11,11 @@ Feet are held in the odometry frame: stance feet stay on their footholds, a swin
 its step height above lift-off, crosses, and descends onto its foothold (quintic segments, at
 rest at both ends). The plan frame is anchored on the estimated body pose at start, so the
 first targets equal the measured feet; the measured-vs-planned height and tilt fade out over
-the first half cycle. The operator's ``vx`` sets the direction (forward or backward) and caps
-the step (``|vx|`` × cycle time); without a command, or when no step is feasible, the feet stay
-down. Without stairs the terrain is level at the feet.
+the first half cycle. While a foot swings over the stairs it is placed from the estimated body
+pose instead (faded in as it rises and out as it descends), so the body's sag under load does
+not bring it down onto an edge. The operator's ``vx`` sets the direction (forward or backward)
+and caps the step (``|vx|`` × cycle time); without a command, or when no step is feasible, the
+feet stay down. Without stairs the terrain is level at the feet.
 """
 
 from __future__ import annotations
@@ -103,6 +105,7 @@ class StairGait(GaitPlugin):
         rot = rotation(np.asarray(body.orientation, float))
         pos = np.asarray(body.position, float)
         self.feet = pos + feet @ rot.T
+        self.estimated = bool(np.any(pos != 0.0)) or body.orientation != [1.0, 0.0, 0.0, 0.0]
         self.yaw = math.atan2(rot[1, 0], rot[0, 0])
         self.origin = pos
         self.start_rot = rot
@@ -192,8 +195,17 @@ class StairGait(GaitPlugin):
         feet = self.feet.copy()
         stance = np.ones(6, bool)
         plan = self.step_plan
-        if plan.length > 0.0:
-            feet[plan.group] = swing_point(tau, self.lift_off, plan.landing, self.top)
-            stance[plan.group] = False
         targets = (feet - pos[0]) @ rot[0]
+        if plan.length > 0.0:
+            swing = swing_point(tau, self.lift_off, plan.landing, self.top)
+            targets[plan.group] = (swing - pos[0]) @ rot[0]
+            stance[plan.group] = False
+            w = float(
+                progress(min(tau / UP, 1.0))
+                * (1.0 - progress(max(tau - ACROSS, 0.0) / (1.0 - ACROSS)))
+            )
+            if w > 0.0 and self.estimated:
+                est_rot = rotation(np.asarray(body.orientation, float))
+                measured = (swing - np.asarray(body.position, float)) @ est_rot
+                targets[plan.group] += w * (measured - targets[plan.group])
         return FootTargets(stamp=t, positions=targets.tolist(), stance=stance.tolist())

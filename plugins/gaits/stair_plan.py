@@ -461,7 +461,7 @@ class StepPlanner:
         for leg in other:
             off = direction * (s_feet[leg] + direction * l2 - body - home[leg])
             dev = dev + (off - quarter) ** 2
-        return l1 + l2 - 2.0 * np.sqrt(dev / len(self.home))
+        return l1 + l2 - 1.0 * np.sqrt(dev / len(self.home))
 
     def _heights(self, model, feet, s_feet, lat, body_s, group, direction, n):
         """Step height per step length (the lowest in every swinging foot's feasible section of

@@ -1,0 +1,160 @@
+"""Qingzhui's stair run in the twin (paper 004, section 4), shared by the twin test and
+bench/stairs.py: the stair gait at 1 kHz through the torque-leg driver on the rig of
+tests/qingzhui_twin.py, with collision, foothold and estimate checks from the twin's truth.
+
+The stair model is the world's own geometry as a ``Stairs`` message (what perception reports,
+without its noise; tests/test_stairs.py measures perception separately).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from qingzhui_twin import QingzhuiRig
+
+from daemon.estimation import log_so3, rotation
+from daemon.messages import MotionCommand, Stair, Stairs
+from daemon.plugins import Isolated
+from drivers.sim.worlds import Staircase, World, load
+from plugins.gaits.stair_gait import StairGait, StairGaitConfig
+from plugins.gaits.stair_plan import StairModel
+
+EDGE_NORMAL = 0.95
+"""A foot contact whose normal is tilted more than this cosine allows touches an edge or riser."""
+
+
+def stair_world(rise: float = 0.13, tread: float = 0.30, count: int = 3, landing: float = 1.6):
+    """The stock stairs world with another flight: ``count`` steps of ``rise`` × ``tread``."""
+    world = load("stairs")
+    flight = world.stairs[0]
+    world.stairs = [
+        Staircase(
+            rise=rise,
+            tread=tread,
+            count=count,
+            distance=flight.distance,
+            width=flight.width,
+            landing=landing,
+        )
+    ]
+    return world
+
+
+def world_stairs(world: World) -> Stairs:
+    """The world's flight as perception reports it: bottom step first, edges left then right."""
+    st = world.stairs[0]
+    steps = []
+    for k in range(st.count):
+        x, top = st.distance + k * st.tread, (k + 1) * st.rise
+        depth = st.tread if k < st.count - 1 else st.landing
+        edge = [[x, st.width / 2, top], [x, -st.width / 2, top]]
+        steps.append(Stair(height=top, rise=st.rise, depth=depth, edge=edge))
+    return Stairs(steps=steps)
+
+
+@dataclass
+class RunLog:
+    """What the checks read: truth, estimate, collisions and footholds."""
+
+    pos: list = field(default_factory=list)
+    quat: list = field(default_factory=list)
+    est_pos: list = field(default_factory=list)
+    est_rot: list = field(default_factory=list)
+    shin_hits: list = field(default_factory=list)
+    foot_edge_hits: list = field(default_factory=list)
+    touchdowns: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    def pose_errors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Position (m) and rotation (deg) error of the estimate against the twin's truth."""
+        pos = np.linalg.norm(np.array(self.est_pos) - np.array(self.pos), axis=1)
+        rot = [
+            np.degrees(np.linalg.norm(log_so3(r @ rotation(q).T)))
+            for r, q in zip(self.est_rot, self.quat, strict=True)
+        ]
+        return pos, np.array(rot)
+
+
+class StairRun:
+    """The rig with the stair gait, recording the checks at every tick."""
+
+    def __init__(self, world: World, start_x: float = 0.0, **config) -> None:
+        self.world = world
+        self.stairs = world_stairs(world)
+        rig = QingzhuiRig(world, start_x=start_x)
+        cfg = StairGaitConfig(foot_radius=rig.twin.robot.foot_radius, **config)
+        self.gait = StairGait(cfg, rig.profile)
+        rig.controller.gait = Isolated("stairs", self.gait)
+        self.rig = rig
+        self.log = RunLog()
+        model = rig.twin.model
+        self.names = names = [model.geom(i).name for i in range(model.ngeom)]
+        self.stair_geoms = {i for i, n in enumerate(names) if n.startswith("stair")}
+        self.world_geoms = self.stair_geoms | {names.index("floor")}
+        self.shin_geoms = {i for i, n in enumerate(names) if n.endswith("_shank_link")}
+        self.foot_geoms = {int(g): k for k, g in enumerate(rig.twin.robot.foot_geoms)}
+        self._down = np.ones(6, bool)
+        rig.hooks.append(self._record)
+
+    def _record(self, t: float) -> None:
+        twin, rig = self.rig.twin, self.rig
+        d = twin.data
+        touching = np.zeros(6, bool)
+        for i in range(d.ncon):
+            c = d.contact[i]
+            pair = {int(c.geom1), int(c.geom2)}
+            if not pair & self.world_geoms:
+                continue
+            if pair & self.shin_geoms and pair & self.stair_geoms:
+                self.log.shin_hits.append((t, sorted(self.names[g] for g in pair)))
+            leg = next((self.foot_geoms[g] for g in pair if g in self.foot_geoms), None)
+            if leg is not None:
+                touching[leg] = True
+                if abs(c.frame[2]) < EDGE_NORMAL:
+                    self.log.foot_edge_hits.append((t, leg))
+        feet = twin.foot_positions()
+        for leg in np.flatnonzero(touching & ~self._down):
+            self.log.touchdowns.append((t, int(leg), feet[leg].copy()))
+        self._down = touching
+        est = rig.controller.estimator
+        if est is not None:
+            pos, quat = twin.body_pose()
+            rot, p = est.pose()
+            self.log.pos.append(pos)
+            self.log.quat.append(quat)
+            self.log.est_pos.append(p)
+            self.log.est_rot.append(rot)
+
+    def start(self) -> None:
+        """Stand, start the estimator on the true pose, publish the stairs, go ACTIVE."""
+        self.rig.stand()
+        self.rig.start_estimator()
+        self.rig.controller.on_feature(self.stairs)
+
+    def walk(self, vx: float, seconds: float) -> None:
+        """Walk with forward speed ``vx`` (m/s; negative walks backward) for ``seconds``."""
+        rig = self.rig
+        if rig.command is None:
+            rig.activate(MotionCommand(vx=vx))
+        else:
+            rig.command = MotionCommand(vx=vx, session=rig.command.session)
+        step = 1.0
+        done = 0.0
+        while done < seconds - 1e-9:
+            rig.controller.on_feature(self.stairs)
+            rig.run(min(step, seconds - done))
+            done += step
+        self.log.seconds += seconds
+
+    def foothold_margins(self) -> np.ndarray:
+        """Distance (m) of every touch-down to the nearer end of its tread (true geometry)."""
+        if not self.log.touchdowns:
+            return np.zeros(0)
+        feet = np.array([p for _, _, p in self.log.touchdowns])
+        model = StairModel(self.stairs, np.zeros(3), 0.0, feet[:, 1], 0.0)
+        s, _ = model.to_plane(feet)
+        return model.margin(np.arange(len(feet)), s)
+
+    def close(self) -> None:
+        self.rig.close()
