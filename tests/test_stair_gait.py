@@ -209,7 +209,7 @@ def test_gait_first_targets_equal_measured_feet_and_walks_on_level_ground() -> N
         out = np.array(gait.step(k * 1e-3, 1e-3, body, {}, MotionCommand(vx=0.1)).positions)
         assert np.abs(out - prev).max() < 2e-3
         prev = out
-    assert gait.body_s > 0.5
+    assert gait.body_s >= 0.5  # 0.1 m/s for 6 s, after a start from rest
 
 
 def test_entry_point_is_registered() -> None:
