@@ -238,14 +238,22 @@ def campaign() -> list[str]:
         for case in cases:
             cell = case.get("name").split("[", 1)[1].rstrip("]")
             props = {p.get("name"): p.get("value") for p in case.iter("property")}
-            if case.find("skipped") is not None:
-                skipped = case.find("skipped")
-                results[cell] = f"xfail: {skipped.get('message', '').split(': ', 1)[-1]}"
+            skipped = case.find("skipped")
+            if skipped is not None:
+                results[cell] = f"xfail: {skipped.get('message', '').removeprefix('xfail: ')}"
             elif case.find("failure") is not None or case.find("error") is not None:
                 results[cell] = "**FAIL**"
             else:
                 results[cell] = f"pass: {props.get('outcome', '')}"
-    rows = ["| fault | " + " | ".join(ROBOTS) + " |", "|---" * (len(ROBOTS) + 1) + "|"]
+    passed = sum(v.startswith("pass") for v in results.values())
+    gaps = sum(v.startswith("xfail") for v in results.values())
+    rows = [
+        f"{passed} of {len(results)} applicable cells pass; {gaps} are known gaps (strict "
+        f"xfail, reason given); {len(results) - passed - gaps} fail.",
+        "",
+        "| fault | " + " | ".join(ROBOTS) + " |",
+        "|---" * (len(ROBOTS) + 1) + "|",
+    ]
     for fault, (robots, why) in FAULTS.items():
         cells = [
             results.get(f"{fault}-{r}", "**missing**") if r in robots else f"n/a ({why})"
@@ -265,7 +273,8 @@ INTRO = (
 def write_section(parts: dict[str, str]) -> None:
     """Replace the ``### <title>`` parts of this run in BENCHMARKS.md's ``## bench/soak.py``.
 
-    Parts this run did not produce (e.g. the soak, when only the campaign ran) are kept.
+    Parts this run did not produce (e.g. the soak, when only the campaign ran) are kept, and
+    so is a hand-written ``### Interpretation`` of the figures.
     """
     path = ROOT / "BENCHMARKS.md"
     doc = path.read_text()
@@ -278,7 +287,7 @@ def write_section(parts: dict[str, str]) -> None:
         old[title] = "### " + chunk.rstrip()
     new = {title.split(" (")[0]: text.rstrip() for title, text in parts.items()}
     merged = {**old, **new}
-    order = ["Reliability campaign", "Fuzzing", "Soak"]
+    order = ["Reliability campaign", "Fuzzing", "Soak", "Interpretation"]
     chunks = [merged[k] for k in order if k in merged]
     section = "\n\n".join([head, INTRO, *chunks]) + "\n"
     if not rest:
