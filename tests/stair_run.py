@@ -63,7 +63,7 @@ class RunLog:
     est_rot: list = field(default_factory=list)
     shin_hits: list = field(default_factory=list)
     foot_edge_hits: list = field(default_factory=list)
-    touchdowns: list = field(default_factory=list)
+    touchdowns: list = field(default_factory=list)  # (t, leg, foot centre) while walking
     seconds: float = 0.0
 
     def pose_errors(self) -> tuple[np.ndarray, np.ndarray]:
@@ -95,6 +95,7 @@ class StairRun:
         self.shin_geoms = {i for i, n in enumerate(names) if n.endswith("_shank_link")}
         self.foot_geoms = {int(g): k for k, g in enumerate(rig.twin.robot.foot_geoms)}
         self._down = np.ones(6, bool)
+        self.walking = False
         rig.hooks.append(self._record)
 
     def _record(self, t: float) -> None:
@@ -114,7 +115,7 @@ class StairRun:
                 if abs(c.frame[2]) < EDGE_NORMAL:
                     self.log.foot_edge_hits.append((t, leg))
         feet = twin.foot_positions()
-        for leg in np.flatnonzero(touching & ~self._down):
+        for leg in np.flatnonzero(touching & ~self._down & self.walking):
             self.log.touchdowns.append((t, int(leg), feet[leg].copy()))
         self._down = touching
         est = rig.controller.estimator
@@ -135,6 +136,7 @@ class StairRun:
     def walk(self, vx: float, seconds: float) -> None:
         """Walk with forward speed ``vx`` (m/s; negative walks backward) for ``seconds``."""
         rig = self.rig
+        self.walking = True
         if rig.command is None:
             rig.activate(MotionCommand(vx=vx))
         else:

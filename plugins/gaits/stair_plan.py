@@ -46,7 +46,8 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
 
 class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """What the plan needs (SI). ``area``: near and far areas of a tread (paper 004: 5 cm).
+    """What the plan needs (SI). ``area``: near and far areas of a tread (paper 004: 5 cm);
+    ``landing_margin``: planned footholds keep this much more, for the feet's tracking error.
     ``shin_radius``, ``edge_radius``: the interference cylinders (eq. 12); ``foot_radius``:
     feet are placed by their centres. ``reach``: farthest a stance foot may be from its stand
     position (body frame, x y). ``min_step_height``/``max_step_height``/``height_resolution``:
@@ -57,6 +58,7 @@ class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
     body_height: Positive | None = None
     area: NonNegative = 0.05
+    landing_margin: NonNegative = 0.0
     shin_radius: Positive = 0.02
     edge_radius: NonNegative = 0.01
     foot_radius: NonNegative = 0.025
@@ -412,7 +414,8 @@ class StepPlanner:
         ok = leg_checks(batched(self.kin, legs), self.home[legs], foot, pos, rot, model, g).reshape(
             len(lanes), n, n
         )
-        middle = model.margin(lanes[:, None], s_feet[:, None] + direction * lengths) >= g.area
+        middle = model.margin(lanes[:, None], s_feet[:, None] + direction * lengths)
+        middle = middle >= g.area + g.landing_margin
         # swinging tripod: lands in a middle area, fine at touch-down and at its stance's end
         touch = (ok[group][:, :, 0] & middle[group]).all(0)
         stance_end = ok[group].all(0)
