@@ -30,9 +30,11 @@ syslibs:
 test: syslibs $(STAMP)
 	$(PY) -m pytest -q
 
+# The WidowX in the simulated attic: the real Dynamixel driver on the twin's pty, the perception
+# role on ray-cast depth, joist_climb walking toward a 10 cm joist; 20 s of simulated time.
 demo: syslibs $(STAMP)
-	$(VENV)/bin/climbd run --profile robots/widowx.toml --driver fake --duration 4 \
-	  --listen tcp/127.0.0.1:0
+	$(VENV)/bin/climbd run --profile robots/widowx-attic-sim.toml --role all --sim attic_paper \
+	  --stepped --activate --duration 20 --listen tcp/127.0.0.1:17447 --quiet
 
 bench: syslibs $(STAMP)
 	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done

@@ -48,6 +48,9 @@ STAND_TOLERANCE = 0.01
 HEALTH_PERIOD = 0.5
 """Seconds between Health/ModeState publications."""
 
+SIT_SETTLE = 0.5
+"""Seconds the sitting pose is held before torque goes off, so the body settles first."""
+
 REST_FRACTION = 0.35
 """Body height at rest (sitting, before torque off) as a fraction of the standing height."""
 
@@ -102,6 +105,7 @@ class Controller:
         self.sit_q = self._sit_joints()
         self.shutdown: str | None = None
         self.sat_down = False
+        self._sat_at: float | None = None
         self._health_every = max(1, round(profile.rate_hz / profile.bus.health_rate_hz))
         self._state_every = max(1, round(profile.rate_hz / state_rate_hz))
         self._ticks = 0
@@ -129,11 +133,12 @@ class Controller:
     def shutdown_done(self) -> bool:
         return self.shutdown == "done"
 
-    def finish_shutdown(self, t: float) -> None:
-        """Apply the e-stop policy now, whatever the pose (the safe-pose motion timed out)."""
-        if self.safety.policy == EstopPolicy.TORQUE_OFF:
-            self._torque(False, t)
-        self.shutdown = "done"
+    def finish_shutdown(self) -> None:
+        """Have the next tick apply the e-stop policy, whatever the pose (the motion timed out).
+
+        The loop thread owns the joint bus, so the asyncio side only asks."""
+        if self.shutdown != "done":
+            self.shutdown = "force"
 
     # --- handlers (asyncio thread) ----------------------------------------------------
 
@@ -304,15 +309,24 @@ class Controller:
         return command
 
     def _shutdown_step(self, t: float, q: np.ndarray) -> JointCommand | None:
+        """Hold, or sit down and settle (the commanded pose, not the loaded servos' error,
+        decides when the sit is done), then switch off under ``torque_off``."""
         if self.shutdown == "hold":
             self.shutdown = "done"
             return self.motion.joint_step(self.target)
-        if self.shutdown == "sit":
-            if self.reached(q, self.sit_q):
+        if self.shutdown == "force":
+            if self.safety.policy == EstopPolicy.TORQUE_OFF:
                 self._torque(False, t)
-                self.shutdown = "done"
-                self.sat_down = True
-                return None
+            self.shutdown = "done"
+            return None
+        if self.shutdown == "sit":
+            if self.reached(self.motion.command, self.sit_q):
+                self._sat_at = t if self._sat_at is None else self._sat_at
+                if t - self._sat_at >= SIT_SETTLE:
+                    self._torque(False, t)
+                    self.shutdown = "done"
+                    self.sat_down = True
+                    return None
             return self.motion.joint_step(self.sit_q)
         return self.motion.joint_step(self.target)
 

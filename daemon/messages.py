@@ -325,6 +325,19 @@ class Stairs(Message):
     steps: list[Stair] = []
 
 
+class DepthImage(Message):
+    """A simulated depth frame (``climbd run --sim``): the twin's camera, on its way to the
+    perception role's software device. uint16 little-endian, row-major; ``stamp`` is sim time."""
+
+    TOPIC: ClassVar[str] = "sim/depth"
+    RATE: ClassVar[str] = "the simulated camera's frame rate"
+    camera: str = ""
+    width: int = 0
+    height: int = 0
+    depth_scale: float = 0.001
+    depth: bytes = b""
+
+
 ALL_MESSAGES: tuple[type[Message], ...] = (
     JointState,
     JointCommand,
@@ -341,6 +354,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     Joists,
     GraspablePoints,
     Stability,
+    DepthImage,
     TrussMembers,
     Stairs,
 )

@@ -76,7 +76,8 @@ class FloorCamera:
 
 
 def make_camera(profile, source: str, camera_name: str | None, playback: str | None):
-    """The camera the role reads: the profile's (by driver entry point) or the ``floor`` source."""
+    """The camera the role reads: the profile's (by driver entry point), the ``floor`` source, or
+    the twin's depth over Zenoh (``sim``)."""
     from daemon.plugins import load_class
     from drivers.realsense.models import model
 
@@ -90,6 +91,10 @@ def make_camera(profile, source: str, camera_name: str | None, playback: str | N
     if source == "floor":
         intrinsics = model(config.model).intrinsics(config.width, config.height)
         return FloorCamera(config, intrinsics, profile.stand.body_height)
+    if source == "sim":
+        from daemon.sim_host import sim_camera
+
+        return sim_camera(profile, config)
     cls = load_class("climbd.drivers", config.kind)
     options = {"playback": playback} if playback else {}
     return cls.from_profile(config, **options)
@@ -173,6 +178,10 @@ class PerceptionRole:
             self.body = body
 
         bus.subscribe(m.BodyState, on_body, latest_only=True)
+        if args.source == "sim":
+            from daemon.sim_host import feed
+
+            bus.subscribe(m.DepthImage, feed(camera, camera.config))
         bus.alive("perception")
         capture = Capture(camera, camera.config.name)
         try:

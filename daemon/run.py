@@ -15,6 +15,7 @@ import logging
 import signal
 import sys
 import threading
+from pathlib import Path
 
 log = logging.getLogger("climbd.run")
 
@@ -40,6 +41,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--quiet", action="store_true", help="no periodic loop statistics")
     parser.add_argument(
+        "--sim", metavar="WORLD", help="run in the physics twin (a stock world name or file)"
+    )
+    parser.add_argument(
+        "--stepped",
+        action="store_true",
+        help="with --sim: simulated time in lock-step (repeatable, faster or slower than real)",
+    )
+    parser.add_argument(
+        "--activate", action="store_true", help="start the default behaviour once standing"
+    )
+    parser.add_argument(
+        "--snapshot", default="climbd-sim.png", help="with --sim: top-view PNG written at the end"
+    )
+    parser.add_argument(
         "--role",
         choices=("control", "perception", "all"),
         default="control",
@@ -48,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--source",
-        choices=("camera", "floor"),
+        choices=("camera", "floor", "sim"),
         default="camera",
         help="perception input: the profile's camera, or a synthetic flat floor (tests, demos)",
     )
@@ -86,7 +101,7 @@ class StartupError(RuntimeError):
     """The role cannot start (device, plugin or network problem); the message says which."""
 
 
-def make_joint_bus(profile, driver: str | None, port: str | None):
+def make_joint_bus(profile, driver: str | None, options: dict):
     """Open the joint bus named ``driver`` (an entry point in climbd.drivers) for ``profile``."""
     from daemon.plugins import PluginError, load_class
     from drivers.base import DriverError
@@ -96,7 +111,6 @@ def make_joint_bus(profile, driver: str | None, port: str | None):
         cls = load_class("climbd.drivers", name)
     except PluginError as e:
         raise StartupError(str(e)) from None
-    options = {"port": port} if port else {}
     try:
         bus = cls.from_profile(profile, **options)
         bus.open()
@@ -142,14 +156,12 @@ class ControlRole:
         aio = asyncio.get_running_loop()
         clock = MonotonicClock()
         safety = Safety(profile)
-        joint_bus = make_joint_bus(profile, args.driver, args.port)
         endpoints = None
         if args.listen or args.connect:
             endpoints = Endpoints(args.listen or [], args.connect or [])
         try:
             bus = Bus(profile.name, zenoh_config(profile, "control", endpoints), aio)
         except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
-            joint_bus.close()
             raise StartupError(f"zenoh: {e}") from None
         publishers = {
             t: bus.publisher(t) for t in (m.JointState, m.BodyState, m.Health, m.ModeState)
@@ -168,6 +180,20 @@ class ControlRole:
             if gate is not None:
                 gate.put(message)
 
+        sim, driver_profile = None, profile
+        options = {"port": args.port} if args.port else {}
+        try:
+            if args.sim:
+                sim = self._sim(publish)
+                driver_profile, options = sim.driver()
+                clock = sim.clock()
+            joint_bus = make_joint_bus(driver_profile, args.driver, options)
+        except StartupError:
+            if sim is not None:
+                sim.stop()
+            bus.close()
+            raise
+        self.clock = clock
         gait = make_gait(
             profile, args.gait, lambda name, e: safety.hold(clock.now(), f"gait {name} failed")
         )
@@ -183,6 +209,8 @@ class ControlRole:
         bus.subscribe(m.Heartbeat, controller.on_heartbeat)
         for feature in (m.ElevationGrid, m.Joists, m.GraspablePoints, m.TrussMembers, m.Stairs):
             bus.subscribe(feature, controller.on_feature, latest_only=True)
+            if sim is not None:
+                bus.subscribe(feature, sim.on_feature)
         bus.alive("control")
 
         stop = asyncio.Event()
@@ -201,6 +229,8 @@ class ControlRole:
             safety.request(m.Mode.STAND, clock.now(), reason="start-up")
         sdnotify.notify("READY=1")
         await self._supervise(stop, loop, safety, sdnotify.watchdog_period())
+        if sim is not None:
+            sim.end_of_run()
         await self._safe_stop(controller, safety, loop, clock)
         loop.stop()
         await aio.run_in_executor(None, thread.join, 2.0)
@@ -210,14 +240,32 @@ class ControlRole:
             gate.close()
         joint_bus.close()
         self._report(loop, safety, controller)
+        if sim is not None:
+            print(sim.summary(Path(args.snapshot)), flush=True)
+            sim.stop()
         return 0
+
+    def _sim(self, publish):
+        """The twin of a ``--sim`` run, started; a bad world is a StartupError naming it."""
+        from daemon.sim_host import SimHost
+        from drivers.sim.worlds import WorldError
+
+        try:
+            sim = SimHost(self.profile, self.args.sim, self.args.stepped, publish)
+        except (WorldError, OSError, ValueError) as e:
+            raise StartupError(f"--sim {self.args.sim}: {e}") from None
+        sim.start()
+        return sim
 
     async def _supervise(self, stop: asyncio.Event, loop, safety, watchdog: float | None) -> None:
         """Print statistics, ping the watchdog while ticks advance, await stop; modes are logged."""
         from daemon import sdnotify
+        from daemon.messages import Mode
 
         aio = asyncio.get_running_loop()
-        end = aio.time() + self.args.duration if self.args.duration else None
+        clock = self.clock
+        end = clock.now() + self.args.duration if self.args.duration else None
+        activate = self.args.activate
         last_ticks, last_stats, last_ping = -1, aio.time(), aio.time()
         while not stop.is_set():
             now = aio.time()
@@ -233,7 +281,10 @@ class ControlRole:
                     f"overruns {s.overruns}, mode {safety.mode.value}",
                     flush=True,
                 )
-            if end is not None and now >= end:
+            if activate and safety.mode == Mode.HOLD and safety.reason == "stand complete":
+                activate = False
+                safety.request(Mode.ACTIVE, clock.now(), reason="autonomy (--activate)")
+            if end is not None and clock.now() >= end:
                 break
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(stop.wait(), 0.05)
@@ -248,7 +299,10 @@ class ControlRole:
             log.warning(
                 "safe pose not reached in %.1f s; applying the e-stop policy", SHUTDOWN_TIMEOUT
             )
-            controller.finish_shutdown(clock.now())
+            controller.finish_shutdown()
+            give_up = asyncio.get_running_loop().time() + 1.0
+            while not controller.shutdown_done and asyncio.get_running_loop().time() < give_up:
+                await asyncio.sleep(controller.dt * 5)
 
     def _report(self, loop, safety, controller) -> None:
         s = loop.stats()

@@ -65,8 +65,13 @@ def role_argv(args: argparse.Namespace, role: str, listen: list[str], connect: l
                 argv += [f"--{opt}", getattr(args, opt)]
         argv += ["--no-stand"] if args.no_stand else []
         argv += ["--quiet"] if args.quiet else []
+        argv += ["--activate"] if args.activate else []
+        if args.sim:  # the control role hosts the twin and ends the run after --duration
+            argv += ["--sim", args.sim, "--snapshot", args.snapshot]
+            argv += ["--stepped"] if args.stepped else []
+            argv += ["--duration", str(args.duration)] if args.duration else []
     else:
-        argv += ["--source", args.source]
+        argv += ["--source", "sim" if args.sim else args.source]
         for opt in ("camera", "playback"):
             if getattr(args, opt):
                 argv += [f"--{opt}", getattr(args, opt)]
@@ -104,7 +109,8 @@ async def supervise(profile, args: argparse.Namespace) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         aio.add_signal_handler(sig, stop.set)
     print(f"climbd: {profile.name} supervisor, roles control and perception", flush=True)
-    return await Supervisor(children).run(stop, sdnotify.watchdog_period(), args.duration)
+    duration = None if args.sim else args.duration  # a sim run ends when its control role does
+    return await Supervisor(children).run(stop, sdnotify.watchdog_period(), duration)
 
 
 class Supervisor:

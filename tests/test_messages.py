@@ -53,7 +53,7 @@ def test_keys_are_namespaced_by_robot() -> None:
     assert m.key("hubrobo", m.EStop) == "climbd/hubrobo/cmd/estop"
     topics = [t.TOPIC for t in m.ALL_MESSAGES]
     assert len(topics) == len(set(topics))
-    assert all(t.startswith(("state/", "cmd/", "features/")) for t in topics)
+    assert all(t.startswith(("state/", "cmd/", "features/", "sim/")) for t in topics)
 
 
 def test_wrong_schema_version_is_refused() -> None:

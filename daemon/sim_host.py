@@ -1,0 +1,211 @@
+"""``climbd run --sim WORLD``: the physics twin in the control role's process.
+
+The twin replaces the world, never our code paths: the control role opens the profile's own
+driver on the twin's port (the Dynamixel pty, or the virtual CAN channel of torque legs), and
+the twin's ray-cast depth goes over Zenoh (``sim/depth``) to the perception role, which feeds
+it into a pyrealsense2 software device as it would a camera. ``--stepped`` runs the loop on
+simulated time in lock-step with the physics and, while a perception role answers, waits for
+its features of each frame before simulating on (from its first answer: start-up is not
+waited for), so perception sees the world at the pace it would in real time.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from daemon.estimation import rotation
+from daemon.messages import DepthImage, Message
+from daemon.profile import CameraConfig, Profile
+
+log = logging.getLogger("climbd.sim")
+
+PERCEPTION_WAIT = 5.0
+"""Wall seconds a stepped run waits for the features of a frame before going on without."""
+
+STEPPED_TIMEOUT_MARGIN_MS = 100.0
+"""Dynamixel packet-timeout margin in stepped mode: replies wait for the physics step."""
+
+STEPPED_REPLY_TIMEOUT = 0.05
+"""MIT-mode reply timeout (s) in stepped mode, for the same reason."""
+
+
+class SimHost:
+    """The twin, its clock, its driver port, and the depth bridge of one control role."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        world: str,
+        stepped: bool,
+        publish: Callable[[Message], None],
+    ) -> None:
+        from drivers.sim.twin import Twin
+
+        self.profile = profile
+        self.stepped = stepped
+        self.publish = publish
+        self.twin = Twin(profile, world, stepped=stepped)
+        self.path: list[np.ndarray] = []
+        self.detected: list[tuple[list[float], list[float]]] = []
+        self._pending = -math.inf
+        self._answered = -math.inf
+        self._waiting = False
+        self._cond = threading.Condition()
+        self._next_sample = 0.0
+
+    def start(self) -> None:
+        self.twin.start()
+        self.twin.on_depth(self._on_depth)
+        self.path.append(self.twin.body_pose()[0].copy())
+
+    def stop(self) -> None:
+        self.twin.stop()
+
+    def driver(self) -> tuple[Profile, dict]:
+        """The profile and options the control role opens its driver with, on the twin's port."""
+        bus = self.profile.bus
+        options: dict = {"port": self.twin.port}
+        if bus.kind == "torque":
+            options["interface"] = "virtual"
+            if self.stepped:
+                bus = msgspec.structs.replace(bus, reply_timeout=STEPPED_REPLY_TIMEOUT)
+        elif self.stepped:
+            options["timeout_margin_ms"] = STEPPED_TIMEOUT_MARGIN_MS
+        return msgspec.structs.replace(self.profile, bus=bus), options
+
+    def clock(self):
+        """The loop's clock: simulated time in lock-step, or the monotonic clock."""
+        from daemon.loop import MonotonicClock, SteppedClock
+
+        return SteppedClock(on_advance=self._advance) if self.stepped else MonotonicClock()
+
+    def _advance(self, t0: float, t1: float) -> None:
+        """Stepped mode: wait for perception's answer to the last frame, then simulate to t1."""
+        with self._cond:
+            if self._waiting and self._answered < self._pending:
+                end = time.monotonic() + PERCEPTION_WAIT
+                while self._answered < self._pending and time.monotonic() < end:
+                    self._cond.wait(end - time.monotonic())
+                if self._answered < self._pending:
+                    log.warning(
+                        "no perception features for the frame at %.2f s within %.0f s: "
+                        "simulating on",
+                        self._pending,
+                        PERCEPTION_WAIT,
+                    )
+        self.twin.advance_to(t1)
+        self._sample_path(t1)
+
+    def _sample_path(self, t: float) -> None:
+        if t >= self._next_sample:
+            self._next_sample = t + 0.1
+            self.path.append(self.twin.body_pose()[0].copy())
+
+    def _on_depth(self, camera: str, frame) -> None:
+        """Publish a rendered frame for the perception role (``sim/depth``)."""
+        depth = np.ascontiguousarray(frame.depth, dtype="<u2")
+        with self._cond:
+            self._pending = frame.timestamp
+        self.publish(
+            DepthImage(
+                stamp=frame.timestamp,
+                camera=camera,
+                width=depth.shape[1],
+                height=depth.shape[0],
+                depth_scale=frame.depth_scale,
+                depth=depth.tobytes(),
+            )
+        )
+
+    def on_feature(self, message: Message) -> None:
+        """A perception feature arrived: the frame it answers is done (lock-step)."""
+        with self._cond:
+            self._answered = max(self._answered, getattr(message, "frame_stamp", -math.inf))
+            self._waiting = self.stepped  # lock-step from the first answer: perception is up
+            self._cond.notify_all()
+        joists = getattr(message, "joists", None)
+        if joists:
+            self._remember_joists(joists)
+
+    def _remember_joists(self, joists) -> None:
+        """Detected joists in the world frame (for the top view), from the true body pose."""
+        pos, quat = self.twin.body_pose()
+        rot = rotation(quat)
+        self.detected = [
+            tuple((pos[:2] + (rot @ np.asarray(p[:3], float))[:2]).tolist() for p in j.endpoints)
+            for j in joists
+            if len(j.endpoints) == 2
+        ]
+
+    def end_of_run(self) -> None:
+        """Note the robot's state when the run ends, before the safe stop lowers it."""
+        self.final_height = float(self.twin.body_pose()[0][2])
+        self.final_fallen = self.twin.fallen(self.profile.stand.body_height)
+        self.path.append(self.twin.body_pose()[0].copy())
+
+    def summary(self, png: Path) -> str:
+        """A one-screen account of the run and the top-view PNG it names."""
+        from drivers.sim.topview import render_top_view
+
+        path = np.array(self.path)
+        start, end = path[0], path[-1]
+        travelled = float(np.linalg.norm((end - start)[:2]))
+        height = self.final_height
+        fallen = "yes" if self.final_fallen else "no"
+        render_top_view(
+            self.twin.world, path, png, self.detected, title=f"{self.profile.name} in the twin"
+        )
+        return (
+            f"sim: {self.twin.world.name}, "
+            f"{self.twin.time:.1f} s simulated; body moved {travelled:.2f} m "
+            f"(x {end[0] - start[0]:+.2f} m, y {end[1] - start[1]:+.2f} m), body height "
+            f"{height:.3f} m, fallen: {fallen}; "
+            f"{len(self.detected)} joist(s) in the last detection; top view: {png}"
+        )
+
+
+def sim_camera(profile: Profile, config: CameraConfig):
+    """The perception role's camera in a sim run: a software device fed from ``sim/depth``."""
+    from drivers.base import mount_extrinsics
+    from drivers.realsense.models import model
+    from drivers.realsense.software import SoftwareDepthCamera
+
+    spec = model(config.model)
+    return SoftwareDepthCamera(
+        spec.intrinsics(config.width, config.height),
+        config.depth_units or spec.depth_unit,
+        mount_extrinsics(config),
+        fps=config.fps,
+        model=config.model,
+        config=config,
+    )
+
+
+def feed(camera, config: CameraConfig) -> Callable[[DepthImage], None]:
+    """The ``sim/depth`` subscriber that pushes frames of ``config``'s camera into ``camera``."""
+
+    def push(image: DepthImage) -> None:
+        if image.camera != config.name:
+            return
+        if (image.width, image.height) != (config.width, config.height):
+            log.error(
+                "sim/depth %s is %dx%d, the profile's camera is %dx%d: frame dropped",
+                image.camera,
+                image.width,
+                image.height,
+                config.width,
+                config.height,
+            )
+            return
+        depth = np.frombuffer(image.depth, dtype="<u2").reshape(image.height, image.width)
+        camera.push(depth, image.stamp)
+
+    return push
