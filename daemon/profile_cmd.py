@@ -13,12 +13,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", nargs="+", help="robots/*.toml profile file(s)")
 
 
+def check_plugins(profile: profiles.Profile) -> None:
+    """Every plugin the profile names exists and takes its config, as the daemon checks at start."""
+    from daemon.plugins import PluginError, load_class, make_config
+
+    groups = (("perception", profile.plugins.perception), ("gaits", profile.plugins.gaits))
+    for group, specs in groups:
+        for i, spec in enumerate(specs):
+            where = f"{profile.source}: $.plugins.{group}[{i}]"
+            try:
+                cls = load_class(f"climbd.{group}", spec.name)
+            except PluginError as e:
+                raise PluginError(f"{where}.name: {e}") from None
+            make_config(cls, spec.config, f"{where}.config")
+
+
 def main(args: argparse.Namespace) -> int:
+    from daemon.plugins import PluginError
+
     status = 0
     for path in args.file:
         try:
             p = profiles.load(path)
-        except profiles.ProfileError as e:
+            check_plugins(p)
+        except (profiles.ProfileError, PluginError) as e:
             print(f"error: {e}", file=sys.stderr)
             status = 1
             continue

@@ -168,3 +168,29 @@ def test_profile_check_command(tmp_path: Path) -> None:
     )
     assert res.returncode == 1
     assert "$.legs[0].joints[1].id" in res.stderr and "Traceback" not in res.stderr
+
+
+@pytest.mark.parametrize(
+    "old,new,fragment",
+    [
+        (
+            'name = "joists" }',
+            'name = "jiosts" }',
+            "$.plugins.perception[0].name: climbd.perception",
+        ),
+        (
+            'name = "joists" }',
+            'name = "joists", config = { colour = 1 } }',
+            "$.plugins.perception[0].config: Object contains unknown field `colour`",
+        ),
+    ],
+)
+def test_profile_check_validates_plugins(tmp_path: Path, old: str, new: str, fragment: str) -> None:
+    bad = write(tmp_path, replace_once(base_text(), old, new))
+    res = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "profile", "check", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert res.returncode == 1 and str(bad) in res.stderr and fragment in res.stderr, res.stderr
