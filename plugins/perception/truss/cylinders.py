@@ -64,8 +64,13 @@ def surface_fit(
     return np.abs(distance - cylinder.radius), cos
 
 
-def refine(points: np.ndarray, cylinder: Cylinder, iterations: int = 8) -> Cylinder:
-    """Least-squares cylinder on the geometric residual d_i - r (Gauss-Newton, 5 parameters)."""
+def refine(
+    points: np.ndarray, cylinder: Cylinder, iterations: int = 8, max_points: int | None = None
+) -> Cylinder:
+    """Least-squares cylinder on the geometric residual d_i - r (Gauss-Newton, 5 parameters);
+    on every k-th point when there are more than ``max_points``."""
+    if max_points is not None and len(points) > max_points:
+        points = points[:: -(-len(points) // max_points)]
     point, axis, radius = cylinder.point.copy(), cylinder.axis.copy(), cylinder.radius
     for _ in range(iterations):
         u, v = perpendicular_basis(axis)
@@ -183,6 +188,10 @@ def segment_cylinders(
     return segments
 
 
+GROW_POINTS = 1500
+"""Points used by the refits while a segment grows (every k-th inlier); final fits use all."""
+
+
 def _grow(
     points: np.ndarray,
     normals: np.ndarray,
@@ -198,7 +207,7 @@ def _grow(
         inliers = pool[(off < distance) & (cos > cos_limit)]
         if len(inliers) < 8:
             return None
-        cylinder = refine(points[inliers], cylinder)
+        cylinder = refine(points[inliers], cylinder, max_points=GROW_POINTS)
     off, cos = surface_fit(points[pool], normals[pool], cylinder)
     inliers = pool[(off < distance) & (cos > cos_limit)]
     if len(inliers) < 8:
@@ -207,6 +216,6 @@ def _grow(
     run = inliers[max(_axial_runs(t, segment_gap), key=len)]
     if len(run) < 8:
         return None
-    cylinder = refine(points[run], cylinder)
+    cylinder = refine(points[run], cylinder, max_points=GROW_POINTS)
     t = (points[run] - cylinder.point) @ cylinder.axis
     return Segment(cylinder, float(t.min()), float(t.max()), run)

@@ -41,7 +41,7 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     plane_neighbours: int = 8
     plane_cell: float = 0.05
     plane_min_points: int = 30
-    plane_min_fill: float = 0.2
+    plane_min_area: float = 0.25
     plane_min_width: float = 0.3
     max_planes: int = 3
     radius_min: float = 0.01
@@ -171,7 +171,7 @@ class TrussModeller:
                 candidate,
                 distance=c.plane_distance,
                 min_width=c.plane_min_width,
-                min_fill=c.plane_min_fill,
+                min_area=c.plane_min_area,
                 cell=c.plane_cell,
             )
             if real:

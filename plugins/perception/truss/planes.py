@@ -7,6 +7,7 @@ points, and its normals are cheap there), then refitted and judged on the fine c
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 
 def find_planes(
@@ -60,17 +61,20 @@ def accept_plane(
     *,
     distance: float,
     min_width: float,
-    min_fill: float,
+    min_area: float,
     cell: float,
+    max_points: int = 20000,
 ) -> tuple[tuple[np.ndarray, float], bool]:
     """Refit a candidate on the fine points within ``distance`` and judge it a real surface.
 
-    It must span ``min_width`` in both directions (a strip of a tube is no floor) and fill
-    ``min_fill`` of that extent in ``cell``-sized cells (the front face of a truss is as wide
-    as a floor but mostly empty).
+    Its points must span ``min_width`` in both directions and, on a grid of ``cell``-sized
+    cells eroded by one cell, keep ``min_area`` (m^2) of interior: a floor does, while the
+    face of a truss, however wide and densely built, is made of strips a cell or two wide.
+    Judged on at most about ``max_points`` (every k-th).
     """
     normal, offset = plane
     near = points[np.abs(points @ normal - offset) < distance]
+    near = near[:: max(1, len(near) // max_points)]
     if len(near) < 3:
         return plane, False
     centroid = near.mean(axis=0)
@@ -78,10 +82,11 @@ def accept_plane(
     flat = (near - centroid) @ vt[:2].T
     spans = np.ptp(flat, axis=0)
     cells = np.floor((flat - flat.min(axis=0)) / cell).astype(np.int64)
-    occupied = len(np.unique(cells[:, 0] * (cells[:, 1].max() + 1) + cells[:, 1]))
-    fill = occupied / np.prod(np.ceil(spans / cell) + 1)
+    grid = np.zeros(cells.max(axis=0) + 1, bool)
+    grid[cells[:, 0], cells[:, 1]] = True
+    interior = ndimage.binary_erosion(grid, np.ones((3, 3), bool)).sum() * cell * cell
     refined = (vt[2], float(vt[2] @ centroid))
-    return refined, bool(spans.min() >= min_width and fill >= min_fill)
+    return refined, bool(spans.min() >= min_width and interior >= min_area)
 
 
 def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
