@@ -289,7 +289,8 @@ class Stability(Message):
 
 
 class TrussMember(msgspec.Struct, kw_only=True):
-    """A cylindrical truss member (paper 003): end points (m), radius (m), unit axis."""
+    """A cylindrical truss member (paper 003): end points (m), radius (m), unit axis p0 -> p1;
+    confidence is the fraction of its length covered by points."""
 
     p0: list[float]
     p1: list[float]
@@ -299,7 +300,7 @@ class TrussMember(msgspec.Struct, kw_only=True):
 
 
 class TrussMembers(Message):
-    """Members of the truss model."""
+    """Members of the truss model, in the odometry frame (frames accumulated with BodyState)."""
 
     TOPIC: ClassVar[str] = "features/truss"
     RATE: ClassVar[str] = "on model update"
