@@ -46,9 +46,9 @@ class Daemon:
 
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> tuple[int, str]:
         self.proc.send_signal(sig)
-        out, _ = self.proc.communicate(timeout=timeout)
-        self._reader.join(5)
-        return self.proc.returncode, out
+        self.proc.wait(timeout=timeout)
+        self._reader.join(5)  # the reader owns stderr until its end
+        return self.proc.returncode, self.proc.stdout.read()
 
     def kill(self) -> None:
         if self.proc.poll() is None:
