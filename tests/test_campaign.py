@@ -60,13 +60,6 @@ KNOWN_GAPS: dict[tuple[str, str], str] = {
         "instruction, which drivers/dynamixel/bus.py never sends: no recovery without a power "
         "cycle of the servo"
     ),
-    **{
-        ("servo power-cycled", robot): (
-            "a servo that comes back from a power cycle has torque off; the driver re-admits it "
-            "but never re-enables torque, so the leg stays limp while the daemon holds and stands"
-        )
-        for robot in DYNAMIXEL
-    },
 }
 """Cells that fail today for a reason outside this campaign: run as strict xfails, so a fix
 turns them into failures that ask for this table to be updated."""

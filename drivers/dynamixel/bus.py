@@ -128,6 +128,7 @@ class DynamixelBus:
         self.errors = np.zeros(n, np.int64)
         self.misses = np.zeros(n, np.int64)
         self.lost = np.zeros(n, bool)
+        self.torque_on = False
         self.reads = 0
         self.port: LatencyPort | None = None
         self.ph = sdk.PacketHandler(float(self.model.protocol))
@@ -279,12 +280,14 @@ class DynamixelBus:
         want = ~self.lost | health  # lost servos are probed on health cycles only
         blocks = self._read_each(item, want) if m.protocol == 1 else self._read_sync(item, want)
         got = np.array([b is not None for b in blocks])
-        self._account(got, want)
+        back = self._account(got, want)
         if not got.any():
             return
         idx = np.flatnonzero(got)
         rows = np.frombuffer(b"".join(blocks[k] for k in idx), np.uint8).reshape(idx.size, -1)
         self._decode(rows, idx)
+        if self.torque_on and back.any():
+            self._repower(back)
         if health:
             base = m.state.address
             self.voltage[idx] = little_endian(rows, m.voltage.address - base, m.voltage.size) / 10.0
@@ -372,8 +375,19 @@ class DynamixelBus:
             for k in idx:
                 self.errors[k] = group.data_dict[self.ids[k]][0]
 
-    def _account(self, got: np.ndarray, want: np.ndarray) -> None:
-        """Count consecutive misses; mark lost after ``lost_after``; re-admit on an answer."""
+    def _repower(self, back: np.ndarray) -> None:
+        """Re-admitted servos may have been power-cycled (torque off): hold them where they are
+        now (goal = present position, so nothing jumps), then torque on again."""
+        ticks = self.map.goal_ticks(self.position)
+        self._sync_write(self.model.goal_position, ticks, back)
+        self._sync_write(self.model.torque_enable, np.ones(len(self.ids), np.int64), back)
+        for k in np.flatnonzero(back):
+            log.warning("%s: torque on again at its present position", self._where(k))
+
+    def _account(self, got: np.ndarray, want: np.ndarray) -> np.ndarray:
+        """Count consecutive misses; mark lost after ``lost_after``; re-admit on an answer.
+
+        Returns the servos re-admitted by this read."""
         back = got & self.lost
         for k in np.flatnonzero(back):
             log.warning("%s: answers again, re-admitted", self._where(k))
@@ -385,6 +399,7 @@ class DynamixelBus:
         for k in np.flatnonzero(newly):
             log.error("%s: lost after %d missed reads", self._where(k), self.misses[k])
         self.lost |= newly
+        return back
 
     def write(self, command: JointCommand) -> None:
         """One sync write of goal positions (rad, profile order) to every servo not lost."""
@@ -407,6 +422,7 @@ class DynamixelBus:
                 ticks = self.map.goal_ticks(self.position)
                 self._sync_write(self.model.goal_position, ticks, ~self.lost)
             self._sync_write(self.model.torque_enable, np.full(len(self.ids), int(on)), ~self.lost)
+            self.torque_on = on
             refused = []
             for k, ident in enumerate(self.ids):
                 if self.lost[k]:
