@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import collections
 import math
+import os
 import sys
 import threading
 import time
@@ -277,6 +278,9 @@ def main(args: argparse.Namespace) -> int:
             sys.stdout.flush()
             time.sleep(args.interval)
     except KeyboardInterrupt:
+        return 0
+    except BrokenPipeError:  # piped into head or less that quit: not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     finally:
         top.close()
