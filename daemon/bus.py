@@ -111,6 +111,8 @@ class Bus:
         self._warned: set[str] = set()
         self._lock = threading.Lock()
         self._declared: list = []
+        self._publishers: dict[type[Message], Publisher] = {}
+        self._declare_lock = threading.Lock()
 
     def publisher(self, message: type[Message], robot: str | None = None) -> Publisher:
         """Declare a publisher with the QoS DESIGN.md gives the topic."""
@@ -132,6 +134,22 @@ class Bus:
         pub = Publisher(self.session.declare_publisher(k, **qos))
         self._declared.append(pub)
         return pub
+
+    def put(self, message: Message) -> None:
+        """Publish ``message`` on this robot's key; its publisher is declared on first use.
+
+        Thread-safe: the control loop, a perception worker and asyncio may all publish."""
+        kind = type(message)
+        pub = self._publishers.get(kind) or self.declare(kind)[0]
+        pub.put(message)
+
+    def declare(self, *kinds: type[Message]) -> list[Publisher]:
+        """Declare the publishers ``put`` uses ahead of time (off a loop's first tick)."""
+        with self._declare_lock:
+            for kind in kinds:
+                if kind not in self._publishers:
+                    self._publishers[kind] = self.publisher(kind)
+            return [self._publishers[kind] for kind in kinds]
 
     def _drop(self, sample: zenoh.Sample, error: Exception) -> None:
         with self._lock:

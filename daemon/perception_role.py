@@ -164,15 +164,7 @@ class PerceptionRole:
             bus = Bus(profile.name, zenoh_config(profile, "perception", endpoints), aio)
         except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
             raise StartupError(f"zenoh: {e}") from None
-        publishers: dict[type, object] = {}
-        lock = threading.Lock()
-
-        def publish(message: m.Message) -> None:
-            with lock:
-                pub = publishers.get(type(message))
-                if pub is None:
-                    pub = publishers[type(message)] = bus.publisher(type(message))
-            pub.put(message)
+        publish = bus.put
 
         def on_body(body: m.BodyState) -> None:
             self.body = body

@@ -163,9 +163,7 @@ class ControlRole:
             bus = Bus(profile.name, zenoh_config(profile, "control", endpoints), aio)
         except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
             raise StartupError(f"zenoh: {e}") from None
-        publishers = {
-            t: bus.publisher(t) for t in (m.JointState, m.BodyState, m.Health, m.ModeState)
-        }
+        bus.declare(m.JointState, m.BodyState, m.Health, m.ModeState)
         gate = None
         if profile.network.auth is not None and profile.network.auth.telemetry_listen:
             from daemon.access import TelemetryGate
@@ -173,10 +171,7 @@ class ControlRole:
             gate = TelemetryGate(profile.name, list(profile.network.auth.telemetry_listen))
 
         def publish(message: m.Message) -> None:
-            kind = type(message)
-            if kind not in publishers:  # e.g. a gait's telemetry: declared on first use
-                publishers[kind] = bus.publisher(kind)
-            publishers[kind].put(message)
+            bus.put(message)
             if gate is not None:
                 gate.put(message)
 

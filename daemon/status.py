@@ -28,6 +28,8 @@ def fleet(bus, timeout: float) -> dict[str, dict]:
     """Every robot on the network: its live roles (liveliness) and last mode (ModeState)."""
     import time
 
+    import zenoh
+
     from daemon.messages import ModeState, decode
 
     robots: dict[str, dict] = {}
@@ -42,16 +44,30 @@ def fleet(bus, timeout: float) -> dict[str, dict]:
         with lock:
             robots.setdefault(robot, {"roles": []})["mode"] = state
 
+    def on_alive(sample) -> None:
+        _, robot, _, role = str(sample.key_expr).split("/")
+        with lock:
+            roles = robots.setdefault(robot, {"roles": []})["roles"]
+            if sample.kind == zenoh.SampleKind.PUT and role not in roles:
+                roles.append(role)
+            elif sample.kind == zenoh.SampleKind.DELETE and role in roles:
+                roles.remove(role)
+
+    # A liveliness subscriber with history sees the tokens already declared and those whose
+    # routes arrive while we listen; a one-shot query right after connecting can miss peers
+    # that are one hop away.
+    alive = bus.session.liveliness().declare_subscriber("climbd/*/alive/*", on_alive, history=True)
     sub = bus.session.declare_subscriber("climbd/*/" + ModeState.TOPIC, on_mode)
     try:
-        for robot, role in bus.alive_roles("*", timeout=timeout):
-            with lock:
-                robots.setdefault(robot, {"roles": []})["roles"].append(role)
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            time.sleep(0.05)
         end = time.monotonic() + 1.0  # ModeState comes at 2 Hz
         while time.monotonic() < end and any("mode" not in r for r in robots.values()):
             time.sleep(0.05)
     finally:
         sub.undeclare()
+        alive.undeclare()
     return robots
 
 
