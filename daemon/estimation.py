@@ -126,11 +126,13 @@ def stance_pose(feet_body: np.ndarray, feet_global: np.ndarray) -> tuple[np.ndar
     """
     pb = np.asarray(feet_body, float)
     pg = np.asarray(feet_global, float)
-    if np.linalg.norm(np.cross(pg[1] - pg[0], pg[2] - pg[0])) < 1e-9:
-        raise EstimationError("stance feet are collinear: no pose")
     cb, cg = pb.mean(0), pg.mean(0)
-    u, _, vt = np.linalg.svd((pg - cg).T @ (pb - cb))
-    rot = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    u, s, vt = np.linalg.svd((pg - cg).T @ (pb - cb))
+    if s[1] < 1e-12:  # rank < 2: the feet are collinear (or coincide)
+        raise EstimationError("stance feet are collinear: no pose")
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        u[:, 2] = -u[:, 2]  # a reflection: the proper rotation flips the weakest direction
+    rot = u @ vt
     origin = cg - rot @ cb
     return rot, origin
 

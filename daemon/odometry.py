@@ -39,11 +39,12 @@ class LegOdometry:
         """The body state at ``t`` from joint positions ``q`` and the gait's stance flags."""
         feet = self.kinematics.fk(q)
         stance = np.asarray(stance, bool)
-        # feet in stance until now are still on the ground this tick (a lifting foot has not
-        # left it yet): they give the pose that registers the feet touching down
-        self._fit(feet, ~np.isnan(self.anchor[:, 0]))
         new = stance & np.isnan(self.anchor[:, 0])
-        self.anchor[new] = self.origin + feet[new] @ self.rot.T
+        if new.any():
+            # feet in stance until now are still on the ground this tick (a lifting foot has
+            # not left it yet): they give the pose that registers the feet touching down
+            self._fit(feet, ~np.isnan(self.anchor[:, 0]))
+            self.anchor[new] = self.origin + feet[new] @ self.rot.T
         self.anchor[~stance] = np.nan
         self._fit(feet, stance)
         velocity = np.zeros(3)
