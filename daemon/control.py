@@ -48,6 +48,9 @@ STAND_TOLERANCE = 0.01
 HEALTH_PERIOD = 0.5
 """Seconds between Health/ModeState publications."""
 
+ODOMETRY_RATE_HZ = 200.0
+"""Leg odometry runs at most this often, and at every change of the stance set."""
+
 SIT_SETTLE = 0.5
 """Seconds the sitting pose is held before torque goes off, so the body settles first."""
 
@@ -98,6 +101,8 @@ class Controller:
         self.estimator = estimator
         self.odometry = LegOdometry(self.kinematics) if estimator is None else None
         self.stance = np.ones(len(profile.legs), bool)
+        self._stance_changed = False
+        self._odometry_every = max(1, round(profile.rate_hz / ODOMETRY_RATE_HZ))
         self.imu = imu
         self.messages: list[str] = []
         self.loop_stats: Callable | None = None
@@ -195,8 +200,9 @@ class Controller:
         q = np.asarray(state.position)
         if self.estimator is not None:
             self._estimate(t, dt, q, state)
-        else:
+        elif self._ticks % self._odometry_every == 0 or self._stance_changed:
             self.body = self.odometry.update(q, self.stance, t)
+            self._stance_changed = False
         safety = self.safety
         safety.check_heartbeat(t)
         if self._ticks % self._health_every == 0:
@@ -242,6 +248,7 @@ class Controller:
         """Mode entry actions; the command starts from the measured state (no jump)."""
         previous, self.mode = self.mode, mode
         self.stance[:] = True
+        self._stance_changed = True
         self.publish(ModeState(stamp=t, mode=mode, reason=self.safety.reason))
         if mode == Mode.OFF or (
             mode in (Mode.ESTOP, Mode.FAULT) and self.safety.policy == EstopPolicy.TORQUE_OFF
@@ -297,7 +304,9 @@ class Controller:
                         self.publish(message)
                 if self.gait.plugin.done:
                     self.safety.hold(t, f"behaviour {self.gait.name} done")
-                self.stance = np.asarray(feet.stance, bool)
+                stance = np.asarray(feet.stance, bool)
+                self._stance_changed = not np.array_equal(stance, self.stance)
+                self.stance = stance
                 return motion.feet_step(feet)
             command = motion.joint_step(self.target)
         except SmoothingError as e:
