@@ -1,6 +1,6 @@
 """Graspable-point detection time on the real cloud, beside the paper's per-voxel scan.
 
-Cloud: /work/shared/data/leaning_bouldering_holds.pcd (18,401 RealSense points). Ours:
+Cloud: drivers/sim/worlds/data/leaning_bouldering_holds.pcd (18,401 RealSense points). Ours:
 ``GraspableDetector.detect`` end to end (plane, Delaunay fill, column depths, cheap rules,
 correlation at the remaining voxels, thinning), median of ``--repeats`` runs, with the median
 of its Delaunay triangulation alone beside it. Baseline, in the same run on the same terrain:
@@ -35,7 +35,14 @@ from plugins.perception.graspable import (
     terrain_matrix,
 )
 
-CLOUD = Path("/work/shared/data/leaning_bouldering_holds.pcd")
+CLOUD = (
+    Path(__file__).resolve().parent.parent
+    / "drivers"
+    / "sim"
+    / "worlds"
+    / "data"
+    / "leaning_bouldering_holds.pcd"
+)
 
 
 def full_resolution(terrain: np.ndarray, step: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from daemon import lzf
 from daemon.cloudio import CloudFileError, read_cloud, write_cloud
 
-DATA = Path("/work/shared/data")
+DATA = Path(__file__).resolve().parent.parent / "drivers" / "sim" / "worlds" / "data"
 ENCODINGS = [
     ("cloud.pcd", "ascii"),
     ("cloud.pcd", "binary"),

@@ -40,7 +40,14 @@ from plugins.gaits.hold_map import tile_map
 from plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
 
 ROOT = Path(__file__).resolve().parent.parent
-CLOUD = Path("/work/shared/data/leaning_bouldering_holds.pcd")
+CLOUD = (
+    Path(__file__).resolve().parent.parent
+    / "drivers"
+    / "sim"
+    / "worlds"
+    / "data"
+    / "leaning_bouldering_holds.pcd"
+)
 PROFILE = load(ROOT / "robots" / "hubrobo.toml")
 KIN = Kinematics(PROFILE)
 CFG = ClimbConfig()

@@ -32,7 +32,7 @@ from plugins.perception.graspable import (
 )
 from plugins.perception.gripper_mask import GripperGeometry, gripper_mask
 
-DATA = Path("/work/shared/data")
+DATA = Path(__file__).resolve().parent.parent / "drivers" / "sim" / "worlds" / "data"
 CLOUDS = ["leaning_bouldering_holds.pcd", "vertical_bouldering_holds.pcd"]
 REACH = 0.044  # mask half-size at 1 mm: palm-joint circle 14 + finger 15 + spine 15 mm
 
