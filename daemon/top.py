@@ -260,10 +260,11 @@ def main(args: argparse.Namespace) -> int:
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    session = zenoh.open(config)
-    top = Top(session, "*" if args.all else args.robot)
-    top.start()
-    try:
+    session = top = None
+    try:  # an interrupt at any point, even while the session opens, still closes it
+        session = zenoh.open(config)
+        top = Top(session, "*" if args.all else args.robot)
+        top.start()
         if args.once:
             time.sleep(args.window)
             top.refresh_roles()
@@ -283,5 +284,7 @@ def main(args: argparse.Namespace) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     finally:
-        top.close()
-        session.close()
+        if top is not None:
+            top.close()
+        if session is not None:
+            session.close()
