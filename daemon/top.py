@@ -12,6 +12,7 @@ import argparse
 import collections
 import math
 import os
+import signal
 import sys
 import threading
 import time
@@ -260,8 +261,11 @@ def main(args: argparse.Namespace) -> int:
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):  # explicit: an inherited SIG_IGN would hang us
+        signal.signal(sig, lambda *_: stop.set())
     session = top = None
-    try:  # an interrupt at any point, even while the session opens, still closes it
+    try:  # a signal at any point, even while the session opens, still closes it
         session = zenoh.open(config)
         top = Top(session, "*" if args.all else args.robot)
         top.start()
@@ -271,14 +275,13 @@ def main(args: argparse.Namespace) -> int:
             print("\n".join(top.frame()), flush=True)
             return 0 if top.views else 1
         last_roles = -math.inf
-        while True:
+        while not stop.is_set():
             if time.monotonic() - last_roles > 2.0:
                 top.refresh_roles()
                 last_roles = time.monotonic()
             sys.stdout.write(CLEAR + "\n".join(top.frame()) + "\n")
             sys.stdout.flush()
-            time.sleep(args.interval)
-    except KeyboardInterrupt:
+            stop.wait(args.interval)
         return 0
     except BrokenPipeError:  # piped into head or less that quit: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
