@@ -101,6 +101,7 @@ class SimHost:
                         self._pending,
                         PERCEPTION_WAIT,
                     )
+                    self._answered = self._pending  # that frame is given up, not waited again
         self.twin.advance_to(t1)
         self._sample_path(t1)
 
