@@ -72,6 +72,8 @@ class GaitPlugin:
     while one is absent or older than the profile's ``safety.feature_max_age`` the robot holds."""
 
     def __init__(self, config: msgspec.Struct | None = None, profile: Any = None) -> None:
+        if profile is None:  # every gait plans with the robot's kinematics
+            raise PluginError(f"gait {self.name}: needs the robot profile")
         self.config = config if config is not None else self.Config()
         self.profile = profile
         self.done = False

@@ -345,8 +345,6 @@ class FreeClimb(GaitPlugin):
 
     def __init__(self, config: ClimbConfig | None = None, profile: object = None) -> None:
         super().__init__(config, profile)
-        if profile is None:
-            raise ValueError(f"{self.name}: needs the robot profile for its kinematics")
         self.planner = ClimbPlanner(Kinematics(profile), self.config, self.periodic)
         self.runner: ClimbRunner | None = None
         self.holds = np.zeros((0, 3))

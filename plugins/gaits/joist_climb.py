@@ -108,8 +108,6 @@ class JoistClimb(GaitPlugin):
 
     def __init__(self, config: JoistClimbConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
-        if profile is None:
-            raise PluginError("gait joist_climb: needs the robot profile")
         self.kin = Kinematics(profile)
         if self.kin.n_legs < 4:
             raise PluginError("gait joist_climb: needs at least 4 legs")

@@ -138,8 +138,6 @@ class PeriodicGait(GaitPlugin):
 
     def __init__(self, config: PeriodicConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
-        if profile is None:
-            raise PluginError(f"gait {self.name}: needs the robot profile")
         c: PeriodicConfig = self.config
         kin = Kinematics(profile)
         n = kin.n_legs

@@ -80,8 +80,6 @@ class StairGait(GaitPlugin):
 
     def __init__(self, config: StairGaitConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
-        if profile is None:
-            raise PluginError(f"gait {self.name}: needs the robot profile")
         c: StairGaitConfig = self.config
         kin = Kinematics(profile)
         if kin.n_legs != 6:
