@@ -27,6 +27,9 @@ from drivers.torque.bus import MitJointBus
 
 _channels = itertools.count()
 SESSION = "qz-test"
+LOCKSTEP_REPLY_TIMEOUT = 1.0
+"""Wall seconds the driver waits for replies: stepped time stands still while it waits, so a
+loaded machine delays the run instead of turning late replies into lost motors."""
 
 
 class TwinImu:
@@ -68,7 +71,9 @@ class QingzhuiRig:
     def __init__(self, world="stairs", gait=None, start_x: float = 0.0) -> None:
         from drivers.sim.worlds import load as load_world
 
-        self.profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
+        profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
+        bus = msgspec.structs.replace(profile.bus, reply_timeout=LOCKSTEP_REPLY_TIMEOUT)
+        self.profile = msgspec.structs.replace(profile, bus=bus)
         w = load_world(world) if isinstance(world, str) else world
         w.start.x = start_x
         self.twin = Twin(self.profile, w, stepped=True)
@@ -76,8 +81,8 @@ class QingzhuiRig:
         ids = [j.id for j in self.profile.joints]
         self.chain = MitMotorChain(ids, self.profile.bus.actuator, channel, external_model=True)
         self.chain.start()
-        self.coupling = MitCoupling(self.twin, self.chain)
         self.bus = MitJointBus(self.profile, [channel], interface="virtual")
+        self.coupling = MitCoupling(self.twin, self.chain, lambda: self.bus.frames_sent)
         self.bus.open()
         self.clock = SteppedClock(on_advance=self._advance)
         self.safety = Safety(self.profile)

@@ -4,29 +4,31 @@ The driver (drivers/torque/bus.py) talks CAN to ``MitMotorChain`` exactly as to 
 actuators; this coupling hands each motor's last command (position, velocity, kp, kd,
 feed-forward torque; zero gains out of motor mode) to the twin's MIT law, steps physics, and
 writes the joint state (position, velocity, torque as the joint's torque sensor reads it)
-back into the motors, which the next replies carry:
+back into the motors, which the next replies carry. Each step first waits until the emulator
+has taken every frame the driver sent, so a stepped run does not depend on thread timing:
 
-    coupling = MitCoupling(twin, chain)
+    coupling = MitCoupling(twin, chain, frames_sent=lambda: driver.frames_sent)
     clock = SteppedClock(on_advance=coupling.advance)
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
 from drivers.sim.mit_motors import MitMotorChain
 from drivers.sim.twin import Twin
 
-SETTLE_TIMEOUT = 0.05
-"""Seconds to wait for the emulator thread to take the frames of the last tick."""
+SETTLE_TIMEOUT = 5.0
+"""Wall seconds the emulator thread has to take the driver's frames before a step fails."""
 
 
 class MitCoupling:
     """Motor commands → twin joint torques; twin joint state → motor replies."""
 
-    def __init__(self, twin: Twin, chain: MitMotorChain) -> None:
+    def __init__(self, twin: Twin, chain: MitMotorChain, frames_sent: Callable[[], int]) -> None:
         if not twin.robot.torque_legs:
             raise ValueError(f"twin of {twin.profile.name}: not a torque-controlled robot")
         self.twin = twin
@@ -36,16 +38,20 @@ class MitCoupling:
         if missing:
             raise ValueError(f"MIT chain on {chain.channel!r} lacks motors {missing}")
         self.motors = [chain.motors[i] for i in self.ids]
-        self._frames = 0
+        self.frames_sent = frames_sent
         self.publish()
 
     def _settle(self) -> None:
-        """Wait until the emulator took at least one frame per motor since the last step."""
-        want = self._frames + len(self.motors)
+        """Wait until the emulator took every frame the driver sent, so commands are current."""
+        want = self.frames_sent()
         deadline = time.monotonic() + SETTLE_TIMEOUT
-        while sum(m.frames for m in self.motors) < want and time.monotonic() < deadline:
+        while sum(m.frames for m in self.motors) < want:
+            if time.monotonic() > deadline:
+                raise RuntimeError(
+                    f"MIT emulator on {self.chain.channel!r} took "
+                    f"{sum(m.frames for m in self.motors)} of {want} frames in {SETTLE_TIMEOUT} s"
+                )
             time.sleep(0)
-        self._frames = sum(m.frames for m in self.motors)
 
     def apply(self) -> None:
         """Copy every motor's last command into the twin's MIT law (zero gains when idle)."""

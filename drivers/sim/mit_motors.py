@@ -141,10 +141,10 @@ class MitMotorChain:
     def _handle(self, m: EmulatedMotor, data: bytes) -> bytes | None:
         now = time.monotonic()
         with self._lock:
-            m.frames += 1
             if not self.external_model and m.last_step is not None:
                 m.step(min(now - m.last_step, 0.05), self.ranges.torque)
             m.last_step = now
+            known = True
             if data == ENTER_MOTOR_MODE:
                 m.motor_mode = True
             elif data == EXIT_MOTOR_MODE:
@@ -157,8 +157,9 @@ class MitMotorChain:
                 if m.motor_mode:
                     m.command = command
             else:
-                return None
-            if m.silent:
-                return None
+                known = False
             reply = pack_reply(Reply(m.motor, m.position, m.velocity, m.torque), self.ranges)
+            m.frames += 1  # last: a counted frame's command and reply are both settled
+        if not known or m.silent:
+            return None
         return reply[:5] if m.corrupt else reply
