@@ -9,6 +9,7 @@ one multiply-add per valid pixel.
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import msgspec
 import numpy as np
@@ -40,19 +41,90 @@ PAPER_000_TEST_7 = CropBox(x_min=0.1, x_max=3.1, y_min=-0.6, y_max=0.6, z_min=-0
 """Paper 000's test 7 box, 3 m × 1.2 m × 0.4 m, so a joist stays in view from 2.7 m."""
 
 
+_RAW_END = 65536
+"""One past the largest uint16 depth: the "never" of a raw-depth search."""
+
+
 @lru_cache(maxsize=16)
 def _rays(intrinsics: Intrinsics, rotation: bytes, decimation: int) -> np.ndarray:
-    """Body-frame direction (per unit depth) of every kept pixel, (H', W', 3) float32."""
+    """Body-frame direction (per unit depth) of every kept pixel, (H', W', 3) float64."""
     i = intrinsics
     u = (np.arange(0, i.width, decimation) - i.ppx) / i.fx
     v = (np.arange(0, i.height, decimation) - i.ppy) / i.fy
     optical = np.stack(np.broadcast_arrays(u[None, :], v[:, None], 1.0), axis=-1)
-    r = np.frombuffer(rotation, dtype=np.float64).reshape(3, 3)
-    return np.ascontiguousarray(optical @ r.T, dtype=np.float32)
+    return optical @ np.frombuffer(rotation, dtype=np.float64).reshape(3, 3).T
+
+
+def _project(ray: np.ndarray, raw: np.ndarray, origin: np.float32) -> np.ndarray:
+    """One body coordinate of raw depths along scaled rays, in the float32 steps of the frames."""
+    return np.multiply(ray, raw.astype(np.float32)) + origin
+
+
+def _first_raw(ray: np.ndarray, origin: np.float32, face: np.ndarray, reached) -> np.ndarray:
+    """Per pixel, the smallest raw depth in [0, 65536] at which ``reached(coordinate)`` holds.
+
+    ``reached`` flips at most once, false to true, along each ray, near where the coordinate
+    crosses ``face``. Bisection over the same float32 arithmetic as the conversion (bracketed by
+    the float64 crossing), so a crop by depth bounds equals cropping the cloud point by point.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        crossing = (face - np.float64(origin)) / ray.astype(np.float64)
+    crossing = np.nan_to_num(np.clip(crossing, -1.0, _RAW_END), nan=_RAW_END)
+    lo = np.clip(np.floor(crossing) - 1, 0, _RAW_END).astype(np.int32)
+    hi = np.clip(np.ceil(crossing) + 1, 0, _RAW_END).astype(np.int32)
+    below = (lo > 0) & reached(_project(ray, lo - 1, origin))
+    above = (hi < _RAW_END) & ~reached(_project(ray, np.minimum(hi, _RAW_END - 1), origin))
+    lo[below | above], hi[below | above] = 0, _RAW_END
+    while (open_ := np.flatnonzero(lo < hi)).size:
+        mid = (lo[open_] + hi[open_]) >> 1
+        hit = reached(_project(ray[open_], mid, origin), open_)
+        hi[open_] = np.where(hit, mid, hi[open_])
+        lo[open_] = np.where(hit, lo[open_], mid + 1)
+    return hi
+
+
+def _box_bounds(
+    rays: np.ndarray, origin: np.ndarray, box: CropBox
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel raw-depth interval [lo, hi] whose float32 points lie inside ``box``.
+
+    Along a pixel's ray each body coordinate is monotone in the depth, so each pair of faces
+    bounds an interval of raw depth; a box is the intersection of three of them.
+    """
+    shape = rays.shape[1:]
+    lo = np.zeros(shape, np.int32)
+    hi = np.full(shape, _RAW_END - 1, np.int32)
+    limits = ((box.x_min, box.x_max), (box.y_min, box.y_max), (box.z_min, box.z_max))
+    for ray, t, (cmin, cmax) in zip(rays.reshape(3, -1), origin, limits, strict=True):
+        rising = ray >= 0
+
+        def entered(c, at=slice(None), r=rising, a=cmin, b=cmax):
+            return np.where(r[at], c >= a, c <= b)
+
+        def left(c, at=slice(None), r=rising, a=cmin, b=cmax):
+            return np.where(r[at], c > b, c < a)
+
+        enter = _first_raw(ray, t, np.where(rising, cmin, cmax), entered)
+        leave = _first_raw(ray, t, np.where(rising, cmax, cmin), left)
+        lo = np.maximum(lo, enter.reshape(shape))
+        hi = np.minimum(hi, leave.reshape(shape) - 1)
+    return lo, hi
+
+
+class _Plan(NamedTuple):
+    """What a frame's conversion needs, fixed per camera setup: the pixel window that can reach
+    the crop box, the scaled body-frame rays of its pixels (3 planes), and per-pixel raw bounds."""
+
+    rows: slice
+    cols: slice
+    rays: np.ndarray
+    origin: np.ndarray
+    lo: np.ndarray | int
+    hi: np.ndarray | None
 
 
 @lru_cache(maxsize=16)
-def _depth_bounds(
+def _plan(
     intrinsics: Intrinsics,
     transform: bytes,
     decimation: int,
@@ -60,31 +132,41 @@ def _depth_bounds(
     min_range: float | None,
     max_range: float | None,
     box: CropBox | None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel raw-depth interval [lo, hi] whose points land in ``box`` and the range limits.
-
-    Along a pixel's ray each body coordinate is r·z + t, linear in the depth z, so the box is
-    an interval of z per pixel: the crop becomes two uint16 comparisons before any projection.
-    """
+) -> _Plan:
+    """Precompute a camera setup's conversion: rays × depth scale in float32, rotated to the body
+    frame, so a frame is raw depth × ray + origin; the crop box becomes raw-depth bounds."""
     t = np.frombuffer(transform, dtype=np.float64).reshape(4, 4)
-    rays = _rays(intrinsics, np.ascontiguousarray(t[:3, :3]).tobytes(), decimation)
-    lo = np.full(rays.shape[:2], 0.0 if min_range is None else min_range)
-    hi = np.full(rays.shape[:2], np.inf if max_range is None else max_range)
-    if box is not None:
-        limits = ((box.x_min, box.x_max), (box.y_min, box.y_max), (box.z_min, box.z_max))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for axis, (cmin, cmax) in enumerate(limits):
-                r = rays[..., axis].astype(np.float64)
-                a, b = (cmin - t[axis, 3]) / r, (cmax - t[axis, 3]) / r
-                inside = cmin <= t[axis, 3] <= cmax
-                flat = r == 0
-                lo = np.maximum(lo, np.where(flat, 0.0 if inside else np.inf, np.minimum(a, b)))
-                hi = np.minimum(hi, np.where(flat, np.inf if inside else -1.0, np.maximum(a, b)))
-    lo_raw = np.clip(np.ceil(lo / depth_scale), 1, 65536)
-    hi_raw = np.clip(np.floor(hi / depth_scale), 0, 65535)
-    empty = lo_raw > hi_raw
-    lo_raw[empty], hi_raw[empty] = 65535, 0
-    return lo_raw.astype(np.uint16), hi_raw.astype(np.uint16)
+    rays64 = _rays(intrinsics, np.ascontiguousarray(t[:3, :3]).tobytes(), decimation)
+    rays = np.ascontiguousarray(np.moveaxis(rays64 * depth_scale, -1, 0), dtype=np.float32)
+    origin = t[:3, 3].astype(np.float32)
+    lo = 1 if min_range is None else max(1, int(np.ceil(min_range / depth_scale)))
+    hi = (
+        _RAW_END - 1
+        if max_range is None
+        else min(_RAW_END - 1, int(np.floor(max_range / depth_scale)))
+    )
+    full = slice(0, None, decimation)
+    if box is None:
+        return _Plan(
+            full, full, rays.reshape(3, -1), origin, lo, None if hi == _RAW_END - 1 else hi
+        )
+    box_lo, box_hi = _box_bounds(rays, origin, box)
+    lo_px, hi_px = np.maximum(box_lo, lo), np.minimum(box_hi, hi)
+    reachable = lo_px <= hi_px
+    rows, cols = np.flatnonzero(reachable.any(axis=1)), np.flatnonzero(reachable.any(axis=0))
+    if len(rows) == 0:
+        none = slice(0, 0)
+        return _Plan(none, none, rays[:, :0, :0].reshape(3, 0), origin, 1, None)
+    window = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    lo_px[~reachable], hi_px[~reachable] = _RAW_END - 1, 0
+    return _Plan(
+        slice(rows[0] * decimation, rows[-1] * decimation + 1, decimation),
+        slice(cols[0] * decimation, cols[-1] * decimation + 1, decimation),
+        np.ascontiguousarray(rays[(slice(None), *window)]).reshape(3, -1),
+        origin,
+        np.ascontiguousarray(lo_px[window], dtype=np.uint16),
+        np.ascontiguousarray(hi_px[window], dtype=np.uint16),
+    )
 
 
 def frame_to_points(
@@ -109,24 +191,24 @@ def frame_to_points(
             f"frame_to_points: depth shape {frame.depth.shape} does not match intrinsics "
             f"{i.width}x{i.height}"
         )
-    transform = np.ascontiguousarray(frame.extrinsics, dtype=np.float64)
-    rays = _rays(i, np.ascontiguousarray(transform[:3, :3]).tobytes(), decimation)
-    depth = frame.depth[::decimation, ::decimation] if decimation > 1 else frame.depth
-    if box is None and max_range is None:
-        lo = 1 if min_range is None else max(1, int(np.ceil(min_range / frame.depth_scale)))
-        keep = depth >= lo
-    else:
-        lo, hi = _depth_bounds(
-            i, transform.tobytes(), decimation, frame.depth_scale, min_range, max_range, box
+    if frame.depth.dtype != np.uint16:
+        raise ValueError(
+            f"frame_to_points: depth must be uint16 raw units, got {frame.depth.dtype}"
         )
-        keep = depth >= lo
-        keep &= depth <= hi
+    transform = np.ascontiguousarray(frame.extrinsics, dtype=np.float64).tobytes()
+    plan = _plan(i, transform, decimation, frame.depth_scale, min_range, max_range, box)
+    depth = frame.depth[plan.rows, plan.cols]
+    keep = depth >= plan.lo
+    if plan.hi is not None:
+        keep &= depth <= plan.hi
     index = np.flatnonzero(keep)
-    z = depth.ravel()[index].astype(np.float32)
-    z *= np.float32(frame.depth_scale)
-    points = rays.reshape(-1, 3)[index]
-    points *= z[:, None]
-    points += transform[:3, 3].astype(np.float32)
+    raw = np.take(depth, index)
+    points = np.empty((len(index), 3), np.float32)
+    ray = np.empty(len(index), np.float32)
+    for axis in range(3):
+        np.take(plan.rays[axis], index, out=ray)
+        np.multiply(ray, raw, out=ray)
+        np.add(ray, plan.origin[axis], out=points[:, axis])
     return points
 
 
