@@ -245,7 +245,9 @@ class Controller:
         self.safety.fault(t, reason)
 
     def _enter(self, mode: Mode, q: np.ndarray, t: float) -> None:
-        """Mode entry actions; the command starts from the measured state (no jump)."""
+        """Mode entry actions. While the joints are powered the command stops where it was (not
+        where load deflected the joints: that would sink a loaded robot at every HOLD); else it
+        starts from the measured state. Either way, no jump."""
         previous, self.mode = self.mode, mode
         self.stance[:] = True
         self._stance_changed = True
@@ -257,10 +259,11 @@ class Controller:
             self.target = None
             return
         if mode in (Mode.STAND, Mode.ACTIVE, Mode.HOLD, Mode.ESTOP, Mode.FAULT):
+            powered = self.motion if self.safety.torque_on else None
             if not self.safety.torque_on:
                 self._torque(True, t)
             self.motion = MotionPipeline(self.profile, self.dt)
-            self.motion.start(q)
+            self.motion.start(q if powered is None else powered.command)
         if mode == Mode.STAND:
             self.target = self.stand_q
         elif mode == Mode.ACTIVE:
@@ -270,7 +273,7 @@ class Controller:
                 return
             self.gait.call("start", self.body, self.kinematics.fk(q))
         else:
-            self.target = q.copy()
+            self.target = self.motion.command.copy()
         log.debug("entered %s from %s", mode.value, previous.value)
 
     def _torque(self, on: bool, t: float) -> None:
@@ -344,7 +347,8 @@ class Controller:
         return bool(np.max(np.abs(q - target)) < STAND_TOLERANCE)
 
     def stand_reached(self, q: np.ndarray) -> bool:
-        return self.reached(q, self.stand_q)
+        """The command has arrived at the stand pose and the joints are there with it."""
+        return self.reached(self.motion.command, self.stand_q) and self.reached(q, self.stand_q)
 
     def _command(self, t: float) -> MotionCommand | None:
         timed = self.motion_command

@@ -1,4 +1,4 @@
-"""Shared test helpers: free loopback ports for Zenoh, stock profiles."""
+"""Shared test helpers: free loopback ports for Zenoh, lossless publishers, stock profiles."""
 
 from __future__ import annotations
 
@@ -6,6 +6,10 @@ import socket
 from pathlib import Path
 
 import pytest
+import zenoh
+
+from daemon import messages as m
+from daemon.bus import Bus, Publisher
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -15,6 +19,15 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def lossless(bus: Bus, message: type[m.Message]) -> Publisher:
+    """A publisher that blocks rather than drops (the control streams' QoS drops under load),
+    for tests that count what arrived against what was sent."""
+    k = m.key(bus.robot, message)
+    return Publisher(
+        bus.session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
+    )
 
 
 @pytest.fixture()

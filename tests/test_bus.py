@@ -7,6 +7,8 @@ import subprocess
 import sys
 import textwrap
 
+from conftest import lossless
+
 from daemon.bus import Bus, Endpoints, zenoh_config
 from daemon.messages import Health, JointState, MotionCommand
 
@@ -64,7 +66,7 @@ def test_latest_only_keeps_a_ring_buffer_of_one(endpoint: str) -> None:
         got: list[MotionCommand] = []
         rx.subscribe(MotionCommand, got.append, latest_only=True)
         await asyncio.sleep(0.5)
-        pub = tx.publisher(MotionCommand)
+        pub = lossless(tx, MotionCommand)
         for k in range(200):  # the event loop is blocked: nothing is delivered meanwhile
             pub.put(MotionCommand(vx=float(k)))
         subprocess.run([sys.executable, "-c", "import time; time.sleep(0.5)"], check=True)

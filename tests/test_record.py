@@ -15,11 +15,11 @@ from pathlib import Path
 import msgspec
 import numpy as np
 import pytest
-import zenoh
+from conftest import lossless
 from mcap.reader import make_reader
 
 from daemon import messages as m
-from daemon.bus import Bus, Endpoints, Publisher, zenoh_config
+from daemon.bus import Bus, Endpoints, zenoh_config
 from daemon.record import McapSink, Sample, WriteFailed
 from daemon.replay import RecordingError, pace, read
 
@@ -69,15 +69,6 @@ def same(a: m.Message, b: m.Message) -> bool:
         return m.encode(m.decode(m.encode(x), type(x)))
 
     return wire(a) == wire(b)
-
-
-def lossless(bus: Bus, message: type[m.Message]) -> Publisher:
-    """A publisher that blocks rather than drops (the control streams' QoS drops under load):
-    these tests count what the recorder wrote against what was sent."""
-    k = m.key(bus.robot, message)
-    return Publisher(
-        bus.session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
-    )
 
 
 def climbd(*args: str, **kw) -> subprocess.Popen:
