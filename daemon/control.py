@@ -115,6 +115,7 @@ class Controller:
         self._state_every = max(1, round(profile.rate_hz / state_rate_hz))
         self._ticks = 0
         self._last_health_publish = -1e9
+        self.fault_reset = False
 
     def _sit_joints(self) -> np.ndarray:
         """Joint pose with the body lowered to rest: where a torque_off robot is switched off."""
@@ -154,7 +155,9 @@ class Controller:
     def on_mode(self, req: ModeRequest) -> None:
         now = self.now()
         if req.reset:
-            self.safety.reset(now, req.session)
+            if self.safety.accepts(req.session):
+                self.safety.reset(now, req.session)
+                self.fault_reset = True  # the loop thread owns the bus: the next tick clears
         else:
             self.safety.request(req.mode, now, req.session)
 
@@ -203,6 +206,9 @@ class Controller:
         elif self._ticks % self._odometry_every == 0 or self._stance_changed:
             self.body = self.odometry.update(q, self.stance, t)
             self._stance_changed = False
+        if self.fault_reset:
+            self.fault_reset = False
+            self._clear_faults(t)
         safety = self.safety
         safety.check_heartbeat(t)
         if self._ticks % self._health_every == 0:
@@ -238,6 +244,25 @@ class Controller:
         gyro = sample.gyro if sample is not None else None
         accel = sample.accel if sample is not None else None
         self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t)
+
+    def _clear_faults(self, t: float) -> None:
+        """The operator's reset, while nothing moves (not STAND/ACTIVE): a bus that can bring
+        back servos a fault switched off does (Dynamixel: REBOOT of latched X-series servos)."""
+        clear = getattr(self.bus, "clear_faults", None)
+        if clear is None:
+            return
+        if self.safety.mode in (Mode.STAND, Mode.ACTIVE):
+            log.warning(
+                "fault reset ignored in %s: servos are reset only at rest", self.safety.mode.value
+            )
+            return
+        try:
+            names = clear()
+        except DriverError as e:
+            self._fault(t, f"fault reset failed: {e}")
+            return
+        if names:
+            log.warning("fault reset brings back %s", ", ".join(names))
 
     def _fault(self, t: float, reason: str) -> None:
         if self.safety.mode != Mode.FAULT:

@@ -54,13 +54,7 @@ FAULTS: dict[str, tuple[tuple[str, ...], str]] = {
 }
 """Fault → (robots it applies to, why not to the others)."""
 
-KNOWN_GAPS: dict[tuple[str, str], str] = {
-    ("overload", "hubrobo"): (
-        "X-series (Protocol 2.0) latch the overload bit and switch torque off until a REBOOT "
-        "instruction, which drivers/dynamixel/bus.py never sends: no recovery without a power "
-        "cycle of the servo"
-    ),
-}
+KNOWN_GAPS: dict[tuple[str, str], str] = {}
 """Cells that fail today for a reason outside this campaign: run as strict xfails, so a fix
 turns them into failures that ask for this table to be updated."""
 
@@ -334,17 +328,30 @@ def overheat(robot, make, tmp_path, endpoint) -> str:
 
 
 def overload(robot, make, tmp_path, endpoint) -> str:
+    """The servo switches its torque off (Shutdown); X series latch the error until a REBOOT.
+    Nothing is rebooted or re-torqued until the operator resets (as ``climbd estop --reset``
+    does: claim, reset, release)."""
     rig = make(robot)
     j = _joint(rig, 1)
     servo = rig.chain.servo(j.id)
+
+    def cleared_by_operator() -> None:
+        servo.inject_overload(False)
+        time.sleep(0.3)
+        assert not servo.torque_enabled, "no re-torque before the operator asks"
+        now = rig.clock.now()
+        assert rig.safety.claim("operator", "campaign", now)[0]
+        rig.controller.on_mode(m.ModeRequest(stamp=now, session="operator", reset=True))
+        rig.safety.release("operator")
+
     took = _hold_and_recover(
         rig,
         servo.inject_overload,
-        lambda: servo.inject_overload(False),
+        cleared_by_operator,
         f"overload: {j.name}",
-        lambda: not any(h.errors for h in rig.bus.health()),
+        lambda: servo.torque_enabled and not any(h.errors or h.lost for h in rig.bus.health()),
     )
-    return f"HOLD (overload: {j.name}) in {took:.2f} s; stands again once cleared"
+    return f"HOLD (overload: {j.name}) in {took:.2f} s; operator reset re-torques it; walks again"
 
 
 def corrupt_packets(robot, make, tmp_path, endpoint) -> str:

@@ -20,6 +20,20 @@ from drivers.sim.dynamixel.tables import AX_18A, XL430_W250
 from drivers.sim.dynamixel.wire import Framer, crc16, packet1, packet2, stuff, unstuff
 
 P2_CRC = sdk.Protocol2PacketHandler().updateCRC
+PATIENCE_MS = 200.0
+
+
+class PatientPort(sdk.PortHandler):
+    """The SDK's own port, waiting ``PATIENCE_MS`` longer for a reply than its 34 ms default:
+    the SDK busy-polls, so on a loaded machine the in-process emulator's thread can wait that
+    long for the GIL, and a reply the wire model delivers in time would count as a timeout."""
+
+    def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 - SDK override
+        super().setPacketTimeout(packet_length)
+        self.packet_timeout += PATIENCE_MS
+
+    def setPacketTimeoutMillis(self, msec: float) -> None:  # noqa: N802 - SDK override
+        super().setPacketTimeoutMillis(msec + PATIENCE_MS)
 
 
 def _chain(spec, ids=(1, 2, 3), baud=1_000_000) -> ServoChain:
@@ -33,7 +47,7 @@ def _chain(spec, ids=(1, 2, 3), baud=1_000_000) -> ServoChain:
 def ax():
     chain = _chain(AX_18A)
     with DynamixelEmulator(chain) as emu:
-        port = sdk.PortHandler(emu.port)
+        port = PatientPort(emu.port)
         assert port.openPort()
         yield chain, emu, port, sdk.PacketHandler(1.0)
         port.closePort()
@@ -43,7 +57,7 @@ def ax():
 def xl():
     chain = _chain(XL430_W250)
     with DynamixelEmulator(chain) as emu:
-        port = sdk.PortHandler(emu.port)
+        port = PatientPort(emu.port)
         assert port.openPort()
         yield chain, emu, port, sdk.PacketHandler(2.0)
         port.closePort()
@@ -181,16 +195,18 @@ def test_p1_status_return_level_and_return_delay(ax):
     assert ph.write1ByteTxRx(port, 1, 25, 1)[0] == sdk.COMM_RX_TIMEOUT  # writes unanswered
     assert ph.read1ByteTxRx(port, 1, 25) == (1, sdk.COMM_SUCCESS, 0)  # but it was applied
     ph.write1ByteTxOnly(port, 1, 16, 0)
-    time.sleep(0.01)
+    deadline = time.monotonic() + 2.0
+    while chain.servo(1).get("status_return_level") != 0:  # applied (the emulator's thread)
+        assert time.monotonic() < deadline, "status return level 0 never applied"
+        time.sleep(0.001)
     assert ph.read1ByteTxRx(port, 1, 25)[1] == sdk.COMM_RX_TIMEOUT
-    assert chain.servo(1).get("status_return_level") == 0
 
 
 def test_wire_time_is_never_shorter_than_the_bus_allows():
     """At 57600 baud with the factory 500 µs return delay, 20 reads cannot beat the wire."""
     chain = ServoChain([EmulatedServo(AX_18A, 1)], 1, 57_600)
     with DynamixelEmulator(chain) as emu:
-        port = sdk.PortHandler(emu.port)
+        port = PatientPort(emu.port)
         port.openPort()
         port.setBaudRate(57_600)
         ph = sdk.PacketHandler(1.0)
@@ -278,7 +294,41 @@ def test_p2_hardware_alert_and_reboot(xl):
     chain.servo(2).set_present(temperature=40.0)
     assert ph.read1ByteTxRx(port, 2, 70)[0] == 0x04  # latched until reboot
     assert ph.reboot(port, 2) == (sdk.COMM_SUCCESS, 0x80)
+    _booted(port, ph, 2)
     assert ph.read1ByteTxRx(port, 2, 70) == (0, sdk.COMM_SUCCESS, 0)
+
+
+def _booted(port, ph, ident: int) -> float:
+    """Seconds until a rebooted servo answers a ping again."""
+    start = time.monotonic()
+    while ph.ping(port, ident)[1] != sdk.COMM_SUCCESS:
+        assert time.monotonic() - start < 2.0, f"id {ident} never came back from its reboot"
+    return time.monotonic() - start
+
+
+def test_p2_reboot_is_silent_for_the_boot_time_then_ram_is_at_power_on_values(xl):
+    chain, _, port, ph = xl
+    servo = chain.servo(3)
+    assert ph.write1ByteTxRx(port, 3, 65, 1) == (sdk.COMM_SUCCESS, 0)  # LED on (RAM)
+    assert ph.write1ByteTxRx(port, 3, 64, 1) == (sdk.COMM_SUCCESS, 0)  # torque on
+    assert ph.write4ByteTxRx(port, 3, 116, 3000) == (sdk.COMM_SUCCESS, 0)  # goal
+    servo.set_present(angle=0.5)
+    servo.inject_overload()
+    assert not servo.torque_enabled  # shutdown on overload (default Shutdown 52 has bit 5)
+    servo.inject_overload(False)
+    assert ph.read1ByteTxRx(port, 3, 70)[0] == 0x20  # latched
+    assert ph.reboot(port, 3) == (sdk.COMM_SUCCESS, 0x80)  # answered before it restarts
+    took = _booted(port, ph, 3)
+    assert took >= chain.boot_time - 0.01
+    assert ph.read1ByteTxRx(port, 3, 70)[:2] == (0, sdk.COMM_SUCCESS)
+    assert ph.read1ByteTxRx(port, 3, 64)[0] == 0  # torque off
+    assert ph.read1ByteTxRx(port, 3, 65)[0] == 0  # LED back to its default
+    assert ph.read4ByteTxRx(port, 3, 116)[0] == 2048 + round(0.5 / (2 * math.pi / 4096))
+    assert ph.ping(port, 1)[1] == sdk.COMM_SUCCESS, "the other servos answered throughout"
+    servo.inject_overload()  # a stall still present latches again after the reboot
+    assert ph.reboot(port, 3)[0] == sdk.COMM_SUCCESS
+    _booted(port, ph, 3)
+    assert ph.read1ByteTxRx(port, 3, 70)[0] == 0x20
 
 
 # --- faults ----------------------------------------------------------------------------------

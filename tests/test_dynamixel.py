@@ -195,6 +195,34 @@ def test_overload_bit_is_reported(rig):
     assert all(not h.errors for k, h in enumerate(bus.health()) if k != 1)
 
 
+def test_fault_reset_brings_back_only_servos_a_fault_switched_off(rig):
+    """Overload switches the servo off (Shutdown); the X series latch it until a REBOOT. The
+    reset torques it again where its horn now is; a powered servo is never rebooted."""
+    profile, chain, _, bus = rig
+    bus.torque(True)
+    k, other = 1, 5
+    servo = chain.servo(profile.joints[k].id)
+    servo.inject_overload()
+    assert not servo.torque_enabled
+    powered = chain.servo(profile.joints[other].id)
+    powered.set_present(voltage=5.0)  # an error the default Shutdown leaves powered
+    bus.read_health()
+    assert bus.health()[k].errors == ["overload"] and "voltage" in bus.health()[other].errors
+    servo.inject_overload(False)
+    servo.set_present(angle=0.3)  # the limp horn was pushed by the load
+    assert bus.clear_faults() == [profile.joints[k].name]
+    deadline = time.monotonic() + 3.0
+    while not servo.torque_enabled or bus.health()[k].lost:
+        assert time.monotonic() < deadline, "the servo never came back"
+        bus.read()
+    bus.read_health()
+    assert bus.health()[k].errors == [] and not bus.health()[k].lost
+    step = RESOLUTION[profile.bus.protocol][0]
+    assert abs(servo.goal_angle - 0.3) <= step and abs(bus.position[k] - 0.3) <= step
+    assert powered.torque_enabled
+    assert chain.counts[0x08] == (1 if profile.bus.protocol == 2 else 0)  # REBOOT
+
+
 def test_corrupt_replies_are_misses_not_crashes(rig):
     profile, chain, _, bus = rig
     ident = profile.joints[0].id

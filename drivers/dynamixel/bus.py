@@ -6,6 +6,8 @@ Every ``round(rate_hz / health_rate_hz)`` reads the same transaction reads a lon
 also holds voltage and temperature (2.0 adds a sync read of Hardware Error Status).
 A servo that misses ``lost_after`` reads in a row is marked lost, skipped, probed on health
 cycles and re-admitted when it answers. Every device problem is a DriverError naming the port.
+``clear_faults()`` is the operator's reset: it REBOOTs X-series servos whose latched hardware
+error switched their torque off and torques limp servos again at their present position.
 """
 
 from __future__ import annotations
@@ -437,6 +439,53 @@ class DynamixelBus:
                     f"{self._where()}: torque {'on' if on else 'off'} refused by "
                     + ", ".join(refused)
                 )
+
+    def clear_faults(self) -> list[str]:
+        """The operator's fault reset: bring back the servos a fault switched off; their names.
+
+        Only servos whose torque is already off are touched, never one carrying the robot.
+        An X-series servo with latched hardware errors gets a REBOOT (Protocol 2.0, 0x08): it
+        is marked lost while it boots, and the read path re-admits it when it answers, holding
+        it at its present position with torque on. Any other limp servo (an AX-18A's alarm
+        shutdown) is held at its present position and torqued again at once."""
+        m = self.model
+        last = m.hardware_error_status or m.torque_enable
+        span = Item(m.torque_enable.address, last.address + last.size - m.torque_enable.address)
+        limp = np.zeros(len(self.ids), bool)
+        latched = np.zeros(len(self.ids), bool)
+        with self._device("fault reset"):
+            for k, ident in enumerate(self.ids):
+                if self.lost[k]:
+                    continue
+                data, result, _ = self._read_one(ident, span)
+                if result != sdk.COMM_SUCCESS or len(data) != span.size or data[0]:
+                    continue
+                limp[k] = True
+                if m.hardware_error_status is not None and data[-1]:
+                    latched[k] = True
+                    self.errors[k] = data[-1]
+            for k in np.flatnonzero(latched):
+                self._reboot(k)
+            if self.torque_on and (limp & ~latched).any():
+                self._read_blocks(False)  # where the limp horns are now
+                self._repower(limp & ~latched)
+        return [self.names[k] for k in np.flatnonzero(limp)]
+
+    def _reboot(self, k: int) -> None:
+        """REBOOT servo ``k`` and count it lost until it has booted and answers again."""
+        try:
+            result = self.ph.reboot(self.port, self.ids[k])[0]
+        except MISPARSE:
+            self.port.clearPort()
+            result = sdk.COMM_RX_CORRUPT
+        log.warning(
+            "%s: rebooted to clear %s (%s); re-admitted once it answers",
+            self._where(k),
+            ", ".join(error_names(self.model, int(self.errors[k]))) or "latched errors",
+            self.ph.getTxRxResult(result),
+        )
+        self.lost[k] = True
+        self.misses[k] = self.lost_after
 
     def health(self) -> list[JointHealth]:
         """Temperature, voltage, error bits (decoded) and lost flag of every joint."""

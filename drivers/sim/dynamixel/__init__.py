@@ -11,6 +11,8 @@ In-process API (for tests and the physics twin)::
         chain.servo(3).set_present(temperature=80.0)   # → overheat bit / shutdown
         chain.servo(3).inject_overload()               # → overload bit / shutdown
         chain.silence(3); chain.silence(3, on=False)   # servo stops / resumes answering
+        chain.boot_time = 0.1                          # REBOOT: silent this long (s), then
+                                                       # RAM at power-on values, torque off
         chain.corrupt(3, count=2)                      # next 2 replies with bad checksum/CRC
         emu.vanish()                                   # the port disappears
 

@@ -8,12 +8,15 @@ so the server can model wire timing. Fault injection: ``silence`` (a servo stops
 ``corrupt`` (its replies carry a bad checksum/CRC), plus the servo's own ``set_present`` /
 ``inject_overload`` for overheat, voltage and overload conditions. With ``clock`` set, each
 servo an instruction addresses first steps its motor model up to ``clock()`` (lazily: a
-servo nobody talks to costs nothing).
+servo nobody talks to costs nothing). A REBOOT is answered (status of the servo before it
+restarts), then the servo is silent for ``boot_time`` s of wall-clock time and comes back
+with its RAM at power-on values: torque off, latched errors cleared.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -29,6 +32,8 @@ PING, READ, WRITE, REG_WRITE, ACTION, REBOOT = 0x01, 0x02, 0x03, 0x04, 0x05, 0x0
 SYNC_READ, SYNC_WRITE, FAST_SYNC_READ = 0x82, 0x83, 0x8A
 BULK_READ, BULK_WRITE, FAST_BULK_READ = 0x92, 0x93, 0x9A
 _READS = {READ, SYNC_READ, FAST_SYNC_READ, BULK_READ, FAST_BULK_READ}
+BOOT_TIME = 0.1
+"""Seconds a rebooting servo stays silent (assumed; the e-Manual gives no figure)."""
 
 
 @dataclass(frozen=True)
@@ -42,9 +47,17 @@ class Reply:
 class ServoChain:
     """Servos sharing one bus of ``protocol`` (1 or 2) at ``baud``; ``servo(id)`` finds one."""
 
-    def __init__(self, servos: Iterable[EmulatedServo], protocol: int, baud: int = 1_000_000):
+    def __init__(
+        self,
+        servos: Iterable[EmulatedServo],
+        protocol: int,
+        baud: int = 1_000_000,
+        boot_time: float = BOOT_TIME,
+    ):
         self.protocol = protocol
         self.baud = baud
+        self.boot_time = boot_time
+        self.booting: dict[int, float] = {}
         self.lock = threading.RLock()
         self.servos: dict[int, EmulatedServo] = {}
         for s in servos:
@@ -132,6 +145,10 @@ class ServoChain:
         s = self.servos.get(ident)
         if s is None or ident in self.silenced:
             return None
+        if ident in self.booting:
+            if time.monotonic() < self.booting[ident]:
+                return None
+            del self.booting[ident]
         if self.clock is not None:
             s.advance_to(self.clock())
         return s
@@ -219,7 +236,7 @@ class ServoChain:
             self._action(s)
         elif inst == REBOOT:
             reply = self._status(s, 0)
-            s.reboot()
+            self._reboot(s)
             return [reply] if answer else []
         elif inst in (READ, WRITE, REG_WRITE):
             error = sv.P2_DATA_LENGTH
@@ -231,10 +248,13 @@ class ServoChain:
         if inst == PING:
             alive = [self._alive(ident) for ident in sorted(self.servos)]
             return [self._status(s, 0, _ping_params(s)) for s in alive if s is not None]
-        if inst == ACTION:
-            for s in self.servos.values():
-                if s.ident not in self.silenced:
+        if inst in (ACTION, REBOOT):
+            for ident in list(self.servos):
+                s = self._alive(ident)
+                if s is not None and inst == ACTION:
                     self._action(s)
+                elif s is not None:
+                    self._reboot(s)
             return []
         if inst == SYNC_WRITE and len(p) >= 4:
             self._sync_write(_u16(p, 0), _u16(p, 2), p[4:])
@@ -308,6 +328,10 @@ class ServoChain:
         if not error and address <= id_field.address < address + len(data):
             self.servos = {t.ident: t for t in self.servos.values()}
         return error
+
+    def _reboot(self, s: EmulatedServo) -> None:
+        s.reboot()
+        self.booting[s.ident] = time.monotonic() + self.boot_time
 
     def _action(self, s: EmulatedServo) -> None:
         pending = s.pending

@@ -186,10 +186,16 @@ class EmulatedServo:
             self._sync_present()
 
     def reboot(self) -> None:
-        """Protocol 2.0 REBOOT: clears latched hardware errors and turns torque off."""
+        """Protocol 2.0 REBOOT: the RAM area back to its power-on values (torque off, latched
+        hardware errors cleared, goal = present position, nothing registered); EEPROM kept.
+
+        A condition still present (a stalled horn, a hot motor) latches again at once."""
         with self.lock:
-            self._put(self.spec.fields["hardware_error_status"], 0)
-            self._put(self.spec.fields["torque_enable"], 0)
+            for f in self.spec.fields.values():
+                if not f.eeprom:
+                    self._put(f, f.default)
+            self._put(self.spec.fields["goal_position"], self.tick(self.state.angle))
+            self.pending = None
             self._sync_present()
 
     # --- motor model ------------------------------------------------------------------
