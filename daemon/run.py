@@ -301,7 +301,7 @@ class ControlRole:
 
     def _report(self, loop, safety, controller) -> None:
         s = loop.stats()
-        pose = "torque on, holding the measured pose" if safety.torque_on else "torque off"
+        pose = "torque on, holding the commanded pose" if safety.torque_on else "torque off"
         if controller.sat_down:
             pose = "sat down, then torque off"
         print(

@@ -110,7 +110,7 @@ class Safety:
                 self._enter(Mode.FAULT, reason, now)
 
     def hold(self, now: float, reason: str) -> None:
-        """Freeze at the measured pose (from STAND or ACTIVE); other modes are left alone."""
+        """Freeze at the commanded pose (from STAND or ACTIVE); other modes are left alone."""
         with self._lock:
             if self.mode in (Mode.STAND, Mode.ACTIVE):
                 self._enter(Mode.HOLD, reason, now)

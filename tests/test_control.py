@@ -117,7 +117,7 @@ def test_estop_follows_the_profile_policy(robots, robot: str, torque_after: bool
     assert rig.bus.torque_on == torque_after
     if torque_after:
         held = np.array(rig.commands[n:])
-        assert held.size and np.max(np.abs(held - before)) < 1e-3, "holds the measured pose"
+        assert held.size and np.max(np.abs(held - before)) < 1e-3, "holds the commanded pose"
     else:
         assert len(rig.commands) == n, "no command is written with torque off"
     rig.controller.on_mode(ModeRequest(mode=Mode.STAND))

@@ -70,7 +70,7 @@ def climbd(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
     "robot,sig,pose",
     [
         ("widowx", signal.SIGTERM, "sat down, then torque off"),
-        ("qingzhui", signal.SIGINT, "torque on, holding the measured pose"),
+        ("qingzhui", signal.SIGINT, "torque on, holding the commanded pose"),
     ],
 )
 def test_signal_exits_zero_in_the_safe_pose(endpoint: str, robot: str, sig, pose: str) -> None:
