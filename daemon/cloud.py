@@ -157,11 +157,12 @@ def _plan(
     if len(rows) == 0:
         none = slice(0, 0)
         return _Plan(none, none, rays[:, :0, :0].reshape(3, 0), origin, 1, None)
-    window = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+    (r0, r1), (c0, c1) = (int(rows[0]), int(rows[-1]) + 1), (int(cols[0]), int(cols[-1]) + 1)
+    window = (slice(r0, r1), slice(c0, c1))
     lo_px[~reachable], hi_px[~reachable] = _RAW_END - 1, 0
     return _Plan(
-        slice(rows[0] * decimation, rows[-1] * decimation + 1, decimation),
-        slice(cols[0] * decimation, cols[-1] * decimation + 1, decimation),
+        slice(r0 * decimation, (r1 - 1) * decimation + 1, decimation),
+        slice(c0 * decimation, (c1 - 1) * decimation + 1, decimation),
         np.ascontiguousarray(rays[(slice(None), *window)]).reshape(3, -1),
         origin,
         np.ascontiguousarray(lo_px[window], dtype=np.uint16),

@@ -148,6 +148,47 @@ def test_crop_box_in_conversion_equals_cropping_the_cloud(box):
     assert (fused[:, 2] >= box.z_min - tol).all() and (fused[:, 2] <= box.z_max + tol).all()
 
 
+def _in_box(points, box, margin):
+    """Which float64 points lie inside ``box`` grown by ``margin`` (m) on every face."""
+    keep = np.ones(len(points), bool)
+    for axis, (lo, hi) in enumerate(
+        [(box.x_min, box.x_max), (box.y_min, box.y_max), (box.z_min, box.z_max)]
+    ):
+        keep &= (points[:, axis] >= lo - margin) & (points[:, axis] <= hi + margin)
+    return keep
+
+
+NARROW = CropBox(x_min=0.15, x_max=0.5, y_min=0.05, y_max=0.25, z_min=-0.3, z_max=0.1)
+"""A box off to the left: only a window of the image can reach it."""
+
+BEHIND = CropBox(x_min=-2.0, x_max=-1.0, y_min=-0.6, y_max=0.6, z_min=-0.1, z_max=0.3)
+"""A box behind the camera: no pixel can reach it."""
+
+
+@pytest.mark.parametrize("tilt", [0.0, 45.0, 90.0])
+@pytest.mark.parametrize("decimation,lo,hi", [(1, None, None), (2, 0.1, 2.5), (3, None, 1.5)])
+@pytest.mark.parametrize("box", [PAPER_000, NARROW], ids=["paper 000", "narrow"])
+def test_crop_box_with_decimation_and_ranges_equals_cropping_the_cloud(
+    tilt, decimation, lo, hi, box
+):
+    rng = np.random.default_rng(3)
+    frame = _random_frame(rng, D435.intrinsics(640, 480), tilt=tilt)
+    fused = frame_to_points(frame, decimation, lo, hi, box=box)
+    np.testing.assert_array_equal(fused, crop(frame_to_points(frame, decimation, lo, hi), box))
+    want = _reference_points(frame, decimation, lo or 0.0, np.inf if hi is None else hi)
+    # float32 vs float64 decides points on a face (at 90° the x_min face holds the camera):
+    # every point 10 µm inside the box is kept, none 10 µm outside it is
+    inside, near = _in_box(want, box, -1e-5), _in_box(want, box, 1e-5)
+    assert np.count_nonzero(inside) <= len(fused) <= np.count_nonzero(near)
+    assert np.count_nonzero(inside) > 50
+
+
+def test_box_out_of_view_gives_no_points():
+    rng = np.random.default_rng(4)
+    frame = _random_frame(rng, D435.intrinsics(640, 480))
+    assert frame_to_points(frame, box=BEHIND).shape == (0, 3)
+
+
 def test_paper_000_boxes_have_the_papers_dimensions():
     for box, length in [(PAPER_000, 1.0), (PAPER_000_TEST_7, 3.0)]:
         dims = (box.x_max - box.x_min, box.y_max - box.y_min, box.z_max - box.z_min)
@@ -201,6 +242,9 @@ def test_bad_configuration_and_input_get_clear_errors(monkeypatch):
     wrong = DepthFrame(np.zeros((10, 10), np.uint16), 0.001, intrinsics, np.eye(4), 0.0)
     with pytest.raises(ValueError, match="does not match intrinsics 640x480"):
         frame_to_points(wrong)
+    metres = DepthFrame(np.zeros((480, 640), np.float32), 0.001, intrinsics, np.eye(4), 0.0)
+    with pytest.raises(ValueError, match="depth must be uint16 raw units, got float32"):
+        frame_to_points(metres)
 
 
 def test_model_data():
