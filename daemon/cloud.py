@@ -1,9 +1,11 @@
 """Depth frames to body-frame point clouds, and the crop box of paper 000 (pure numpy, no I/O).
 
 A pixel (u, v) with depth z (m) is the optical-frame point z·((u − ppx)/fx, (v − ppy)/fy, 1);
-the mount extrinsics take it to the body frame. The per-pixel rays are rotated into the body
-frame once per (intrinsics, extrinsics, decimation) and cached, so a frame costs one gather and
-one multiply-add per valid pixel.
+the mount extrinsics take it to the body frame. Once per camera setup (intrinsics, extrinsics,
+decimation, depth unit, range limits, crop box) the rays are scaled by the depth unit, rotated
+into the body frame and stored as float32 planes, and the crop box becomes a pixel window and
+per-pixel raw-depth bounds; a frame then costs two uint16 comparisons per window pixel and one
+gather, multiply and add per kept pixel and axis.
 """
 
 from __future__ import annotations
@@ -45,14 +47,13 @@ _RAW_END = 65536
 """One past the largest uint16 depth: the "never" of a raw-depth search."""
 
 
-@lru_cache(maxsize=16)
-def _rays(intrinsics: Intrinsics, rotation: bytes, decimation: int) -> np.ndarray:
+def _rays(intrinsics: Intrinsics, rotation: np.ndarray, decimation: int) -> np.ndarray:
     """Body-frame direction (per unit depth) of every kept pixel, (H', W', 3) float64."""
     i = intrinsics
     u = (np.arange(0, i.width, decimation) - i.ppx) / i.fx
     v = (np.arange(0, i.height, decimation) - i.ppy) / i.fy
     optical = np.stack(np.broadcast_arrays(u[None, :], v[:, None], 1.0), axis=-1)
-    return optical @ np.frombuffer(rotation, dtype=np.float64).reshape(3, 3).T
+    return optical @ rotation.T
 
 
 def _project(ray: np.ndarray, raw: np.ndarray, origin: np.float32) -> np.ndarray:
@@ -111,6 +112,13 @@ def _box_bounds(
     return lo, hi
 
 
+def _frozen(array: np.ndarray) -> np.ndarray:
+    """A read-only contiguous copy: cached plans are shared by every frame of a setup."""
+    array = np.array(array, order="C")
+    array.flags.writeable = False
+    return array
+
+
 class _Plan(NamedTuple):
     """What a frame's conversion needs, fixed per camera setup: the pixel window that can reach
     the crop box, the scaled body-frame rays of its pixels (3 planes), and per-pixel raw bounds."""
@@ -123,7 +131,7 @@ class _Plan(NamedTuple):
     hi: np.ndarray | None
 
 
-@lru_cache(maxsize=16)
+@lru_cache(maxsize=8)
 def _plan(
     intrinsics: Intrinsics,
     transform: bytes,
@@ -136,9 +144,9 @@ def _plan(
     """Precompute a camera setup's conversion: rays × depth scale in float32, rotated to the body
     frame, so a frame is raw depth × ray + origin; the crop box becomes raw-depth bounds."""
     t = np.frombuffer(transform, dtype=np.float64).reshape(4, 4)
-    rays64 = _rays(intrinsics, np.ascontiguousarray(t[:3, :3]).tobytes(), decimation)
+    rays64 = _rays(intrinsics, t[:3, :3], decimation)
     rays = np.ascontiguousarray(np.moveaxis(rays64 * depth_scale, -1, 0), dtype=np.float32)
-    origin = t[:3, 3].astype(np.float32)
+    origin = _frozen(t[:3, 3].astype(np.float32))
     lo = 1 if min_range is None else max(1, int(np.ceil(min_range / depth_scale)))
     hi = (
         _RAW_END - 1
@@ -146,6 +154,7 @@ def _plan(
         else min(_RAW_END - 1, int(np.floor(max_range / depth_scale)))
     )
     full = slice(0, None, decimation)
+    rays.flags.writeable = False
     if box is None:
         return _Plan(
             full, full, rays.reshape(3, -1), origin, lo, None if hi == _RAW_END - 1 else hi
@@ -163,10 +172,10 @@ def _plan(
     return _Plan(
         slice(r0 * decimation, (r1 - 1) * decimation + 1, decimation),
         slice(c0 * decimation, (c1 - 1) * decimation + 1, decimation),
-        np.ascontiguousarray(rays[(slice(None), *window)]).reshape(3, -1),
+        _frozen(rays[(slice(None), *window)].reshape(3, -1)),
         origin,
-        np.ascontiguousarray(lo_px[window], dtype=np.uint16),
-        np.ascontiguousarray(hi_px[window], dtype=np.uint16),
+        _frozen(lo_px[window].astype(np.uint16)),
+        _frozen(hi_px[window].astype(np.uint16)),
     )
 
 
