@@ -3,8 +3,9 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-# System libraries: libusb for pyrealsense2, iproute2 for the two-namespace network test.
-SYSLIBS := libusb-1.0-0 iproute2
+# System libraries: libusb for pyrealsense2, iproute2 for the two-namespace network test,
+# Mesa's EGL and software rasteriser for the twin's depth cameras (no GPU needed).
+SYSLIBS := libusb-1.0-0 iproute2 libegl1 libegl-mesa0 libgl1-mesa-dri
 
 .PHONY: test demo bench lint syslibs clean
 
@@ -18,6 +19,7 @@ syslibs:
 	@missing=""; \
 	ldconfig -p | grep -q 'libusb-1.0.so.0' || missing="$$missing libusb-1.0-0"; \
 	command -v ip >/dev/null || missing="$$missing iproute2"; \
+	ldconfig -p | grep -q 'libEGL_mesa.so.0' || missing="$$missing libegl1 libegl-mesa0 libgl1-mesa-dri"; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	    echo "installing system packages:$$missing"; \

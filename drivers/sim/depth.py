@@ -1,8 +1,11 @@
-"""Ray-cast depth cameras of the twin: one ray per pixel with ``mujoco.mj_multiRay``.
+"""Ray-cast depth cameras of the twin: one ray per pixel, rasterised or with ``mj_multiRay``.
 
 Rays leave the camera's optical centre through each pixel of the model's nominal intrinsics
 (drivers/realsense/models.py) from the profile's mount pose (``mount_extrinsics``). With
-ray directions (x, y, 1) in the optical frame, MuJoCo's hit distance *is* the z-depth. Then
+ray directions (x, y, 1) in the optical frame, MuJoCo's hit distance *is* the z-depth.
+Where a headless OpenGL context exists (Mesa's llvmpipe needs no GPU) the same rays are
+rasterised in one render pass (drivers/sim/gl_depth.py), several times faster; surface normals
+then come from the depth image. Otherwise ``mj_multiRay`` casts them. Then
 the sensor model: Gaussian noise whose σ grows with range, dropouts on grazing and dark
 surfaces and at random, and zeros outside the stream's range — as the real camera reports.
 """
@@ -19,6 +22,7 @@ import numpy as np
 from daemon.profile import CameraConfig
 from drivers.base import DepthFrame, Intrinsics, mount_extrinsics
 from drivers.realsense.models import model as depth_model
+from drivers.sim.gl_depth import GlDepthPass, gl_available
 
 
 @dataclass(frozen=True)
@@ -53,6 +57,31 @@ NOISE: dict[str, NoiseModel] = {
 GEOM_GROUPS = np.array([1, 0, 1, 0, 0, 0], np.uint8)
 """The camera sees the world (group 0) and the legs (group 2), not the body it sits on."""
 
+NEAR = 0.01
+"""Near clipping plane of rasterised depth (m): closer than any camera's minimum range."""
+
+
+def surface_normals(points: np.ndarray) -> np.ndarray:
+    """Unit normals (H×W×3) of an organised point image (H×W×3, NaN = no return): the cross
+    product of the image-row and image-column tangents, each from the neighbour (left or
+    right, up or down) nearer in range, so a pixel at an edge takes its own surface's slope."""
+
+    def tangent(axis: int) -> np.ndarray:
+        step = np.diff(points, axis=axis)
+        pad = [(0, 0)] * 3
+        pad[axis] = (1, 0)
+        back = np.pad(step, pad, constant_values=np.nan)
+        pad[axis] = (0, 1)
+        ahead = np.pad(step, pad, constant_values=np.nan)
+        jump_back = np.nan_to_num(np.abs(back[..., 2]), nan=np.inf)
+        jump_ahead = np.nan_to_num(np.abs(ahead[..., 2]), nan=np.inf)
+        return np.where((jump_back <= jump_ahead)[..., None], back, ahead)
+
+    normal = np.cross(tangent(1), tangent(0))
+    length = np.linalg.norm(normal, axis=2, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return normal / length
+
 
 class RayCastDepth:
     """One depth camera of ``camera``'s model, resolution and mount on body ``body``."""
@@ -66,6 +95,7 @@ class RayCastDepth:
         noise: NoiseModel | None = None,
         intrinsics: Intrinsics | None = None,
         threads: int = 1,
+        backend: str = "auto",
     ) -> None:
         spec = depth_model(camera.model)
         self.name = camera.name
@@ -94,6 +124,13 @@ class RayCastDepth:
         bounds = np.linspace(0, n, max(1, threads) + 1).astype(int)
         self._chunks = list(zip(bounds[:-1], bounds[1:], strict=True))
         self._pool = ThreadPoolExecutor(threads) if threads > 1 else None
+        square = math.isclose(self.intrinsics.fx, self.intrinsics.fy, rel_tol=1e-9)
+        if backend not in ("auto", "gl", "rays"):
+            raise ValueError(f"camera {camera.name}: depth backend {backend!r} is not auto/gl/rays")
+        if backend == "auto":
+            backend = "gl" if square and gl_available() else "rays"
+        self.backend = backend
+        self._gl: GlDepthPass | None = None
 
     def pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Camera optical frame in the world: rotation (3×3) and position (m)."""
@@ -103,10 +140,19 @@ class RayCastDepth:
 
     def cast(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Noise-free z-depth (m, NaN for no hit), hit geom ids, unit normals and the world ray
-        directions, per pixel. With ``threads`` > 1 the rays are cast in parallel chunks
-        (MuJoCo releases the GIL while it casts)."""
+        directions, per pixel. Rasterised with the ``gl`` backend; with ``rays`` and
+        ``threads`` > 1 cast in parallel chunks (MuJoCo releases the GIL while it casts)."""
         rot, pos = self.pose(data)
         vec = self.rays @ rot.T
+        if self.backend == "gl":
+            if self._gl is None:
+                far = self.max_range * 1.05
+                self._gl = GlDepthPass(self.model, self.intrinsics, GEOM_GROUPS, NEAR, far)
+            depth, geom = self._gl.render(data, rot, pos)
+            i = self.intrinsics
+            points = (self.rays * depth[:, None]).reshape(i.height, i.width, 3)
+            normal = surface_normals(points).reshape(-1, 3) @ rot.T
+            return depth, geom, normal, vec
         cutoff = self.max_range * float(self.ray_norm.max())
 
         def chunk(bounds: tuple[int, int]) -> None:
@@ -141,6 +187,7 @@ class RayCastDepth:
         nz = self.noise
         z = z + nz.sigma(z) * self.rng.standard_normal(z.size)
         cos_inc = np.abs(np.einsum("ij,ij->i", normal, vec)) / self.ray_norm
+        cos_inc = np.nan_to_num(cos_inc, nan=1.0)
         fade = math.cos(math.radians(nz.grazing_deg))
         p_drop = np.full(z.size, nz.dropout)
         p_drop += np.clip((fade - cos_inc) / fade, 0.0, 1.0)
@@ -163,3 +210,10 @@ class RayCastDepth:
         )
         self.number += 1
         return frame
+
+    def close(self) -> None:
+        """Free the OpenGL context of the ``gl`` backend, if one was made (a later frame makes
+        a new one)."""
+        if self._gl is not None:
+            self._gl.close()
+            self._gl = None

@@ -49,7 +49,7 @@ from drivers.sim import servos
 from drivers.sim.depth import RayCastDepth
 from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 from drivers.sim.mit_motors import MitMotorChain
-from drivers.sim.model import RobotModel, build
+from drivers.sim.model import GRIP_FORCE, RobotModel, build
 from drivers.sim.worlds import World
 from drivers.sim.worlds import load as load_world
 
@@ -168,6 +168,7 @@ class Twin:
         initial_joints: np.ndarray | None = None,
         bus: bool = True,
         depth_threads: int = 1,
+        depth_backend: str = "auto",
         camera_duty: float = 0.5,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
@@ -202,6 +203,11 @@ class Twin:
         self.thermal = servos.ThermalState(np.full(n, 30.0), ambient=30.0)
         self.voltage = 12.0
         self.grip = np.zeros(len(self.profile.legs), bool)
+        self.slips = np.zeros(len(self.profile.legs), int)
+        """Per gripper, how often it let go under more than GRIP_FORCE."""
+        self.slipped = np.zeros(len(self.profile.legs), bool)
+        self.grip_load = np.zeros(len(self.profile.legs))
+        """Per gripper, the force (N) its hold needed at the last step (0 when not holding)."""
         self.chain = None
         self.emulator = None
         self.can_chain: PhysicsMitChain | None = None
@@ -225,7 +231,12 @@ class Twin:
             self.emulator = DynamixelEmulator(self.chain, realtime_motor=False)
         self.cameras = {
             cam.name: RayCastDepth(
-                self.model, cam, r.base_body, seed=seed + k, threads=depth_threads
+                self.model,
+                cam,
+                r.base_body,
+                seed=seed + k,
+                threads=depth_threads,
+                backend=depth_backend,
             )
             for k, cam in enumerate(self.profile.cameras)
         }
@@ -287,6 +298,8 @@ class Twin:
             if thread is not None:
                 thread.join(timeout=2.0)
         self._thread = self._camera_thread = None
+        for cam in self.cameras.values():
+            cam.close()
         if self.emulator is not None:
             self.emulator.stop()
             self.emulator.port = ""
@@ -377,17 +390,36 @@ class Twin:
         tau = np.where(self.torque_on, tau, 0.0)
         self.effort = tau
         d.ctrl[r.motor_actuators] = self.map.hinge_torque(tau)
-        if len(r.gripper_actuators):
-            d.ctrl[r.gripper_actuators] = self._grip_ctrl()
+        if len(r.grip_equalities):
+            self._grip_update()
 
-    def _grip_ctrl(self) -> np.ndarray:
-        """Adhesion on: the gripper is closed and its foot touches a graspable geom."""
-        d, r = self.data, self.robot
+    def _grip_update(self) -> None:
+        """Grippers as connect constraints: one engages where its closed gripper's foot touches
+        a graspable geom, and slips (lets go, counted in ``slips``) when the force it needs
+        exceeds GRIP_FORCE; it engages again only after it has been opened."""
+        d, r, m = self.data, self.robot, self.model
+        held = d.eq_active[r.grip_equalities].astype(bool)
+        if held.any():
+            rows = d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+            ids, force = d.efc_id[: d.nefc][rows], d.efc_force[: d.nefc][rows]
+            for i in np.flatnonzero(held):
+                need = float(np.linalg.norm(force[ids == r.grip_equalities[i]]))
+                self.grip_load[i] = need
+                if need > GRIP_FORCE:
+                    held[i] = False
+                    self.slips[i] += 1
+                    self.slipped[i] = True
+        self.slipped &= self.grip
         g1, g2 = d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon]
         on_hold = np.concatenate(
             [g1[np.isin(g2, r.graspable_geoms)], g2[np.isin(g1, r.graspable_geoms)]]
         )
-        return (self.grip & np.isin(r.foot_geoms, on_hold)).astype(float)
+        engage = self.grip & ~held & ~self.slipped & np.isin(r.foot_geoms, on_hold)
+        for i in np.flatnonzero(engage):
+            m.eq_data[r.grip_equalities[i], 3:6] = d.site_xpos[r.foot_sites[i]]
+        held = (held | engage) & self.grip
+        self.grip_load[~held] = 0.0
+        d.eq_active[r.grip_equalities] = held
 
     def _physics_step(self) -> None:
         self._control()
@@ -559,7 +591,7 @@ class Twin:
             self.torque_on[:] = True
 
     def set_grip(self, leg: int | str, closed: bool) -> None:
-        """Close or open one gripper (HubRobo); adhesion holds only on graspable geoms."""
+        """Close or open one gripper (HubRobo); it holds only on graspable geoms, up to 9 N."""
         i = leg if isinstance(leg, int) else [g.name for g in self.profile.legs].index(leg)
         self.grip[i] = closed
 
@@ -596,6 +628,15 @@ class Twin:
             d = self.data
             touching = set(d.contact.geom1[: d.ncon]) | set(d.contact.geom2[: d.ncon])
             return np.array([f in touching for f in feet])
+
+    def holding(self) -> np.ndarray:
+        """Whether each gripper holds a graspable geom now (its grip constraint is engaged)."""
+        r = self.robot
+        with self.lock:
+            held = np.zeros(len(self.profile.legs), bool)
+            if len(r.grip_equalities):
+                held[:] = self.data.eq_active[r.grip_equalities]
+            return held
 
     def base_contacts(self) -> bool:
         """Whether the body box touches the world (a belly landing or a fall)."""
