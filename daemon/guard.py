@@ -27,6 +27,7 @@ class Guard:
         self.names = [j.name for j in joints]
         self.lower = np.array([j.limits.lower for j in joints], float)
         self.upper = np.array([j.limits.upper for j in joints], float)
+        self._bounds = list(zip(self.lower.tolist(), self.upper.tolist(), strict=True))
         self.clamps = 0
 
     def clamp(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -34,12 +35,23 @@ class Guard:
         q = np.asarray(q, float)
         if q.shape != self.lower.shape:
             raise GuardError(f"joint command has shape {q.shape}, expected ({self.lower.size},)")
-        if not math.isfinite(q.sum()):
-            bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(q))]
+        out = np.array(self.limit(q.tolist()))
+        return out, out != q
+
+    def limit(self, q: list[float]) -> list[float]:
+        """``clamp`` on a list (the control tick's path): a new list inside the limits."""
+        if len(q) != len(self._bounds):
+            raise GuardError(
+                f"joint command has shape ({len(q)},), expected ({len(self._bounds)},)"
+            )
+        if not math.isfinite(sum(q)):
+            bad = [name for name, x in zip(self.names, q, strict=True) if not math.isfinite(x)]
             if bad:
                 raise GuardError(f"non-finite joint command for {', '.join(bad)}")
-        out = np.minimum(np.maximum(q, self.lower), self.upper)
-        clamped = out != q
-        if clamped.any():
+        out = [
+            lo if x < lo else hi if x > hi else x
+            for x, (lo, hi) in zip(q, self._bounds, strict=True)
+        ]
+        if out != q:
             self.clamps += 1
-        return out, clamped
+        return out

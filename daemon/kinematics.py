@@ -23,10 +23,14 @@ Kinematic angles, ``links = [l1, l2, l3]``:
   the knee above the foot line (``theta_s >= theta_t``), knee "b" below it.
 
 IK reports unreachable legs (outside the workspace or outside the joint limits) in a mask
-and never clamps them into another pose.
+and never clamps them into another pose. ``ik_feet`` is the same IK leg by leg with ``math``:
+for one tick's few legs, numpy's per-call overhead costs more than the arithmetic.
 """
 
 from __future__ import annotations
+
+import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -100,6 +104,14 @@ class Kinematics:
                 for leg in legs
             ]
         )
+        self._leg_frames = [
+            (leg.kind == CFT, *self.mount[i].tolist(), *np.hstack([cy, sy, links[i], ks]).tolist())
+            for i, (leg, cy, sy, ks) in enumerate(
+                zip(legs, self.cos_yaw, self.sin_yaw, self.knee_sign, strict=True)
+            )
+        ]
+        self._leg_joints = np.stack([self.direction, self.zero_offset], 1).reshape(-1, 6).tolist()
+        self._leg_limits = np.stack([self._mid, self._half_range], 1).reshape(-1, 6).tolist()
 
     # --- joint <-> kinematic angles ---------------------------------------------------
 
@@ -201,6 +213,39 @@ class Kinematics:
             return q, inside
         q.reshape(self.n_legs, 3)[~ok] = np.nan
         return q, ok & inside
+
+    def ik_feet(self, feet: Sequence[Sequence[float]]) -> tuple[list[float], list[bool]]:
+        """``ik`` leg by leg with ``math`` for one set of body-frame feet (the control tick).
+
+        Same joints (to rounding) and reachable mask as ``ik``; feet must be finite.
+        """
+        q: list[float] = []
+        ok: list[bool] = []
+        for (fx, fy, fz), frame, joints, limits in zip(
+            feet, self._leg_frames, self._leg_joints, self._leg_limits, strict=True
+        ):
+            cft, mx, my, mz, c, s, l1, l2, l3, k = frame
+            d0, o0, d1, o1, d2, o2 = joints
+            m0, h0, m1, h1, m2, h2 = limits
+            dx, dy = fx - mx, fy - my
+            x, y, z = c * dx + s * dy, c * dy - s * dx, fz - mz
+            if cft:
+                u, w, first = math.hypot(x, y) - l1, z, math.atan2(y, x)
+            else:
+                u, w, first = x - l1, math.hypot(y, z), math.atan2(y, -z)
+            cos_rel = (u * u + w * w - (l2 * l2 + l3 * l3)) / (2.0 * l2 * l3)
+            if abs(cos_rel) > 1.0:
+                q += (math.nan, math.nan, math.nan)
+                ok.append(False)
+                continue
+            rel = k * math.acos(cos_rel)
+            second = math.atan2(w, u) - math.atan2(l3 * math.sin(rel), l2 + l3 * math.cos(rel))
+            q0 = first * d0 + o0
+            q1 = second * d1 + o1
+            q2 = (rel if cft else second + rel) * d2 + o2
+            q += (q0, q1, q2)
+            ok.append(abs(q0 - m0) <= h0 and abs(q1 - m1) <= h1 and abs(q2 - m2) <= h2)
+        return q, ok
 
     # --- differential kinematics ------------------------------------------------------
 

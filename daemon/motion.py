@@ -9,6 +9,8 @@ A leg whose target is unreachable keeps its last reachable target and is reporte
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from daemon.guard import Guard, GuardError
@@ -24,7 +26,11 @@ class MotionError(SmoothingError):
 
 
 class MotionPipeline:
-    """IK, ruckig smoothing and the limit guard for one robot at control period ``dt``."""
+    """IK, ruckig smoothing and the limit guard for one robot at control period ``dt``.
+
+    The tick works on plain lists (scalar IK, list-based smoother and guard): for one
+    robot's 12-18 joints that is cheaper than numpy's per-call overhead.
+    """
 
     def __init__(self, profile: Profile, dt: float) -> None:
         self.profile = profile
@@ -33,13 +39,17 @@ class MotionPipeline:
         self.smoother = Smoother(profile, dt)
         self.guard = Guard(profile)
         n_legs, n = self.kinematics.n_legs, self.kinematics.n_joints
-        self.unreachable = np.zeros(n_legs, bool)
+        self.unreachable = [False] * n_legs
         self.unreachable_ticks = 0
-        self.clamped = np.zeros(n, bool)
-        self.command = np.zeros(n)
-        self._target = np.zeros(n)
-        self._target_qd = np.zeros(n)
+        self._command = [0.0] * n
+        self._target = [0.0] * n
+        self._target_qd = [0.0] * n
         self._streaming = False
+
+    @property
+    def command(self) -> np.ndarray:
+        """The last joint command (after the guard), profile order."""
+        return np.array(self._command)
 
     @property
     def unreachable_legs(self) -> list[str]:
@@ -55,47 +65,55 @@ class MotionPipeline:
     def start(self, measured_q: np.ndarray, measured_qd: np.ndarray | None = None) -> None:
         """Begin from the measured joint state: the first command equals it (no jump)."""
         self.smoother.reset(measured_q, measured_qd)
-        self._target = self.smoother.position.copy()
-        self._target_qd = np.zeros_like(self._target)
+        self._target = self.smoother.position.tolist()
+        self._target_qd = [0.0] * len(self._target)
         self._streaming = False
-        self.command = self._target.copy()
-        self.unreachable[:] = False
-        self.clamped[:] = False
+        self._command = list(self._target)
+        self.unreachable = [False] * self.kinematics.n_legs
 
     def feet_step(self, targets: FootTargets) -> JointCommand:
         """One tick towards body-frame foot targets: IK -> ruckig -> guard."""
         kin = self.kinematics
-        feet = np.asarray(targets.positions, float)
-        if feet.shape != (kin.n_legs, 3) or not np.isfinite(feet).all():
-            raise MotionError(
-                f"foot targets: expected {kin.n_legs} finite (x, y, z) positions, got "
-                f"{feet.shape if feet.ndim else 'none'}"
+        feet = targets.positions
+        try:
+            valid = (
+                len(feet) == kin.n_legs
+                and all(len(foot) == 3 for foot in feet)
+                and math.isfinite(sum(map(sum, feet)))
             )
-        q, ok = kin.ik(feet)
-        self.unreachable = ~ok
-        if not ok.all():
+        except TypeError:
+            valid = False
+        if not valid:
+            raise MotionError(
+                f"foot targets: expected {kin.n_legs} finite (x, y, z) positions, got {feet!r:.120}"
+            )
+        q, ok = kin.ik_feet(feet)
+        self.unreachable = [not good for good in ok]
+        if not all(ok):
             self.unreachable_ticks += 1
-            keep = np.repeat(~ok, 3)
-            q[keep] = self._target[keep]
-        qd = (q - self._target) / self.dt
-        qdd = (qd - self._target_qd) / self.dt if self._streaming else None
+            for leg, good in enumerate(ok):
+                if not good:
+                    q[3 * leg : 3 * leg + 3] = self._target[3 * leg : 3 * leg + 3]
+        dt = self.dt
+        qd = [(a - b) / dt for a, b in zip(q, self._target, strict=True)]
+        qdd = None
+        if self._streaming:
+            qdd = [(a - b) / dt for a, b in zip(qd, self._target_qd, strict=True)]
         self._target, self._target_qd, self._streaming = q, qd, True
-        return self._finish(self.smoother.step(q, qd, qdd))
+        return self._finish(*self.smoother.advance(q, qd, qdd))
 
     def joint_step(self, target_q: np.ndarray) -> JointCommand:
         """One tick towards a joint target at rest (STAND to ``stand_joints()``, HOLD)."""
-        target = np.asarray(target_q, float)
-        self._target = target.copy()
-        self._target_qd = np.zeros_like(target)
+        target = np.asarray(target_q, float).reshape(-1).tolist()
+        self._target = target
+        self._target_qd = [0.0] * len(target)
         self._streaming = False
-        self.unreachable[:] = False
-        return self._finish(self.smoother.step(target))
+        self.unreachable = [False] * self.kinematics.n_legs
+        return self._finish(*self.smoother.advance(target))
 
-    def _finish(self, q: np.ndarray) -> JointCommand:
+    def _finish(self, q: list[float], qd: list[float]) -> JointCommand:
         try:
-            self.command, self.clamped = self.guard.clamp(q)
+            self._command = self.guard.limit(q)
         except GuardError as e:
             raise MotionError(f"guard: {e}") from None
-        return JointCommand(
-            position=self.command.tolist(), velocity=self.smoother.velocity.tolist()
-        )
+        return JointCommand(position=list(self._command), velocity=qd)

@@ -10,6 +10,8 @@ clamps positions (daemon/guard.py).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import ruckig
 
@@ -17,8 +19,9 @@ from daemon.profile import Profile
 
 _OK = (ruckig.Result.Working, ruckig.Result.Finished)
 _MARGIN = 0.999
-SNAP_VELOCITY = 1e-4
-SNAP_ACCELERATION = 0.1
+SNAP = 0.05
+"""Rounding-level motion, as a fraction of what the acceleration (velocity) and jerk
+(acceleration) limits change in one tick, that a failed plan zeroes and replans from rest."""
 
 
 class SmoothingError(RuntimeError):
@@ -26,7 +29,11 @@ class SmoothingError(RuntimeError):
 
 
 class Smoother:
-    """Ruckig over all joints of ``profile`` at period ``dt`` (s); ``scale`` derates velocity."""
+    """Ruckig over all joints of ``profile`` at period ``dt`` (s); ``scale`` derates velocity.
+
+    The per-tick path (``advance``) works on plain lists: with 18 joints, numpy's per-call
+    overhead would cost more than the clipping arithmetic it replaces.
+    """
 
     def __init__(self, profile: Profile, dt: float) -> None:
         if not dt > 0:
@@ -42,15 +49,16 @@ class Smoother:
         self._inp = ruckig.InputParameter(self.n)
         self._out = ruckig.OutputParameter(self.n)
         self._inp.synchronization = ruckig.Synchronization.No
-        self._a_target = self.a_max * _MARGIN
-        self._half_inv_jerk = 0.5 / self.j_max
+        self._a_target = (self.a_max * _MARGIN).tolist()
+        self._half_inv_jerk = (0.5 / self.j_max).tolist()
         self._inp.max_acceleration = self.a_max.tolist()
         self._inp.max_jerk = self.j_max.tolist()
+        self._zeros = [0.0] * self.n
+        self._snap_velocity = SNAP * self.a_max * dt
+        self._snap_acceleration = SNAP * self.j_max * dt
         self._scale = 1.0
         self._apply_velocity_limit()
-        self.position = np.zeros(self.n)
-        self.velocity = np.zeros(self.n)
-        self.acceleration = np.zeros(self.n)
+        self._q = self._qd = self._qdd = self._zeros
         self.ready = False
         self.fallbacks = 0
 
@@ -69,18 +77,34 @@ class Smoother:
     def _apply_velocity_limit(self) -> None:
         self.v_lim = self.v_max * self._scale
         self._inp.max_velocity = self.v_lim.tolist()
+        self._v_target = (self.v_lim * _MARGIN).tolist()
+
+    @property
+    def position(self) -> np.ndarray:
+        """Joint positions of the current state (rad)."""
+        return np.array(self._q)
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """Joint velocities of the current state (rad/s)."""
+        return np.array(self._qd)
+
+    @property
+    def acceleration(self) -> np.ndarray:
+        """Joint accelerations of the current state (rad/s^2)."""
+        return np.array(self._qdd)
 
     def reset(
         self, q: np.ndarray, qd: np.ndarray | None = None, qdd: np.ndarray | None = None
     ) -> None:
         """Set the current state (e.g. the measured joints on entering a mode): no jump."""
-        self.position = self._vector(q, "position")
-        self.velocity = np.zeros(self.n) if qd is None else self._vector(qd, "velocity")
-        self.acceleration = np.zeros(self.n) if qdd is None else self._vector(qdd, "acceleration")
+        self._q = self._vector(q, "position")
+        self._qd = self._zeros if qd is None else self._vector(qd, "velocity")
+        self._qdd = self._zeros if qdd is None else self._vector(qdd, "acceleration")
         inp = self._inp
-        inp.current_position = self.position.tolist()
-        inp.current_velocity = self.velocity.tolist()
-        inp.current_acceleration = self.acceleration.tolist()
+        inp.current_position = self._q
+        inp.current_velocity = self._qd
+        inp.current_acceleration = self._qdd
         self._otg.reset()
         self.ready = True
 
@@ -89,29 +113,16 @@ class Smoother:
         lines = [ln for ln in str(error).splitlines() if ln.strip()]
         return lines[0].strip() if lines else type(error).__name__
 
-    def _vector(self, value: np.ndarray, what: str) -> np.ndarray:
-        v = np.array(value, float).reshape(-1)
-        if v.shape != (self.n,):
-            raise SmoothingError(f"{what}: expected {self.n} joints, got {v.size}")
-        if not np.isfinite(v).all():
-            bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(v))]
-            raise SmoothingError(f"{what}: non-finite value for {', '.join(bad)}")
+    def _vector(self, value: list[float] | np.ndarray, what: str) -> list[float]:
+        """``value`` as a new list of ``n`` finite floats; SmoothingError naming bad joints."""
+        v = list(value) if type(value) is list else np.asarray(value, float).reshape(-1).tolist()
+        if len(v) != self.n:
+            raise SmoothingError(f"{what}: expected {self.n} joints, got {len(v)}")
+        if not math.isfinite(sum(v)):
+            bad = [name for name, x in zip(self.names, v, strict=True) if not math.isfinite(x)]
+            if bad:
+                raise SmoothingError(f"{what}: non-finite value for {', '.join(bad)}")
         return v
-
-    def feasible_target(
-        self, target_qd: np.ndarray, target_qdd: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Clip a target velocity/acceleration into a state ruckig accepts under the limits.
-
-        The acceleration is bounded by the acceleration limit and the velocity by what can
-        still be brought to zero acceleration without passing the velocity limit.
-        """
-        if target_qdd is None:
-            qdd = np.zeros(self.n)
-        else:
-            qdd = np.minimum(np.maximum(target_qdd, -self._a_target), self._a_target)
-        v_lim = np.maximum(self.v_lim * _MARGIN - qdd * qdd * self._half_inv_jerk, 0.0)
-        return np.minimum(np.maximum(target_qd, -v_lim), v_lim), qdd
 
     def step(
         self,
@@ -123,18 +134,45 @@ class Smoother:
 
         Raises SmoothingError when ruckig fails (the controller then holds).
         """
+        qd = None if target_qd is None else np.asarray(target_qd, float).tolist()
+        qdd = None if target_qdd is None else np.asarray(target_qdd, float).tolist()
+        if qd is None and qdd is not None:
+            qd = self._zeros
+        return np.array(self.advance(target_q, qd, qdd)[0])
+
+    def advance(
+        self,
+        target_q: list[float],
+        target_qd: list[float] | None = None,
+        target_qdd: list[float] | None = None,
+    ) -> tuple[list[float], list[float]]:
+        """``step`` on lists: (new position, new velocity). Without ``target_qd`` the target is
+        at rest; a given target velocity and acceleration are first made feasible: the
+        acceleration within its limit, the velocity within what can still be brought to zero
+        acceleration without passing the velocity limit."""
         if not self.ready:
             raise SmoothingError("step() before reset(): the current joint state is unknown")
         inp, out = self._inp, self._out
-        inp.target_position = self._vector(target_q, "target position").tolist()
-        if target_qd is None and target_qdd is None:
-            inp.target_velocity = [0.0] * self.n
-            inp.target_acceleration = [0.0] * self.n
+        inp.target_position = self._vector(target_q, "target position")
+        if target_qd is None:
+            inp.target_velocity = inp.target_acceleration = self._zeros
         else:
-            qd = np.zeros(self.n) if target_qd is None else target_qd
-            qd, qdd = self.feasible_target(qd, target_qdd)
-            inp.target_velocity = qd.tolist()
-            inp.target_acceleration = qdd.tolist()
+            velocity, acceleration = [], []
+            for qd, qdd, a_lim, v_max, h in zip(
+                target_qd,
+                target_qdd or self._zeros,
+                self._a_target,
+                self._v_target,
+                self._half_inv_jerk,
+                strict=True,
+            ):
+                qdd = -a_lim if qdd < -a_lim else a_lim if qdd > a_lim else qdd
+                v_lim = v_max - qdd * qdd * h
+                v_lim = v_lim if v_lim > 0.0 else 0.0
+                velocity.append(-v_lim if qd < -v_lim else v_lim if qd > v_lim else qd)
+                acceleration.append(qdd)
+            inp.target_velocity = velocity
+            inp.target_acceleration = acceleration
         result, error = self._update()
         if result not in _OK:
             result, error = self._retry_from_rest()
@@ -142,10 +180,8 @@ class Smoother:
             why = self._first_line(error) if error is not None else result.name
             raise SmoothingError(f"ruckig: {why}")
         out.pass_to_input(inp)
-        self.position = np.array(out.new_position)
-        self.velocity = np.array(out.new_velocity)
-        self.acceleration = np.array(out.new_acceleration)
-        return self.position
+        self._q, self._qd, self._qdd = out.new_position, out.new_velocity, out.new_acceleration
+        return self._q, self._qd
 
     def _update(self) -> tuple[ruckig.Result | None, Exception | None]:
         try:
@@ -154,17 +190,18 @@ class Smoother:
             return None, e
 
     def _retry_from_rest(self) -> tuple[ruckig.Result | None, Exception | None]:
-        """Replan with rounding-level motion (|v| < SNAP_VELOCITY, |a| < SNAP_ACCELERATION) zeroed.
+        """Replan with rounding-level motion zeroed: |v| < SNAP a_max dt and |a| < SNAP j_max dt.
 
         Ruckig's step-1 solver can fail on near-degenerate states (a ~1e-8 rad move with
-        ~1e-5 rad/s left, at high jerk limits); from rest those joints plan fine. The change
-        is far inside one tick of jerk (at 100 Hz: < 0.01 + 10 rad/s^3 of finite-difference jerk).
+        ~1e-5 rad/s and ~0.1 rad/s^2 left, at high jerk limits); from rest those joints plan
+        fine. Zeroing changes velocity and acceleration by < 5 % of what one tick at the limits
+        may change them.
         """
         self.fallbacks += 1
         inp = self._inp
         v = np.array(inp.current_velocity)
         a = np.array(inp.current_acceleration)
-        tiny = (np.abs(v) < SNAP_VELOCITY) & (np.abs(a) < SNAP_ACCELERATION)
+        tiny = (np.abs(v) < self._snap_velocity) & (np.abs(a) < self._snap_acceleration)
         if not tiny.any():
             return self._update()
         inp.current_velocity = np.where(tiny, 0.0, v).tolist()

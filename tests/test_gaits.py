@@ -91,7 +91,7 @@ def walk(robot: str, gait: str, command: MotionCommand, seconds: float, settle: 
         commands.append(cmd.position)
         stances.append(stance)
         margins.append(support_margin(kin.fk(np.array(cmd.position))[stance, :2]))
-        unreachable += bool(pipeline.unreachable.any())
+        unreachable += any(pipeline.unreachable)
         if prev_feet is not None:
             ground = stance | prev_stance
             step, turn = rigid_step(prev_feet[ground], feet[ground])

@@ -60,6 +60,24 @@ def test_fk_of_ik_is_identity_over_the_reachable_workspace(robot: str, u: list[f
     err = np.linalg.norm(kin.fk(q_ik)[reachable] - feet[reachable], axis=1)
     assert np.all(err < 1e-9)
     np.testing.assert_allclose(q_ik.reshape(-1, 3)[branch], q.reshape(-1, 3)[branch], atol=1e-6)
+    q_tick, reachable_tick = kin.ik_feet(feet.tolist())
+    assert reachable_tick == reachable.tolist()
+    err = np.linalg.norm(kin.fk(np.array(q_tick))[reachable] - feet[reachable], axis=1)
+    assert np.all(err < 1e-9)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+@settings(max_examples=100, deadline=None)
+@given(offsets=st.lists(st.floats(-0.3, 0.3), min_size=18, max_size=18))
+def test_scalar_tick_ik_equals_the_vectorised_ik(robot: str, offsets: list[float]) -> None:
+    """``ik_feet`` (the control tick's scalar IK) gives ``ik``'s joints and reachable mask,
+    inside and outside the workspace and the joint limits."""
+    kin = KIN[robot]
+    feet = kin.stand_feet() + np.reshape(offsets[: kin.n_joints], (-1, 3))
+    q, reachable = kin.ik(feet)
+    q_tick, reachable_tick = kin.ik_feet(feet.tolist())
+    assert reachable_tick == reachable.tolist()
+    np.testing.assert_allclose(q_tick, q, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("robot", ROBOTS)

@@ -172,3 +172,22 @@ def test_solver_failure_on_a_degenerate_state_is_retried_from_rest() -> None:
     for _ in range(5):
         q = smoother.step(target)
     np.testing.assert_allclose(q, target, atol=1e-12)
+
+
+def test_rounding_level_steps_of_a_streamed_target_are_planned() -> None:
+    """Ruckig 0.19 fails on 1e-7..4e-7 rad steps of a target streamed at 1 kHz with its finite-
+    difference velocity and acceleration (the pipeline's stream; hypothesis found it). The
+    retry from rest plans them and the joints settle on the target."""
+    dt = 0.001
+    smoother = Smoother(PROFILES["qingzhui"], dt)
+    smoother.reset(np.zeros(18))
+    steps = np.concatenate([np.geomspace(1e-7, 4e-7, 9), -np.geomspace(1e-7, 4e-7, 9)])
+    target, target_qd = np.zeros(18), np.zeros(18)
+    for k in range(40):
+        q = steps if k >= 3 else np.zeros(18)
+        qd = (q - target) / dt
+        qdd = (qd - target_qd) / dt if k else None
+        out = smoother.step(q, qd, qdd)
+        target, target_qd = q, qd
+    assert smoother.fallbacks >= 1
+    np.testing.assert_allclose(out, steps, atol=1e-12)
