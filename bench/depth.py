@@ -6,9 +6,10 @@ frames. Baseline: ``rs.pointcloud().calculate(frame)`` plus the numpy view of it
 (camera frame, every pixel, no crop), and the same followed by what a user must add to get
 our result (drop zeros, mount transform, crop): that second row is the goal's comparison, the
 same product on the same frames. Ours: ``frame_to_points`` into the body frame, cropped to
-1 m × 1.2 m × 0.4 m, and uncropped. Reports medians (and ours' 90th percentile, since the
-machine is shared), ratios and the load average; goal: ≤ 6.67 ms (1/5 of a 30 fps period) at
-640×480 and no slower than rs + body + crop.
+1 m × 1.2 m × 0.4 m, and uncropped. The converters take turns frame by frame; reports wall
+medians, ours' 90th percentile and thread CPU time (the machine is shared), ratios and the
+load average; goal: ≤ 6.67 ms (1/5 of a 30 fps period) at 640×480 and no slower than
+rs + body + crop.
 
     .venv/bin/python bench/depth.py [--repeats 40]
 """
@@ -82,19 +83,17 @@ def recorded_frames(model, width, height, extrinsics, folder: Path) -> list[rs.d
     return [f.as_depth_frame() for f in frames]
 
 
-def times_ms(fn, frames, repeats: int) -> list[float]:
-    """Wall time (ms) of ``fn`` on every frame, ``repeats`` times over."""
-    times = []
+def interleaved_ms(fns: dict, frames, repeats: int, clock=time.perf_counter) -> dict:
+    """Times (ms, wall unless another ``clock``) of each of ``fns`` on every frame, ``repeats``
+    times over, taking turns frame by frame so a change of machine load hits all of them alike."""
+    times: dict[str, list[float]] = {name: [] for name in fns}
     for _ in range(repeats):
         for frame in frames:
-            start = time.perf_counter()
-            fn(frame)
-            times.append(1e3 * (time.perf_counter() - start))
+            for name, fn in fns.items():
+                start = clock()
+                fn(frame)
+                times[name].append(1e3 * (clock() - start))
     return times
-
-
-def median_ms(fn, frames, repeats: int) -> float:
-    return statistics.median(times_ms(fn, frames, repeats))
 
 
 def load_average() -> str:
@@ -142,30 +141,30 @@ def main() -> None:
             def ours_full(f, depth_frame=depth_frame):
                 return frame_to_points(depth_frame(f))
 
-            kept = len(ours_crop(frames[0]))
-            base = median_ms(baseline, frames, args.repeats)
-            base_body = median_ms(baseline_body, frames, args.repeats)
-            crop_times = times_ms(ours_crop, frames, args.repeats)
-            crop_ms = statistics.median(crop_times)
-            crop_p90 = statistics.quantiles(crop_times, n=10)[-1]
-            full_ms = median_ms(ours_full, frames, args.repeats)
+            kept = (len(ours_crop(frames[0])), len(baseline_body(frames[0])))
+            fns = {"rs": baseline, "rs_body": baseline_body, "ours": ours_crop, "full": ours_full}
+            wall = interleaved_ms(fns, frames, args.repeats)
+            cpu = interleaved_ms(fns, frames, args.repeats, time.thread_time)
+            median = {name: statistics.median(times) for name, times in wall.items()}
+            p90 = statistics.quantiles(wall["ours"], n=10)[-1]
             rows.append(
-                (f"{model.name} {w}×{h}", base, base_body, crop_ms, crop_p90, full_ms, kept)
+                (f"{model.name} {w}×{h}", median, p90, statistics.median(cpu["ours"]), kept)
             )
     print(
         "| frames | rs.pointcloud (ms) | rs + body + crop (ms) | ours + crop (ms) "
-        "| ours + crop p90 (ms) | ours / rs | ours / (rs + body + crop) | ours, no crop (ms) "
-        "| points in box |"
+        "| ours + crop p90 (ms) | ours + crop CPU (ms) | ours / rs "
+        "| **ours / (rs + body + crop)** | ours, no crop (ms) | points in box (ours, rs) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
-    for name, base, base_body, crop_ms, crop_p90, full_ms, kept in rows:
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, m, p90, cpu_ms, (ours_n, rs_n) in rows:
         print(
-            f"| {name} | {base:.2f} | {base_body:.2f} | {crop_ms:.2f} | {crop_p90:.2f} "
-            f"| {crop_ms / base:.1f} | {crop_ms / base_body:.2f} | {full_ms:.2f} | {kept} |"
+            f"| {name} | {m['rs']:.2f} | {m['rs_body']:.2f} | {m['ours']:.2f} | {p90:.2f} "
+            f"| {cpu_ms:.2f} | {m['ours'] / m['rs']:.1f} | **{m['ours'] / m['rs_body']:.2f}** "
+            f"| {m['full']:.2f} | {ours_n}, {rs_n} |"
         )
     at_640 = [row for row in rows if "640×480" in row[0]]
-    in_budget = all(row[3] <= budget for row in at_640)
-    no_slower = all(row[3] <= row[2] for row in rows)
+    in_budget = all(row[1]["ours"] <= budget for row in at_640)
+    no_slower = all(row[1]["ours"] <= row[1]["rs_body"] for row in rows)
     print(f"budget: 1/5 of a 30 fps period = {budget:.2f} ms; 640×480 within it: {in_budget}")
     print(f"ours no slower than rs + body + crop (the goal's comparison): {no_slower}")
     print(f"load average (1 min): {load_before} before, {load_average()} after")
