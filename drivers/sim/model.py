@@ -10,7 +10,9 @@ profile's ``direction`` and ``zero_offset``: θ = direction · (q − zero_offse
 Links are capsules, the foot a sphere
 with friction. Every joint has a motor actuator whose torque the twin computes each step
 (servos.py); torque robots also get joint torque sensors; grippers are adhesion actuators
-limited to 9 N (paper 001's grip force). The robot collides with the world, not itself.
+grippers are connect constraints that hold a foot where it closed on a graspable geom and
+let go when they would need more than 9 N (paper 001's grip force). The robot collides with
+the world, not itself.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 from daemon.messages import EstopPolicy
 from daemon.profile import Profile
 from drivers.sim import servos
-from drivers.sim.worlds import World, holds_heightfield, yaw_matrix
+from drivers.sim.worlds import World, hold_map_holds, holds_heightfield, wall_pose, yaw_matrix
 
 GRIP_FORCE = 9.0
 """Maximum grip force of a HubRobo spine gripper (N, paper 001)."""
@@ -61,8 +63,8 @@ class RobotModel:
     foot_sites: np.ndarray
     foot_geoms: np.ndarray
     motor_actuators: np.ndarray
-    gripper_actuators: np.ndarray
     graspable_geoms: np.ndarray
+    grip_equalities: np.ndarray
     start: np.ndarray
     body_half_height: float
     foot_radius: float
@@ -186,6 +188,8 @@ def _add_world(world: World, worldbody: ET.Element, asset: ET.Element, base: Pat
             **common,
         )
         fields["holds"] = (heights / top).T
+    if world.hold_map is not None:
+        _add_hold_map(world, worldbody)
     if world.truss is not None:
         t = world.truss
         nodes = np.asarray(t.nodes, float)
@@ -214,11 +218,47 @@ def _add_world(world: World, worldbody: ET.Element, asset: ET.Element, base: Pat
     return fields
 
 
+def _add_hold_map(world: World, worldbody: ET.Element) -> None:
+    """The board (not graspable) and one column geom ``hold_<i>`` per hold of the map."""
+    h = world.hold_map
+    origin, rotation = wall_pose(h)
+    quat = _fmt(_quat_y(-math.radians(h.incline_deg)))
+    common = {"contype": "0", "conaffinity": "1", "group": str(WORLD_GROUP)}
+    length, width = h.along[1] - h.along[0], h.across[1] - h.across[0]
+    centre = [(h.along[0] + h.along[1]) / 2, (h.across[0] + h.across[1]) / 2, -0.01]
+    ET.SubElement(
+        worldbody,
+        "geom",
+        name="board",
+        type="box",
+        size=_fmt([length / 2, width / 2, 0.01]),
+        pos=_fmt(origin + rotation @ centre),
+        quat=quat,
+        friction=_fmt([h.friction, 0.005, 0.0001]),
+        rgba=_fmt(h.rgba),
+        **common,
+    )
+    for i, (x, y, top) in enumerate(hold_map_holds(world)):
+        ET.SubElement(
+            worldbody,
+            "geom",
+            name=f"hold_{i}",
+            type="cylinder",
+            size=_fmt([h.hold_radius, top / 2]),
+            pos=_fmt(origin + rotation @ [x, y, top / 2]),
+            quat=quat,
+            friction=_fmt([h.friction, 0.005, 0.0001]),
+            rgba=_fmt(h.hold_rgba),
+            **common,
+        )
+
+
 def _add_robot(
     profile: Profile,
     worldbody: ET.Element,
     actuators: ET.Element,
     sensors: ET.Element,
+    equality: ET.Element,
     motors: list[servos.ServoModel],
     torque: bool,
     grippers: bool,
@@ -317,19 +357,19 @@ def _add_robot(
         )
         if grippers:
             # Spines engage within GRIP_REACH: contacts exist there (margin) but push only on
-            # touch (gap), so adhesion can pull a foot that starts to lift.
+            # touch (gap); the grip itself is a connect constraint, off until the twin closes it.
             foot.set("margin", _fmt([GRIP_REACH]))
             foot.set("gap", _fmt([GRIP_REACH]))
-        ET.SubElement(parent, "site", name=f"{leg.name}_foot", pos=pos, size=_fmt([r_foot]))
-        if grippers:
             ET.SubElement(
-                actuators,
-                "adhesion",
+                equality,
+                "connect",
                 name=f"{leg.name}_grip",
-                body=leg.joints[-1].name,
-                ctrlrange="0 1",
-                gain=f"{GRIP_FORCE:.6g}",
+                body1=leg.joints[-1].name,
+                body2="world",
+                anchor=pos,
+                active="false",
             )
+        ET.SubElement(parent, "site", name=f"{leg.name}_foot", pos=pos, size=_fmt([r_foot]))
     return hz, r_foot
 
 
@@ -357,10 +397,11 @@ def build(profile: Profile, world: World, timestep: float = 0.001) -> RobotModel
     worldbody = ET.SubElement(root, "worldbody")
     actuators = ET.SubElement(root, "actuator")
     sensors = ET.SubElement(root, "sensor")
+    equality = ET.SubElement(root, "equality")
     base = Path(world.source).parent if world.source else Path.cwd()
     fields = _add_world(world, worldbody, asset, base)
     half_height, foot_radius = _add_robot(
-        profile, worldbody, actuators, sensors, motors, torque, grippers
+        profile, worldbody, actuators, sensors, equality, motors, torque, grippers
     )
     xml = ET.tostring(root, encoding="unicode")
     try:
@@ -379,7 +420,10 @@ def build(profile: Profile, world: World, timestep: float = 0.001) -> RobotModel
     graspable = [
         i
         for i in range(model.ngeom)
-        if (model.geom(i).name == "holds" or model.geom(i).name.startswith(("member", "linker")))
+        if (
+            model.geom(i).name == "holds"
+            or model.geom(i).name.startswith(("hold_", "member", "linker"))
+        )
     ]
     return RobotModel(
         model=model,
@@ -394,12 +438,12 @@ def build(profile: Profile, world: World, timestep: float = 0.001) -> RobotModel
         foot_sites=ids(mujoco.mjtObj.mjOBJ_SITE, [f"{n}_foot" for n in legs]),
         foot_geoms=ids(mujoco.mjtObj.mjOBJ_GEOM, [f"{n}_foot" for n in legs]),
         motor_actuators=ids(mujoco.mjtObj.mjOBJ_ACTUATOR, profile.joint_names),
-        gripper_actuators=(
-            ids(mujoco.mjtObj.mjOBJ_ACTUATOR, [f"{n}_grip" for n in legs])
+        graspable_geoms=np.array(graspable, int),
+        grip_equalities=(
+            ids(mujoco.mjtObj.mjOBJ_EQUALITY, [f"{n}_grip" for n in legs])
             if grippers
             else np.zeros(0, int)
         ),
-        graspable_geoms=np.array(graspable, int),
         start=start_pose(world),
         body_half_height=half_height,
         foot_radius=foot_radius,
@@ -408,11 +452,16 @@ def build(profile: Profile, world: World, timestep: float = 0.001) -> RobotModel
 
 
 def start_pose(world: World) -> np.ndarray:
-    """Base position (x, y, ground z) and quaternion (w, x, y, z) of the start, on any slope."""
+    """Base position (x, y, ground z) and quaternion (w, x, y, z) of the start, on any slope
+    (on a hold map's board, ``start`` x, y are wall-frame coordinates)."""
     s = world.start
     yaw = math.radians(s.yaw_deg)
     q = np.array(_quat_z(yaw))
     ground = 0.0
+    if world.hold_map is not None:
+        origin, rotation = wall_pose(world.hold_map)
+        pitch = np.array(_quat_y(-math.radians(world.hold_map.incline_deg)))
+        return np.array([*(origin + rotation @ [s.x, s.y, 0.0]), *_quat_mul(pitch, q)])
     if world.holds is not None:
         h = world.holds
         incline = math.radians(h.incline_deg)

@@ -396,30 +396,34 @@ class Twin:
     def _grip_update(self) -> None:
         """Grippers as connect constraints: one engages where its closed gripper's foot touches
         a graspable geom, and slips (lets go, counted in ``slips``) when the force it needs
-        exceeds GRIP_FORCE; it engages again only after it has been opened."""
+        exceeds GRIP_FORCE; it engages again only after it has been opened. While it holds, the
+        grip replaces the foot's contact (the spines enclose the hold)."""
         d, r, m = self.data, self.robot, self.model
-        held = d.eq_active[r.grip_equalities].astype(bool)
+        was = d.eq_active[r.grip_equalities].astype(bool)
+        held = was.copy()
         if held.any():
-            rows = d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY
-            ids, force = d.efc_id[: d.nefc][rows], d.efc_force[: d.nefc][rows]
-            for i in np.flatnonzero(held):
-                need = float(np.linalg.norm(force[ids == r.grip_equalities[i]]))
-                self.grip_load[i] = need
-                if need > GRIP_FORCE:
-                    held[i] = False
-                    self.slips[i] += 1
-                    self.slipped[i] = True
+            rows = slice(0, d.ne)
+            square = np.bincount(d.efc_id[rows], d.efc_force[rows] ** 2, minlength=m.neq)
+            self.grip_load[:] = np.sqrt(square[r.grip_equalities])
+            slip = held & (self.grip_load > GRIP_FORCE)
+            self.slips += slip
+            self.slipped |= slip
+            held &= ~slip
         self.slipped &= self.grip
-        g1, g2 = d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon]
-        on_hold = np.concatenate(
-            [g1[np.isin(g2, r.graspable_geoms)], g2[np.isin(g1, r.graspable_geoms)]]
-        )
-        engage = self.grip & ~held & ~self.slipped & np.isin(r.foot_geoms, on_hold)
-        for i in np.flatnonzero(engage):
-            m.eq_data[r.grip_equalities[i], 3:6] = d.site_xpos[r.foot_sites[i]]
+        engage = self.grip & ~held & ~self.slipped
+        if engage.any():
+            g1, g2 = d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon]
+            on_hold = np.concatenate(
+                [g1[np.isin(g2, r.graspable_geoms)], g2[np.isin(g1, r.graspable_geoms)]]
+            )
+            engage &= np.isin(r.foot_geoms, on_hold)
+            for i in np.flatnonzero(engage):
+                m.eq_data[r.grip_equalities[i], 3:6] = d.site_xpos[r.foot_sites[i]]
         held = (held | engage) & self.grip
         self.grip_load[~held] = 0.0
-        d.eq_active[r.grip_equalities] = held
+        if (held != was).any():
+            d.eq_active[r.grip_equalities] = held
+            m.geom_contype[r.foot_geoms] = np.where(held, 0, 1)
 
     def _physics_step(self) -> None:
         self._control()

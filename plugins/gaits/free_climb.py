@@ -14,9 +14,11 @@ whose step is feasible: every foot reachable along the base's path and the predi
 Stability Margin ≥ 0 throughout (§3.2, [9]). They differ only in the swing limb (§3.1): the
 non-periodic gait swings the limb with most options ahead, dropping options that prove
 infeasible and recounting (as ClimbLab does); the periodic baseline swings limbs in a fixed
-crawl order. When no option ahead is feasible the limb re-grips: the feasible option that
-loses least towards the goal (the periodic gait tries this for its own limb first, then
-passes the turn on), so neither planner stops while any feasible step exists.
+crawl order and, as [9] in ClimbLab, takes its limb's feasible option furthest towards the
+goal even when that is a step back, or holds still for the period when its limb has no
+feasible option. When no option ahead is feasible the non-periodic gait re-grips (the
+feasible step that frees a splayed posture, else loses least), so it never stops while any
+feasible step exists.
 """
 
 from __future__ import annotations
@@ -71,7 +73,8 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 @dataclass(frozen=True)
 class Step:
     """One planned swing: limb, foot start/target and base start/end (wall frame, m);
-    ``regrip`` when no option ahead was feasible and the limb moved to keep going."""
+    ``regrip`` when no option ahead was feasible and the limb moved to keep going; ``wait``
+    when the periodic gait's limb had no feasible option and holds still for its period."""
 
     limb: int
     start: np.ndarray
@@ -79,6 +82,7 @@ class Step:
     base_start: np.ndarray
     base_end: np.ndarray
     regrip: bool = False
+    wait: bool = False
 
     @property
     def stride(self) -> float:
@@ -148,9 +152,9 @@ class ClimbPlanner:
         self.periodic = periodic
         self.turn = 0
         self.passed = 0
+        """Turns the periodic gait waited out because its limb had no feasible step at all."""
         self.left: dict[int, np.ndarray] = {}
         """Holds left by re-grips, barred to their limb until a stride ahead (no cycling)."""
-        """Turns the periodic gait passed on because its limb had no feasible step at all."""
         slope = math.radians(config.slope_deg)
         self.down = np.array([-math.sin(slope), 0.0, -math.cos(slope)])
         self.force = config.mass * config.gravity * self.down
@@ -228,7 +232,7 @@ class ClimbPlanner:
             step = self._plan_free(feet, base, options)
         if step is not None and step.regrip:
             self.left[step.limb] = step.start
-        elif step is not None:
+        elif step is not None and not step.wait:
             self.left.clear()
         return step
 
@@ -254,21 +258,19 @@ class ClimbPlanner:
         return self._regrip(feet, base, options, range(len(feet)))
 
     def _plan_periodic(self, feet, base, options) -> Step | None:
-        """[9]: the limb whose turn it is takes its longest feasible stride, else re-grips;
-        with no feasible step at all it passes the turn to the next limb of the order."""
-        ahead = self._ahead(feet, options)
-        for _ in range(len(PERIODIC_ORDER)):
-            limb = PERIODIC_ORDER[self.turn]
-            self.turn = (self.turn + 1) % len(PERIODIC_ORDER)
-            for target in ahead[limb]:
-                step = self.feasible(feet, base, limb, target)
-                if step is not None:
-                    return step
-            step = self._regrip(feet, base, options, (limb,))
+        """[9] as ClimbLab runs it: the limb whose turn it is takes, of all its options, the
+        feasible one furthest towards the goal (a step back if nothing ahead is feasible); with
+        no feasible option it holds still for its swing period (a wait) and the turn moves on."""
+        limb = PERIODIC_ORDER[self.turn]
+        self.turn = (self.turn + 1) % len(PERIODIC_ORDER)
+        opts = options[limb]
+        stride = (opts - feet[limb]) @ GOAL
+        for i in np.argsort(-stride, kind="stable"):
+            step = self.feasible(feet, base, limb, opts[i])
             if step is not None:
-                return step
-            self.passed += 1
-        return None
+                return dataclasses.replace(step, regrip=bool(stride[i] <= self.config.min_stride))
+        self.passed += 1
+        return Step(limb, feet[limb].copy(), feet[limb].copy(), base.copy(), base.copy(), wait=True)
 
     def _regrip(self, feet, base, options, limbs) -> Step | None:
         """The way on when no option ahead is feasible: the feasible step of ``limbs`` that
@@ -323,6 +325,11 @@ class ClimbRunner:
             margin = self.planner.tsm(self.base, self.feet)
             return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin)
         self.phase = min(1.0, self.phase + dt / self.planner.config.swing_period)
+        if step.wait:
+            if self.phase >= 1.0:
+                self.step = None
+            margin = self.planner.tsm(self.base, self.feet)
+            return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin)
         foot, base = self.planner.pose(step, self.phase)
         feet = self.feet.copy()
         feet[step.limb] = foot

@@ -15,12 +15,14 @@ from scipy.spatial import cKDTree
 def tile_map(
     tile: np.ndarray, seed: int, along: tuple[float, float], across: tuple[float, float]
 ) -> np.ndarray:
-    """Wall-frame holds (k×3, z = 0) covering ``along`` × ``across`` (m) with copies of
-    ``tile`` (n×2 points on the wall plane, n ≥ 2), each rotated and mirrored at random."""
-    tile = np.asarray(tile, float)[:, :2]
+    """Wall-frame holds (k×3) covering ``along`` × ``across`` (m) with copies of ``tile`` (n
+    points on the wall plane, n ≥ 2, with an optional third column: the hold's height, kept;
+    else z = 0), each rotated and mirrored at random."""
+    tile = np.asarray(tile, float)
     if len(tile) < 2:
         raise ValueError(f"tile: need at least 2 graspable points, found {len(tile)}")
-    tile = tile - (tile.min(axis=0) + tile.max(axis=0)) / 2
+    height = tile[:, 2] if tile.shape[1] > 2 else np.zeros(len(tile))
+    tile = tile[:, :2] - (tile[:, :2].min(axis=0) + tile[:, :2].max(axis=0)) / 2
     spacing = float(np.mean(cKDTree(tile).query(tile, k=2)[0][:, 1]))
     pitch = float(np.ptp(tile, axis=0).max()) + spacing
     rng = np.random.default_rng(seed)
@@ -35,4 +37,4 @@ def tile_map(
             local = tile * [1.0, mirror]
             copies.append(local @ np.array([[c, s], [-s, c]]) + [x, y])
     points = np.vstack(copies)
-    return np.column_stack((points, np.zeros(len(points))))
+    return np.column_stack((points, np.tile(height, len(copies))))

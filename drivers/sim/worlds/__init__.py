@@ -9,6 +9,7 @@ replace top-level tables, e.g. ``load("slope", gravity=9.80665 / 6)``.
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 from pathlib import Path
@@ -91,6 +92,29 @@ class HoldsSlope(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     rgba: list[float] = msgspec.field(default_factory=lambda: [0.6, 0.45, 0.35, 1.0])
 
 
+class HoldMap(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Paper 001 §4.1's slope: a board at ``incline_deg`` carrying one hold per graspable point
+    of a hold map, tiled (seeded) from the detection on ``cloud`` (PCD, relative to the file).
+
+    The relief is the holds: each is a column of the palm's radius ``hold_radius`` standing
+    on the board as high as its point stood above the cloud's board, so the graspable set and
+    the relief are the same geoms. The wall frame (x up the slope, y left, z out of the
+    board) spans ``along`` × ``across`` (m); its lower edge touches the floor at the origin.
+    ``extra`` adds holds (wall x, y) at the mean height, e.g. where the robot starts.
+    """
+
+    cloud: str
+    seed: int = 0
+    incline_deg: float = 30.0
+    along: list[float] = msgspec.field(default_factory=lambda: [-0.3, 0.7])
+    across: list[float] = msgspec.field(default_factory=lambda: [-0.35, 0.35])
+    hold_radius: float = 0.016
+    extra: list[list[float]] = []
+    friction: float = 1.0
+    rgba: list[float] = msgspec.field(default_factory=lambda: [0.6, 0.45, 0.35, 1.0])
+    hold_rgba: list[float] = msgspec.field(default_factory=lambda: [0.9, 0.75, 0.2, 1.0])
+
+
 class TrussMember(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """One member of a truss: node indices of its ends."""
 
@@ -126,6 +150,7 @@ class World(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     joists: list[JoistRow] = []
     stairs: list[Staircase] = []
     holds: HoldsSlope | None = None
+    hold_map: HoldMap | None = None
     truss: Truss | None = None
     source: str = ""
 
@@ -161,6 +186,26 @@ def _check(world: World) -> World:
             len(h.tiles) == 2 and min(h.tiles) >= 1,
             "$.holds.tiles",
             f"expected [along, across] >= 1, found {h.tiles}",
+        )
+    if world.hold_map is not None:
+        h = world.hold_map
+        need(
+            0 <= h.incline_deg < 90,
+            "$.hold_map.incline_deg",
+            f"expected 0..90, found {h.incline_deg}",
+        )
+        for key in ("along", "across"):
+            span = getattr(h, key)
+            need(
+                len(span) == 2 and span[0] < span[1],
+                f"$.hold_map.{key}",
+                f"expected [low, high] with low < high, found {span}",
+            )
+        need(h.hold_radius > 0, "$.hold_map.hold_radius", f"expected > 0, found {h.hold_radius}")
+        need(
+            all(len(p) == 2 for p in h.extra),
+            "$.hold_map.extra",
+            "expected [x, y] pairs (m, wall frame)",
         )
     if world.truss is not None:
         n = len(world.truss.nodes)
@@ -232,6 +277,51 @@ def holds_heightfield(holds: HoldsSlope, base: Path) -> tuple[np.ndarray, float,
     )
     field -= field.min()
     return field, field.shape[0] * res, field.shape[1] * res
+
+
+def hold_map_tile(cloud: Path) -> np.ndarray:
+    """Graspable points detected on ``cloud`` (paper 001 §2) on its regression plane: x, y and
+    the height (m) above the cloud's board (its 5th-percentile level)."""
+    return _detected_tile(Path(cloud).resolve()).copy()
+
+
+@functools.lru_cache(maxsize=4)
+def _detected_tile(cloud: Path) -> np.ndarray:
+    from plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
+
+    try:
+        pts = read_cloud(cloud)
+    except CloudFileError as e:
+        raise WorldError(f"$.hold_map.cloud: {e}") from None
+    frame = regression_frame(pts, np.zeros(3))
+    board = float(np.percentile(frame.to_plane(pts)[:, 2], 5))
+    tile = frame.to_plane(GraspableDetector(GraspableConfig()).detect(pts).points)
+    tile[:, 2] -= board
+    return tile
+
+
+def hold_map_holds(world: World) -> np.ndarray:
+    """The hold map of ``world`` (k×3, wall frame): x, y and the hold's top height (m)."""
+    from plugins.gaits.hold_map import tile_map
+
+    h = world.hold_map
+    path = Path(h.cloud)
+    if not path.is_absolute():
+        base = Path(world.source).parent if world.source else Path.cwd()
+        path = (base / path).resolve()
+    tile = hold_map_tile(path)
+    holds = tile_map(tile, h.seed, tuple(h.along), tuple(h.across))
+    extra = np.asarray(h.extra, float).reshape(-1, 2)
+    extra = np.column_stack((extra, np.full(len(extra), tile[:, 2].mean())))
+    return np.vstack((holds, extra))
+
+
+def wall_pose(hold_map: HoldMap) -> tuple[np.ndarray, np.ndarray]:
+    """World position of the wall frame's origin and its rotation (columns: wall x, y, z)."""
+    incline = math.radians(hold_map.incline_deg)
+    c, s = math.cos(incline), math.sin(incline)
+    rotation = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+    return -rotation @ [hold_map.along[0], 0.0, 0.0], rotation
 
 
 def yaw_matrix(yaw_deg: float) -> np.ndarray:
