@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy import sparse
 from scipy.spatial.transform import Rotation
 
 from daemon.messages import BodyState
@@ -60,17 +60,69 @@ class VoxelMap:
         return self._sums / self._counts[:, None]
 
 
-def neighbourhoods(points: np.ndarray, k: int) -> tuple[cKDTree, np.ndarray, np.ndarray]:
-    """KD-tree of the cloud, and each point's k nearest neighbours (distances, indices)."""
-    tree = cKDTree(points)
-    distances, indices = tree.query(points, k=min(k, len(points)))
-    return tree, distances, indices
+def _ball_offsets(reach: float) -> np.ndarray:
+    """Packed key offsets of the voxels whose centres lie within ``reach`` voxels of a voxel's."""
+    span = np.arange(-int(reach), int(reach) + 1)
+    d = np.stack(np.meshgrid(span, span, span, indexing="ij"), -1).reshape(-1, 3)
+    d = d[(d * d).sum(axis=1) <= reach * reach]
+    return (d[:, 0] << 42) + (d[:, 1] << 21) + d[:, 2]
 
 
-def estimate_normals(points: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Unit normals (unoriented) from the smallest principal direction of each neighbourhood."""
-    patch = points[indices] - points[indices].mean(axis=1, keepdims=True)
-    return smallest_eigenvectors(np.einsum("nki,nkj->nij", patch, patch))
+def ball_normals(points: np.ndarray, voxel: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """Normals of a voxel-downsampled cloud (one point per voxel) from the points in the voxels
+    within ``reach`` voxels of each point's, and how many other points that ball holds.
+
+    A look-up of the voxel keys instead of a KD-tree query (one point per voxel, so the
+    neighbourhood is a fixed set of voxels); the ball sums of the moments are one sparse product.
+    """
+    keys = _voxel_keys(points, voxel)
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    query = keys[:, None] + _ball_offsets(reach)
+    slot = np.minimum(np.searchsorted(sorted_keys, query), len(keys) - 1)
+    hit = sorted_keys[slot] == query
+    count = hit.sum(axis=1)
+    ball = sparse.csr_matrix(
+        (np.ones(int(count.sum())), order[slot[hit]], np.concatenate([[0], np.cumsum(count)])),
+        shape=(len(points), len(points)),
+    )
+    local = points - points.mean(axis=0)
+    x, y, z = local.T
+    sums = ball @ np.column_stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z])
+    moments = _covariances(list(sums[:, 3:].T), count, sums[:, :3] / count[:, None])
+    return smallest_eigenvectors(moments), count - 1
+
+
+def voxel_normals(points: np.ndarray, voxel: float, min_points: int = 3) -> tuple:
+    """Centroid and normal of every voxel holding at least ``min_points`` points: a coarse
+    oriented cloud (for plane candidates) in one pass of per-voxel moments, no neighbour search."""
+    _, inverse, counts = np.unique(
+        _voxel_keys(points, voxel), return_inverse=True, return_counts=True
+    )
+    bins = len(counts)
+    centroids = _sums(inverse, points, bins) / counts[:, None]
+    x, y, z = points.T
+    products = [
+        np.bincount(inverse, a * b, bins)
+        for a, b in ((x, x), (x, y), (x, z), (y, y), (y, z), (z, z))
+    ]
+    full = counts >= min_points
+    moments = _covariances([p[full] for p in products], counts[full], centroids[full])
+    return centroids[full], smallest_eigenvectors(moments)
+
+
+def _covariances(products: list, count: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+    """3 x 3 scatter matrices about the centroids from the sums of xx, xy, xz, yy, yz, zz."""
+    xx, xy, xz, yy, yz, zz = products
+    cx, cy, cz = centroids.T
+    a = np.empty((len(count), 3, 3))
+    a[:, 0, 0] = xx - count * cx * cx
+    a[:, 0, 1] = a[:, 1, 0] = xy - count * cx * cy
+    a[:, 0, 2] = a[:, 2, 0] = xz - count * cx * cz
+    a[:, 1, 1] = yy - count * cy * cy
+    a[:, 1, 2] = a[:, 2, 1] = yz - count * cy * cz
+    a[:, 2, 2] = zz - count * cz * cz
+    return a
 
 
 def smallest_eigenvectors(a: np.ndarray) -> np.ndarray:

@@ -54,7 +54,8 @@ def gap_reach(distances: np.ndarray, gap: float) -> tuple[float, bool]:
     Returns the distance from e to the new end point and whether no such gap was found.
     """
     d = np.sort(distances)
-    gaps = np.diff(d, prepend=0.0)
+    gaps = d.copy()
+    gaps[1:] -= d[:-1]
     big = np.flatnonzero(gaps >= gap)
     if len(big) == 0:
         return (float(d[-1]) if len(d) else 0.0), True

@@ -59,9 +59,14 @@ def surface_fit(
     """Per point: |distance to axis - r| (m) and |cos| of its normal to the radial direction."""
     w = points - cylinder.point
     radial = w - np.outer(w @ cylinder.axis, cylinder.axis)
-    distance = np.linalg.norm(radial, axis=1)
-    cos = np.abs(np.einsum("ij,ij->i", radial, normals)) / np.maximum(distance, 1e-12)
+    distance = np.sqrt(_rowdot(radial, radial))
+    cos = np.abs(_rowdot(radial, normals)) / np.maximum(distance, 1e-12)
     return np.abs(distance - cylinder.radius), cos
+
+
+def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of two N x 3 arrays."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
 def refine(
@@ -72,23 +77,25 @@ def refine(
     if max_points is not None and len(points) > max_points:
         points = points[:: -(-len(points) // max_points)]
     point, axis, radius = cylinder.point.copy(), cylinder.axis.copy(), cylinder.radius
+    jacobian = np.empty((5, len(points)))
+    jacobian[4] = -1.0
     for _ in range(iterations):
         u, v = perpendicular_basis(axis)
-        w = points - point
-        t = w @ axis
+        t, pu, pv = np.array([axis, u, v]) @ (points - point).T
         t -= t.mean()
-        pu, pv = w @ u, w @ v
-        distance = np.maximum(np.hypot(pu, pv), 1e-12)
-        ru, rv = pu / distance, pv / distance
-        jacobian = np.column_stack([-ru, -rv, -t * ru, -t * rv, -np.ones_like(t)])
-        normal = jacobian.T @ jacobian
+        distance = np.maximum(np.sqrt(pu * pu + pv * pv), 1e-12)
+        np.divide(pu, -distance, out=jacobian[0])
+        np.divide(pv, -distance, out=jacobian[1])
+        np.multiply(t, jacobian[0], out=jacobian[2])
+        np.multiply(t, jacobian[1], out=jacobian[3])
+        normal = jacobian @ jacobian.T
         normal[np.diag_indices(5)] += 1e-12 + 1e-9 * np.trace(normal)
-        step = np.linalg.solve(normal, jacobian.T @ (radius - distance))
+        step = np.linalg.solve(normal, jacobian @ (radius - distance))
         point = point + step[0] * u + step[1] * v
         axis = axis + step[2] * u + step[3] * v
         axis /= np.sqrt(axis @ axis)
         radius += step[4]
-        if np.abs(step).max() < 1e-6:
+        if np.abs(step).max() < 1e-5:
             break
     point = point + axis * ((points - point) @ axis).mean()
     return Cylinder(point, axis, float(radius))
@@ -165,14 +172,13 @@ def segment_cylinders(
             failures += 1
             continue
         sample = rng.choice(pool, size=min(probe, len(pool)), replace=False)
-        w = points[sample][None, :, :] - centres[valid][:, None, :]
-        along = np.einsum("hnj,hj->hn", w, axes[valid])
-        radial = w - along[..., None] * axes[valid][:, None, :]
-        dist = np.linalg.norm(radial, axis=2)
-        cos = np.abs(np.einsum("hnj,nj->hn", radial, normals[sample])) / np.maximum(dist, 1e-12)
-        score = ((np.abs(dist - radii[valid][:, None]) < distance) & (cos > cos_limit)).sum(1)
+        centres, axes, radii = centres[valid], axes[valid], radii[valid]
+        score = _scores(points[sample], normals[sample], centres, axes, radii, distance, cos_limit)
         best = int(np.argmax(score))
-        cylinder = Cylinder(centres[valid][best], axes[valid][best], float(radii[valid][best]))
+        if score[best] * len(pool) < 0.5 * min_points * len(sample):
+            failures += 1
+            continue
+        cylinder = Cylinder(centres[best], axes[best], float(radii[best]))
         segment = _grow(points, normals, pool, cylinder, distance, cos_limit, segment_gap)
         if (
             segment is None
@@ -186,6 +192,27 @@ def segment_cylinders(
         active[segment.indices if claim is None else claim(segment)] = False
         segments.append(segment)
     return segments
+
+
+def _scores(
+    points: np.ndarray,
+    normals: np.ndarray,
+    centres: np.ndarray,
+    axes: np.ndarray,
+    radii: np.ndarray,
+    distance: float,
+    cos_limit: float,
+) -> np.ndarray:
+    """Inliers of each hypothesis among the probe points: on its surface within ``distance``,
+    normal within the angle of its radial direction. Products of N x 3 by 3 x H arrays only."""
+    along = points @ axes.T - (centres * axes).sum(axis=1)
+    w2 = (points * points).sum(axis=1)[:, None] - 2 * points @ centres.T
+    w2 += (centres * centres).sum(axis=1)
+    radial = np.sqrt(np.maximum(w2 - along * along, 0.0))
+    dot = normals @ centres.T
+    normal_radial = (normals * points).sum(axis=1)[:, None] - dot - along * (normals @ axes.T)
+    cos = np.abs(normal_radial) / np.maximum(radial, 1e-12)
+    return ((np.abs(radial - radii) < distance) & (cos > cos_limit)).sum(axis=0)
 
 
 GROW_POINTS = 1500

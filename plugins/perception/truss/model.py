@@ -14,7 +14,7 @@ import msgspec
 import numpy as np
 from scipy.spatial import cKDTree
 
-from plugins.perception.truss.cloud import estimate_normals, neighbourhoods, voxel_downsample
+from plugins.perception.truss.cloud import ball_normals, voxel_downsample, voxel_normals
 from plugins.perception.truss.completion import (
     Member,
     complete,
@@ -32,13 +32,12 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
     voxel: float = 0.01
     max_range: float = 4.5
-    normal_neighbours: int = 12
-    outlier_radius: float = 0.03
-    outlier_neighbours: int = 4
+    normal_reach: float = 2.0
+    outlier_neighbours: int = 3
     plane_distance: float = 0.02
     plane_angle_deg: float = 20.0
     plane_voxel: float = 0.08
-    plane_neighbours: int = 8
+    plane_sample: int = 30000
     plane_cell: float = 0.05
     plane_min_points: int = 30
     plane_min_area: float = 0.25
@@ -105,10 +104,7 @@ class TrussModeller:
             raise ValueError(f"truss: cloud must be N x 3, got shape {cloud.shape}")
         cloud = cloud[np.isfinite(cloud).all(axis=1)]
         rng = np.random.default_rng(c.seed)
-        points = voxel_downsample(cloud, c.voxel) if len(cloud) else cloud
-        if len(points) <= c.normal_neighbours:
-            return TrussModel([], [], points)
-        points, normals = self._without_planes(points, rng)
+        points, normals = self._without_planes(cloud, rng)
         if len(points) < c.min_member_points:
             return TrussModel([], [], points)
         completed: list[Member] = []
@@ -146,18 +142,21 @@ class TrussModeller:
         return TrussModel(members, [from_segment(s) for s in segments], points)
 
     def _without_planes(
-        self, points: np.ndarray, rng: np.random.Generator
+        self, cloud: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Remove planes and isolated points; normals of the rest. Every point within
-        ``plane_distance`` of a plane goes, and within twice that if its normal is the plane's."""
+        """Remove planes, voxel-downsample the rest, drop isolated points; normals of the rest.
+
+        Every point within ``plane_distance`` of a plane goes, and within twice that if its
+        normal is the plane's. Plane candidates come from per-voxel normals of a coarse grid
+        over at most ``plane_sample`` points, so the full cloud is only read by a few passes."""
         c = self.config
-        coarse = voxel_downsample(points, c.plane_voxel)
         candidates: list = []
-        if len(coarse) > c.plane_neighbours:
-            _, _, indices = neighbourhoods(coarse, c.plane_neighbours)
+        sample = cloud[:: max(1, len(cloud) // c.plane_sample)]
+        coarse, coarse_normals = voxel_normals(sample, c.plane_voxel)
+        if len(coarse) >= c.plane_min_points:
             candidates = find_planes(
                 coarse,
-                estimate_normals(coarse, indices),
+                coarse_normals,
                 rng,
                 distance=c.plane_distance,
                 angle_deg=c.plane_angle_deg,
@@ -167,7 +166,7 @@ class TrussModeller:
         planes = []
         for candidate in candidates:
             plane, real = accept_plane(
-                points,
+                cloud,
                 candidate,
                 distance=c.plane_distance,
                 min_width=c.plane_min_width,
@@ -176,30 +175,28 @@ class TrussModeller:
             )
             if real:
                 planes.append(plane)
+        height, _ = plane_heights(cloud, planes)
+        points = voxel_downsample(cloud[height >= c.plane_distance], c.voxel)
         height, nearest = plane_heights(points, planes)
-        points, height, nearest = (
-            points[height >= c.plane_distance],
-            height[height >= c.plane_distance],
-            nearest[height >= c.plane_distance],
-        )
-        if len(points) <= c.normal_neighbours:
+        if len(points) == 0:
             return points, np.zeros_like(points)
-        _, distances, indices = neighbourhoods(points, c.normal_neighbours)
-        normals = estimate_normals(points, indices)
-        keep = distances[:, c.outlier_neighbours] <= c.outlier_radius
+        normals, neighbours = ball_normals(points, c.voxel, c.normal_reach)
+        keep = (neighbours >= c.outlier_neighbours) & (height >= c.plane_distance)
         if planes:
             plane_normals = np.array([n for n, _ in planes])[nearest]
-            along = np.abs(np.einsum("ij,ij->i", normals, plane_normals))
+            along = np.abs((normals * plane_normals).sum(axis=1))
             keep &= ~(
                 (height < 2 * c.plane_distance) & (along > np.cos(np.radians(c.plane_angle_deg)))
             )
         return points[keep], normals[keep]
 
     def _complete(self, segment: Segment, points: np.ndarray, normals: np.ndarray) -> Member:
-        """Complete a segment; between passes refit its axis on the points the completion found."""
+        """Complete a segment; between passes refit its axis on the points the completion found
+        (the last pass's refit is the modeller's final one, after merging)."""
         c = self.config
-        for _ in range(c.completion_passes):
-            member = complete(
+
+        def slide(segment: Segment) -> Member:
+            return complete(
                 segment,
                 points,
                 slide_lambda=c.slide_lambda,
@@ -207,9 +204,12 @@ class TrussModeller:
                 margin=c.box_margin,
                 max_slides=c.max_slides,
             )
+
+        member = slide(segment)
+        for _ in range(c.completion_passes - 1):
             refitted = self._refit(member, points, normals)
             surface = self._surface(refitted, points, normals)
-            segment = Segment(refitted.cylinder, refitted.t0, refitted.t1, surface)
+            member = slide(Segment(refitted.cylinder, refitted.t0, refitted.t1, surface))
         return member
 
     def _surface(self, member: Member, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
