@@ -17,6 +17,8 @@ Usage: ``python bench/soak.py [--minutes 5] [--sample 30] [--fuzz 10000] [--camp
 from __future__ import annotations
 
 import argparse
+import contextlib
+import itertools
 import os
 import signal
 import subprocess
@@ -141,6 +143,261 @@ def soak(minutes: float, sample: float) -> tuple[list[str], dict]:
         "codes": codes,
     }
     return table, summary
+
+
+FLAT_WORLD = 'name = "flat"\n[floor]\nsize = 10.0  # half-size: a 20 m square\n'
+"""The soak's world: a bare floor; the walk circles (radius vx / yaw_rate) in its middle."""
+
+
+def role_pids(top: int) -> dict[str, int]:
+    """The processes of a ``climbd run``: itself, and a supervisor's children by their role."""
+    argv = Path(f"/proc/{top}/cmdline").read_bytes().split(b"\0")
+    pids = {"supervisor" if b"all" in argv else "control": top}
+    for pid in map(int, Path(f"/proc/{top}/task/{top}/children").read_text().split()):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            child = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            pids[child[child.index(b"--role") + 1].decode()] = pid
+    return pids
+
+
+def rss_sample(top: int) -> dict[str, float]:
+    """RSS (MiB) of each process of the run; one that just exited (a restart) is left out."""
+    out = {}
+    for role, pid in role_pids(top).items():
+        with contextlib.suppress(OSError):
+            out[role] = rss_mib(pid)
+    return out
+
+
+def open_client(endpoint: str, proc: subprocess.Popen, timeout: float = 60.0):
+    """A Zenoh client session on the daemon's endpoint, once it listens (the roles start slowly).
+
+    A client, not a peer: the control role routes the perception role's topics to its clients.
+    """
+    import zenoh
+
+    from daemon.bus import Bus, Endpoints, zenoh_config
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return Bus("widowx", zenoh_config(None, "bench", Endpoints([], [endpoint]), "client"))
+        except zenoh.ZError:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"climbd run never listened on {endpoint}") from None
+            time.sleep(0.5)
+
+
+class TwinRecorder:
+    """What the twin soak hears over Zenoh: Health reports, mode changes, odometry, features."""
+
+    def __init__(self, bus) -> None:
+        from daemon.messages import BodyState, Health, Joists, ModeState
+
+        self.lock = threading.Lock()
+        self.health: list[tuple[float, object]] = []
+        self.modes: list[tuple[float, str, str]] = []
+        self.body: list[tuple[float, float, float]] = []
+        self.features: list[float] = []
+        self.perception: list[tuple[float, object]] = []
+        self._last_body = -1.0
+        bus.subscribe(Health, self._on_health)
+        bus.subscribe(ModeState, self._on_mode)
+        bus.subscribe(BodyState, self._on_body, latest_only=True)
+        bus.subscribe(Joists, lambda j: self._add(self.features, time.monotonic()))
+
+    def _add(self, items: list, item) -> None:
+        with self.lock:
+            items.append(item)
+
+    def _on_health(self, h) -> None:
+        self._add(self.health if h.role == "control" else self.perception, (time.monotonic(), h))
+
+    def _on_mode(self, s) -> None:
+        with self.lock:
+            if not self.modes or self.modes[-1][1:] != (s.mode.value, s.reason):
+                self.modes.append((time.monotonic(), s.mode.value, s.reason))
+
+    def _on_body(self, b) -> None:
+        now = time.monotonic()
+        if now - self._last_body >= 0.2:  # 5 Hz is plenty for a 0.05 m/s walk's path length
+            self._last_body = now
+            self._add(self.body, (now, b.position[0], b.position[1]))
+
+
+class SoakOperator:
+    """The teleop client that keeps the robot walking: STAND → ACTIVE once stood, HOLD → ACTIVE
+    (e.g. after a late heartbeat), FAULT/ESTOP → reset; each state it had to leave is counted."""
+
+    def __init__(self, client, motion: dict[str, float]) -> None:
+        self.client = client
+        self.motion = motion
+        self.recoveries: dict[str, int] = {}
+        self._seen = -1.0
+
+    def poll(self, recorder: TwinRecorder) -> None:
+        """Act on the latest mode (every call retries until the robot walks again)."""
+        from daemon.messages import Mode
+
+        with recorder.lock:
+            since, mode, reason = recorder.modes[-1] if recorder.modes else (0.0, "", "")
+        if mode in ("", Mode.ACTIVE.value) or (mode == "STAND" and time.monotonic() - since < 4.0):
+            return
+        if since != self._seen:
+            self._seen = since
+            key = f"{mode} ({reason})"
+            self.recoveries[key] = self.recoveries.get(key, 0) + 1
+        if mode in (Mode.FAULT.value, Mode.ESTOP.value):
+            self.client.reset()
+            return
+        self.client.claim()  # a session lost to a late heartbeat is claimed again
+        time.sleep(0.1)
+        self.client.request(Mode.STAND if mode == Mode.OFF.value else Mode.ACTIVE)
+        self.client.set_motion(**self.motion)
+
+
+def twin_soak(minutes: float, window: float, perception: bool) -> tuple[list[str], dict]:
+    """Walk the WidowX in the real-time twin for ``minutes``; a table per ``window`` seconds."""
+    from daemon.teleop import TeleopClient
+
+    motion = {"vx": 0.05, "yaw_rate": 0.05}
+    tmp = Path(tempfile.mkdtemp(prefix="climbd-soak-"))
+    (tmp / "flat.toml").write_text(FLAT_WORLD)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    argv = [sys.executable, "-m", "daemon.cli", "run", "--profile", "robots/widowx.toml"]
+    argv += ["--sim", str(tmp / "flat.toml"), "--activate", "--gait", "tripod", "--quiet"]
+    argv += ["--listen", endpoint, "--snapshot", str(tmp / "top.png")]
+    argv += ["--role", "all"] if perception else []
+    out = (tmp / "climbd.log").open("w")
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
+    rss: list[tuple[float, dict[str, float]]] = []
+    pids: dict[str, set[int]] = {}
+    with contextlib.ExitStack() as stack:
+        stack.callback(out.close)
+        stack.callback(proc.wait, 60)
+        stack.callback(proc.send_signal, signal.SIGTERM)
+        bus = open_client(endpoint, proc)
+        stack.callback(bus.close)
+        recorder = TwinRecorder(bus)
+        client = TeleopClient(bus, "soak", heartbeat_hz=20.0, rate_hz=10.0)
+        client.start()
+        stack.callback(client.close)
+        operator = SoakOperator(client, motion)
+        time.sleep(3.0)  # the twin drops the robot onto the floor
+        start = next_rss = time.monotonic()
+        while time.monotonic() - start < minutes * 60 and proc.poll() is None:
+            operator.poll(recorder)
+            if time.monotonic() >= next_rss:
+                next_rss += 5.0
+                for role, pid in role_pids(proc.pid).items():
+                    pids.setdefault(role, set()).add(pid)
+                rss.append((time.monotonic(), rss_sample(proc.pid)))
+            time.sleep(0.5)
+    code = proc.returncode
+    log = (tmp / "climbd.log").read_text()
+    sim_line = next((ln for ln in log.splitlines() if ln.startswith("sim: ")), "no sim summary")
+    rows = _twin_windows(recorder, rss, start, window)
+    summary = {
+        "code": code,
+        "recoveries": operator.recoveries or "none",
+        "restarts": {r: len(p) - 1 for r, p in pids.items()},
+        "modes": [(round(t - start), m, r) for t, m, r in recorder.modes],
+        "sim": sim_line,
+        "tracebacks": [
+            next((ln for ln in block.splitlines()[1:] if ln[:1] not in ("", " ")), "?")
+            for block in log.split("Traceback (most recent call last):")[1:]
+        ],
+        "log": str(tmp / "climbd.log"),
+    }
+    return rows, summary
+
+
+def _twin_windows(recorder: TwinRecorder, rss, start: float, window: float) -> list[str]:
+    """The per-window table; ratios against the first window (the run's own baseline)."""
+    import numpy as np
+
+    roles = list(rss[0][1]) if rss else []
+    head = ["window (min)", *(f"RSS {r} (MiB)" for r in roles), "lateness p50 (µs)"]
+    head += ["p99 (µs)", "ticks (missed)", "overruns", "ACTIVE", "mode changes", "walked (m)"]
+    head += ["joists /s", "frames dropped", "RSS ratio", "p99 ratio"]
+    rows = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    end = max([t for t, _ in rss] + [t for t, _ in recorder.health] + [start])
+    base = None
+    k = 0
+    while start + k * window < end - 1.0:
+        lo, hi = start + k * window, start + (k + 1) * window
+        k += 1
+        mem = [m for t, m in rss if lo <= t < hi]
+        hs = [h for t, h in recorder.health if lo <= t < hi]
+        if not mem or len(hs) < 2:
+            continue
+        p50 = float(np.median([h.loop.lateness_p50 for h in hs]))
+        p99 = max(h.loop.lateness_p99 for h in hs)
+        ticks, overruns, expected = _loop_counts(hs)
+        missed = max(0.0, expected - ticks)
+        active = sum(h.mode.value == "ACTIVE" for h in hs) / len(hs)
+        changes = sum(lo <= t < hi for t, _, _ in recorder.modes)
+        path = np.array([(x, y) for t, x, y in recorder.body if lo <= t < hi]).reshape(-1, 2)
+        walked = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum()) if len(path) else 0.0
+        total = sum(mem[-1].values())
+        base = base or (total, p99)
+        cells = [f"{(lo - start) / 60:g}-{(hi - start) / 60:g}"]
+        cells += [f"{mem[-1].get(r, float('nan')):.1f}" for r in roles]
+        cells += [f"{p50 * 1e6:.0f}", f"{p99 * 1e6:.0f}"]
+        cells += [f"{ticks} ({100 * missed / max(expected, 1):.0f} %)"]
+        cells += [str(overruns), f"{100 * active:.0f} %"]
+        joists = sum(lo <= t < hi for t in recorder.features) / (min(hi, end) - lo)
+        seen = [h.dropped_frames for t, h in recorder.perception if lo <= t < hi]
+        dropped = str(seen[-1] - seen[0]) if seen else "n/a"
+        cells += [str(changes), f"{walked:.2f}", f"{joists:.1f}", dropped]
+        cells += [f"{total / base[0]:.3f}"]
+        cells += [f"{p99 / base[1]:.2f}" if base[1] > 0 else "n/a"]
+        rows.append("| " + " | ".join(cells) + " |")
+    return rows
+
+
+def _loop_counts(reports: list) -> tuple[int, int, float]:
+    """Ticks and overruns between consecutive Health reports, and the ticks due meanwhile
+    (rate × time); a pair across a restart of the control role (counters reset) is skipped."""
+    ticks = overruns = 0
+    expected = 0.0
+    for a, b in itertools.pairwise(reports):
+        if b.loop.ticks >= a.loop.ticks:
+            ticks += b.loop.ticks - a.loop.ticks
+            overruns += b.loop.overruns - a.loop.overruns
+            expected += (b.stamp - a.stamp) * b.loop.rate_hz
+    return ticks, overruns, expected
+
+
+def twin_title(args: argparse.Namespace) -> str:
+    roles = "control + perception roles" if args.perception else "control role"
+    return f"Twin soak ({args.minutes:g} min, WidowX, real-time twin, {roles})"
+
+
+def twin_intro(run: str, args: argparse.Namespace) -> str:
+    return (
+        f"Command: {run}. `climbd run --profile robots/widowx.toml --sim <flat 20 m floor> "
+        f"--activate --gait tripod{' --role all' if args.perception else ''}` in real time "
+        "(not --stepped), walked by a teleop client over Zenoh (vx 0.05 m/s, yaw_rate 0.05 "
+        "rad/s: a 1 m circle) with 20 Hz heartbeats. Per window: RSS (/proc VmRSS) of each "
+        "process at the window's end; the loop's lateness p50 (median of the window's Health "
+        "reports of the loop's own 4096-tick p50) and p99 (worst such report); ticks done and "
+        "missed against rate × time; ACTIVE as a share of Health reports; odometry path length "
+        "(BodyState). Baseline: the first window of the same run (ratios)."
+    )
+
+
+def twin_notes(s: dict) -> list[str]:
+    """The run's events below the table: mode changes, recoveries, restarts, twin summary."""
+    changes = ", ".join(f"{t} s {m} ({r})" for t, m, r in s["modes"][:12])
+    more = len(s["modes"]) - 12
+    return [
+        f"Mode changes (s from the start): {changes}{f', … {more} more' if more > 0 else ''}.",
+        f"Operator recoveries (state left → count): {s['recoveries']}; role restarts: "
+        f"{s['restarts']}; exit code {s['code']}; tracebacks in the daemon's log: "
+        f"{len(s['tracebacks'])} {sorted(set(s['tracebacks']))}.",
+        f"Twin: {s['sim']}",
+    ]
 
 
 def fuzz(n: int) -> list[str]:
@@ -291,7 +548,7 @@ def write_section(parts: dict[str, str]) -> None:
         old[title] = "### " + chunk.rstrip()
     new = {title.split(" (")[0]: text.rstrip() for title, text in parts.items()}
     merged = {**old, **new}
-    order = ["Reliability campaign", "Fuzzing", "Soak", "Interpretation"]
+    order = ["Reliability campaign", "Fuzzing", "Soak", "Twin soak", "Interpretation"]
     chunks = [merged[k] for k in order if k in merged]
     section = "\n\n".join([head, INTRO, *chunks]) + "\n"
     if not rest:
@@ -304,6 +561,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=5.0, help="soak length (0: no soak)")
     parser.add_argument("--sample", type=float, default=30.0, help="seconds between samples")
+    parser.add_argument("--twin", action="store_true", help="soak: walk in the real-time twin")
+    parser.add_argument(
+        "--perception", action="store_true", help="twin soak: the perception role too"
+    )
+    parser.add_argument("--window", type=float, default=300.0, help="twin soak: table window (s)")
     parser.add_argument("--fuzz", type=int, default=10_000, help="inputs per target (0: none)")
     parser.add_argument("--campaign", action="store_true", help="run the fault campaign")
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
@@ -330,7 +592,14 @@ def main() -> int:
             ]
         )
         print(parts[title], flush=True)
-    if args.minutes:
+    if args.minutes and args.twin:
+        title = twin_title(args)
+        table, s = twin_soak(args.minutes, args.window, args.perception)
+        parts[title] = "\n".join(
+            [f"### {title}", "", twin_intro(run, args), "", *table, "", *twin_notes(s)]
+        )
+        print(parts[title], flush=True)
+    elif args.minutes:
         title = f"Soak ({args.minutes:g} min, WidowX, fake joint bus, tripod at 0.05 m/s)"
         table, s = soak(args.minutes, args.sample)
         parts[title] = "\n".join(
