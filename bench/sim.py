@@ -2,23 +2,21 @@
 
 1. Stepped physics with the twin's motor laws, per robot × world; baseline: bare
    ``mujoco.mj_step`` on the same model in the same run (ratio = the twin's own overhead).
-2. Real time with the daemon alongside (WidowX, one process): DynamixelBus on the pty and
-   the Controller in a ControlLoop on the monotonic clock, against the real-time twin with its
-   camera, or (baseline) against the bare servo emulator; simulated/wall time, physics lag,
-   loop ticks and overruns.
+2. Real time with the daemon alongside, per robot, as ``climbd run --sim attic`` runs it: the
+   twin in the control role's process (SimHost), the profile's own driver on the twin's pty or
+   virtual CAN channel, the Controller at the profile's rate on the monotonic clock, depth
+   frames encoded for ``sim/depth``; cameras rasterised (``gl``), ray cast (``rays``) or none
+   (the baseline the loop's ticks are compared with); sim/wall time, loop ticks, depth rate.
 3. Depth frames at 320×240 and 640×480 (L515) and 424×240 / 640×480 (D435) in the attic,
-   1 and 2 casting threads, beside the 33.3 ms frame period; baseline: one bare
+   rasterised and ray cast, beside the 33.3 ms frame period; baseline: one bare
    ``mj_multiRay`` over the same rays.
 
-Run: ``.venv/bin/python bench/sim.py`` (about a minute).
+Run: ``.venv/bin/python bench/sim.py`` (about two minutes).
 """
 
 from __future__ import annotations
 
 import argparse
-import signal
-import subprocess
-import sys
 import threading
 import time
 
@@ -59,85 +57,73 @@ def stepped_rtf(robot: str, world: str, seconds: float) -> tuple[float, float]:
     return ours, bare
 
 
-def real_time_with_daemon(seconds: float, device_kind: str) -> dict:
-    """The WidowX daemon side (driver + controller at 100 Hz on the monotonic clock) against
-    the real-time twin with its camera in the same process (``twin``), in its own process
-    (``process``, ``python -m drivers.sim``) or, as the baseline, the bare servo emulator with
-    its built-in motor model (``emulator``)."""
+def real_time_with_daemon(robot: str, seconds: float, cameras: str) -> dict:
+    """The daemon's control side as ``climbd run --sim attic`` runs it: the SimHost twin in
+    real time in this process, the profile's own driver on the twin's port, the Controller at
+    the profile's rate on the monotonic clock, depth frames encoded as for ``sim/depth``.
+    ``cameras``: ``gl`` (rasterised), ``rays`` (mj_multiRay) or ``none`` (the baseline)."""
     from daemon.control import Controller
-    from daemon.loop import ControlLoop, MonotonicClock
-    from daemon.messages import Mode
+    from daemon.loop import ControlLoop
+    from daemon.messages import Mode, encode
+    from daemon.run import make_joint_bus
     from daemon.safety import Safety
-    from drivers.dynamixel.bus import DynamixelBus
-    from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
+    from daemon.sim_host import SimHost
 
-    profile = load("robots/widowx.toml")
-    physics = device_kind == "twin"
-    if device_kind.startswith("process"):
-        cameras = [] if device_kind == "process" else ["--no-cameras"]
-        device = subprocess.Popen(
-            [sys.executable, "-m", "drivers.sim", "--profile", "robots/widowx.toml"]
-            + ["--world", "attic", "--fold-zero-offsets", *cameras],
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        port = device.stdout.readline().strip()
-    else:
-        if physics:
-            device = Twin(profile, "attic", initial_joints=Kinematics(profile).stand_joints())
-            device.on_depth(lambda name, frame: None)
-        else:
-            device = DynamixelEmulator(ServoChain.from_profile(profile))
-        device.start()
-        port = device.port
-    bus = DynamixelBus.from_profile(profile, port=port)
-    bus.open()
-    clock = MonotonicClock()
+    profile = load(f"robots/{robot}.toml")
+    if cameras == "none":
+        profile = msgspec.structs.replace(profile, cameras=[])
+    frames: list[float] = []
+
+    def publish(message) -> None:
+        encode(message)
+        frames.append(time.monotonic())
+
+    host = SimHost(profile, "attic", False, publish, "auto" if cameras == "none" else cameras)
+    host.start()
+    driver_profile, options = host.driver()
+    bus = make_joint_bus(driver_profile, None, options)
+    clock = host.clock()
     safety = Safety(profile)
     controller = Controller(profile, bus, safety, clock.now, None, lambda m: None)
     loop = ControlLoop(profile.rate_hz, clock, controller.tick)
     thread = threading.Thread(target=loop.run, daemon=True)
-    sim0 = device.time if physics else 0.0
-    wall0 = time.monotonic()
+    twin = host.twin
+    sim0, wall0 = twin.time, time.monotonic()
     thread.start()
     safety.request(Mode.STAND, clock.now())
     time.sleep(seconds)
-    wall1 = time.monotonic()
-    sim1 = device.time if physics else wall1 - wall0
+    sim1, wall1 = twin.time, time.monotonic()
     loop.stop()
     thread.join(2.0)
     stats = loop.stats()
     bus.close()
+    host.stop()
     elapsed = wall1 - wall0
-    if device_kind.startswith("process"):
-        device.send_signal(signal.SIGTERM)
-        out, _ = device.communicate(timeout=10)
-        simulated, wall = (float(w) for w in out.split()[1:6:3])
-        sim0, sim1, wall0, wall1 = 0.0, simulated, 0.0, wall
-    else:
-        device.stop()
+    shown = [t for t in frames if wall0 + 1.0 <= t <= wall1]
     return {
-        "rtf": (sim1 - sim0) / (wall1 - wall0),
-        "lag": device.lag if physics else 0.0,
+        "rtf": (sim1 - sim0) / elapsed,
+        "lag": twin.lag,
         "ticks": stats.ticks,
+        "expected": round(elapsed * profile.rate_hz),
         "overruns": stats.overruns,
         "late_p99_ms": stats.lateness_p99 * 1e3,
-        "compute_p50_ms": stats.compute_p50 * 1e3,
-        "frames": device.cameras["front"].number if physics else "–",
+        "depth_hz": len(shown) / (elapsed - 1.0) if profile.cameras else None,
+        "camera": profile.cameras[0] if profile.cameras else None,
         "seconds": elapsed,
     }
 
 
 def depth_times(
-    model_name: str, width: int, height: int, frames: int, threads: int
+    model_name: str, width: int, height: int, frames: int, backend: str
 ) -> tuple[float, float]:
-    """(ms per rendered frame, ms per bare mj_multiRay) in the attic, WidowX camera mount."""
+    """(ms per rendered frame with ``backend``, ms per bare mj_multiRay over the same rays) in
+    the attic, WidowX camera mount."""
     profile = load("robots/widowx.toml")
     cam_cfg = msgspec.structs.replace(
         profile.cameras[0], model=model_name, width=width, height=height
     )
     profile = msgspec.structs.replace(profile, cameras=[cam_cfg])
-    twin = Twin(profile, "attic", stepped=True, bus=False, depth_threads=threads)
+    twin = Twin(profile, "attic", stepped=True, bus=False, depth_backend=backend)
     cam: RayCastDepth = twin.cameras[cam_cfg.name]
     twin.depth_frame(cam_cfg.name)
     t0 = time.perf_counter()
@@ -162,7 +148,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per case")
     parser.add_argument("--frames", type=int, default=10, help="depth frames per resolution")
-    parser.add_argument("--daemon-seconds", type=float, default=8.0)
+    parser.add_argument("--daemon-seconds", type=float, default=6.0)
     args = parser.parse_args()
 
     print("## real-time factor, stepped (twin alone; baseline bare mj_step, same model)\n")
@@ -173,41 +159,46 @@ def main() -> None:
             ours, bare = stepped_rtf(robot, world, args.seconds)
             print(f"| {robot} | {world} | {ours:.1f} | {bare:.1f} | {ours / bare:.2f} |")
 
-    print("\n## real time, WidowX daemon side (DynamixelBus + Controller, 100 Hz) alongside\n")
+    print("\n## real time with the daemon alongside (SimHost + profile driver + Controller)\n")
     print(
-        "| device | wall s | sim/wall | physics lag s | loop ticks (of) | overruns "
-        "| tick compute p50 ms | lateness p99 ms | depth frames |"
+        "| robot | cameras | wall s | sim/wall | physics lag s | loop ticks (of) | overruns "
+        "| lateness p99 ms | ticks / baseline | depth Hz |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for kind, label in (
-        ("emulator", "bare emulator (baseline)"),
-        ("twin", "twin + L515 640×480, same process"),
-        ("process", "twin + L515 640×480, own process"),
-        ("process-no-cameras", "twin without cameras, own process"),
-    ):
-        r = real_time_with_daemon(args.daemon_seconds, kind)
-        print(
-            f"| {label} | {r['seconds']:.1f} | {r['rtf']:.3f} | {r['lag']:.3f} | {r['ticks']} "
-            f"({round(r['seconds'] * 100)}) | {r['overruns']} | {r['compute_p50_ms']:.2f} | "
-            f"{r['late_p99_ms']:.2f} | {r['frames']} |"
-        )
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for robot in ROBOTS:
+        base = None
+        for cameras in ("none", "gl", "rays"):
+            r = real_time_with_daemon(robot, args.daemon_seconds, cameras)
+            base = base or r["ticks"] / r["expected"]
+            cam = r["camera"]
+            label = (
+                "none (baseline)"
+                if cam is None
+                else f"{cam.model} {cam.width}×{cam.height} {cameras}"
+            )
+            hz = "–" if r["depth_hz"] is None else f"{r['depth_hz']:.1f} of {cam.fps}"
+            print(
+                f"| {robot} | {label} | {r['seconds']:.1f} | {r['rtf']:.3f} | {r['lag']:.3f} | "
+                f"{r['ticks']} ({r['expected']}) | {r['overruns']} | {r['late_p99_ms']:.2f} | "
+                f"{r['ticks'] / r['expected'] / base:.3f} | {hz} |"
+            )
 
     print("\n## depth frame (attic, WidowX mount; baseline bare mj_multiRay, same rays)\n")
     print(
-        "| camera | resolution | threads | frame ms | bare ray cast ms (1 thread) | ratio "
+        "| camera | resolution | backend | frame ms | bare ray cast ms | ratio "
         "| frame period ms | Hz |"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---:|")
     for model_name, (w, h) in (
         ("L515", (320, 240)),
         ("L515", (640, 480)),
         ("D435", (424, 240)),
         ("D435", (640, 480)),
     ):
-        for threads in (1, 2):
-            ours, bare = depth_times(model_name, w, h, args.frames, threads)
+        for backend in ("gl", "rays"):
+            ours, bare = depth_times(model_name, w, h, args.frames, backend)
             print(
-                f"| {model_name} | {w}×{h} | {threads} | {ours:.1f} | {bare:.1f} | "
+                f"| {model_name} | {w}×{h} | {backend} | {ours:.1f} | {bare:.1f} | "
                 f"{ours / bare:.2f} | {1000 / 30:.1f} | {1000 / ours:.0f} |"
             )
 

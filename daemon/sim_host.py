@@ -46,13 +46,14 @@ class SimHost:
         world: str,
         stepped: bool,
         publish: Callable[[Message], None],
+        depth_backend: str = "auto",
     ) -> None:
         from drivers.sim.twin import Twin
 
         self.profile = profile
         self.stepped = stepped
         self.publish = publish
-        self.twin = Twin(profile, world, stepped=stepped)
+        self.twin = Twin(profile, world, stepped=stepped, depth_backend=depth_backend)
         self.path: list[np.ndarray] = []
         self.detected: list[tuple[list[float], list[float]]] = []
         self._pending = -math.inf
