@@ -25,8 +25,10 @@ from daemon.messages import (
     JointCommand,
     JointState,
     Message,
+    ModeRequest,
     MotionCommand,
     SchemaMismatch,
+    SessionClaim,
     decode,
     encode,
     key,
@@ -37,6 +39,10 @@ log = logging.getLogger("climbd.bus")
 
 CONTROL_STREAMS: tuple[type[Message], ...] = (JointState, JointCommand, MotionCommand, Heartbeat)
 """Streams sent REAL_TIME, express, congestion DROP: a stale sample is worth nothing."""
+
+ONE_SHOT_COMMANDS: tuple[type[Message], ...] = (EStop, SessionClaim, ModeRequest)
+"""Sent REAL_TIME, reliable, congestion BLOCK: each must arrive, and in order with the control
+streams of the same priority (a heartbeat never overtakes the claim it belongs to)."""
 
 
 @dataclass
@@ -117,7 +123,7 @@ class Bus:
     def publisher(self, message: type[Message], robot: str | None = None) -> Publisher:
         """Declare a publisher with the QoS DESIGN.md gives the topic."""
         k = key(robot or self.robot, message)
-        if message is EStop:
+        if message in ONE_SHOT_COMMANDS:
             qos = dict(
                 priority=zenoh.Priority.REAL_TIME,
                 congestion_control=zenoh.CongestionControl.BLOCK,

@@ -163,15 +163,15 @@ class TeleopClient:
         self._pubs[MotionCommand].put(MotionCommand(stamp=now, session=self.session, **self.motion))
 
     def claim(self, override: bool = False) -> None:
-        """Claim the session; heartbeats follow one period later, so none overtakes the claim
-        (heartbeats travel at REAL_TIME priority, the claim at the default one)."""
+        """Claim the session; heartbeats follow at once (same priority as the claim, so in
+        order behind it)."""
         with self._lock:
             now = time.monotonic()
             self._pubs[SessionClaim].put(
                 SessionClaim(stamp=now, session=self.session, client=self.client, override=override)
             )
             self.claimed = True
-            self._next_beat = now + self.heartbeat_period
+            self._next_beat = now
 
     def release(self) -> None:
         with self._lock:
