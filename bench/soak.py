@@ -191,20 +191,24 @@ def open_client(endpoint: str, proc: subprocess.Popen, timeout: float = 60.0):
 class TwinRecorder:
     """What the twin soak hears over Zenoh: Health reports, mode changes, odometry, features."""
 
-    def __init__(self, bus) -> None:
-        from daemon.messages import BodyState, Health, Joists, ModeState
-
+    def __init__(self) -> None:
         self.lock = threading.Lock()
         self.health: list[tuple[float, object]] = []
         self.modes: list[tuple[float, str, str]] = []
         self.body: list[tuple[float, float, float]] = []
-        self.features: list[float] = []
+        self.features: list[tuple[float, int]] = []
         self.perception: list[tuple[float, object]] = []
         self._last_body = -1.0
+
+    def attach(self, bus) -> TwinRecorder:
+        """Subscribe to the topics the soak tabulates on ``bus``."""
+        from daemon.messages import BodyState, Health, Joists, ModeState
+
         bus.subscribe(Health, self._on_health)
         bus.subscribe(ModeState, self._on_mode)
         bus.subscribe(BodyState, self._on_body, latest_only=True)
-        bus.subscribe(Joists, lambda j: self._add(self.features, time.monotonic()))
+        bus.subscribe(Joists, lambda j: self._add(self.features, (time.monotonic(), len(j.joists))))
+        return self
 
     def _add(self, items: list, item) -> None:
         with self.lock:
@@ -278,7 +282,7 @@ def twin_soak(minutes: float, window: float, perception: bool) -> tuple[list[str
         stack.callback(proc.send_signal, signal.SIGTERM)
         bus = open_client(endpoint, proc)
         stack.callback(bus.close)
-        recorder = TwinRecorder(bus)
+        recorder = TwinRecorder().attach(bus)
         client = TeleopClient(bus, "soak", heartbeat_hz=20.0, rate_hz=10.0)
         client.start()
         stack.callback(client.close)
@@ -319,7 +323,7 @@ def _twin_windows(recorder: TwinRecorder, rss, start: float, window: float) -> l
     roles = list(rss[0][1]) if rss else []
     head = ["window (min)", *(f"RSS {r} (MiB)" for r in roles), "lateness p50 (µs)"]
     head += ["p99 (µs)", "ticks (missed)", "overruns", "ACTIVE", "mode changes", "walked (m)"]
-    head += ["joists /s", "frames dropped", "RSS ratio", "p99 ratio"]
+    head += ["Joists msgs /s", "with a joist", "frames dropped", "RSS ratio", "p99 ratio"]
     rows = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
     end = max([t for t, _ in rss] + [t for t, _ in recorder.health] + [start])
     base = None
@@ -346,10 +350,11 @@ def _twin_windows(recorder: TwinRecorder, rss, start: float, window: float) -> l
         cells += [f"{p50 * 1e6:.0f}", f"{p99 * 1e6:.0f}"]
         cells += [f"{ticks} ({100 * missed / max(expected, 1):.0f} %)"]
         cells += [str(overruns), f"{100 * active:.0f} %"]
-        joists = sum(lo <= t < hi for t in recorder.features) / (min(hi, end) - lo)
+        found = [n for t, n in recorder.features if lo <= t < hi]
         seen = [h.dropped_frames for t, h in recorder.perception if lo <= t < hi]
-        dropped = str(seen[-1] - seen[0]) if seen else "n/a"
-        cells += [str(changes), f"{walked:.2f}", f"{joists:.1f}", dropped]
+        dropped = sum(max(0, b - a) for a, b in itertools.pairwise(seen)) if seen else "n/a"
+        cells += [str(changes), f"{walked:.2f}", f"{len(found) / (min(hi, end) - lo):.1f}"]
+        cells += [str(sum(n > 0 for n in found)), str(dropped)]
         cells += [f"{total / base[0]:.3f}"]
         cells += [f"{p99 / base[1]:.2f}" if base[1] > 0 else "n/a"]
         rows.append("| " + " | ".join(cells) + " |")
@@ -382,8 +387,10 @@ def twin_intro(run: str, args: argparse.Namespace) -> str:
         "rad/s: a 1 m circle) with 20 Hz heartbeats. Per window: RSS (/proc VmRSS) of each "
         "process at the window's end; the loop's lateness p50 (median of the window's Health "
         "reports of the loop's own 4096-tick p50) and p99 (worst such report); ticks done and "
-        "missed against rate × time; ACTIVE as a share of Health reports; odometry path length "
-        "(BodyState). Baseline: the first window of the same run (ratios)."
+        "missed against rate × time; ACTIVE as a share of Health reports; path length of the "
+        "odometry (BodyState, the estimate); perception's Joists messages per second and how "
+        "many report a joist (the floor has none: each is a false positive). Baseline: the "
+        "first window of the same run (ratios)."
     )
 
 
