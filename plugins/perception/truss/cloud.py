@@ -77,20 +77,21 @@ def ball_normals(points: np.ndarray, voxel: float, reach: float) -> tuple[np.nda
     """
     keys = _voxel_keys(points, voxel)
     order = np.argsort(keys)
-    sorted_keys = keys[order]
-    query = keys[:, None] + _ball_offsets(reach)
-    slot = np.minimum(np.searchsorted(sorted_keys, query), len(keys) - 1)
-    hit = sorted_keys[slot] == query
+    keys = keys[order]
+    query = keys + _ball_offsets(reach)[:, None]  # rows ascending: a near-linear search
+    slot = np.minimum(np.searchsorted(keys, query), len(keys) - 1)
+    hit = (keys[slot] == query).T
     count = hit.sum(axis=1)
     ball = sparse.csr_matrix(
-        (np.ones(int(count.sum())), order[slot[hit]], np.concatenate([[0], np.cumsum(count)])),
-        shape=(len(points), len(points)),
+        (np.ones(int(count.sum())), slot.T[hit], np.concatenate([[0], np.cumsum(count)])),
+        shape=(len(keys), len(keys)),
     )
-    local = points - points.mean(axis=0)
-    x, y, z = local.T
+    x, y, z = (points[order] - points.mean(axis=0)).T
     sums = ball @ np.column_stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z])
     moments = _covariances(list(sums[:, 3:].T), count, sums[:, :3] / count[:, None])
-    return smallest_eigenvectors(moments), count - 1
+    normals, neighbours = np.empty_like(points), np.empty_like(count)
+    normals[order], neighbours[order] = smallest_eigenvectors(moments), count - 1
+    return normals, neighbours
 
 
 def voxel_normals(points: np.ndarray, voxel: float, min_points: int = 3) -> tuple:

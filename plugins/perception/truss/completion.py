@@ -162,11 +162,12 @@ def merge_members(
 
 def suppress_duplicates(members: list[Member], shared: float = 0.5) -> list[Member]:
     """Drop a member whose points are mostly (> ``shared``) already claimed by a larger one."""
-    kept, claimed = [], np.empty(0, np.int64)
+    kept: list[Member] = []
+    size = max((int(m.indices.max()) + 1 for m in members if len(m.indices)), default=0)
+    claimed = np.zeros(size, bool)
     for member in sorted(members, key=lambda m: len(m.indices), reverse=True):
-        overlap = np.isin(member.indices, claimed, assume_unique=True).mean()
-        if overlap > shared:
+        if len(member.indices) and claimed[member.indices].mean() > shared:
             continue
         kept.append(member)
-        claimed = np.union1d(claimed, member.indices)
+        claimed[member.indices] = True
     return kept

@@ -217,6 +217,8 @@ def _scores(
 
 GROW_POINTS = 1500
 """Points used by the refits while a segment grows (every k-th inlier); final fits use all."""
+GROW_REFITS = 2
+GROW_ITERATIONS = 3
 
 
 def _grow(
@@ -229,13 +231,14 @@ def _grow(
     segment_gap: float,
 ) -> Segment | None:
     """Refine a hypothesis on its inliers twice, then keep the longest gap-free run along it."""
+    pool_points, pool_normals = points[pool], normals[pool]
     for _ in range(2):
-        off, cos = surface_fit(points[pool], normals[pool], cylinder)
-        inliers = pool[(off < distance) & (cos > cos_limit)]
-        if len(inliers) < 8:
+        off, cos = surface_fit(pool_points, pool_normals, cylinder)
+        inliers = (off < distance) & (cos > cos_limit)
+        if inliers.sum() < 8:
             return None
-        cylinder = refine(points[inliers], cylinder, max_points=GROW_POINTS)
-    off, cos = surface_fit(points[pool], normals[pool], cylinder)
+        cylinder = refine(pool_points[inliers], cylinder, max_points=GROW_POINTS)
+    off, cos = surface_fit(pool_points, pool_normals, cylinder)
     inliers = pool[(off < distance) & (cos > cos_limit)]
     if len(inliers) < 8:
         return None

@@ -111,7 +111,7 @@ class TrussModeller:
 
         def claim(segment: Segment) -> np.ndarray:
             completed.append(self._complete(segment, points, normals))
-            return np.union1d(segment.indices, completed[-1].indices)
+            return np.concatenate([segment.indices, completed[-1].indices])
 
         segments = segment_cylinders(
             points,
