@@ -134,11 +134,17 @@ def test_climb_keeps_grip_rules_tsm_and_reach(tile, periodic):
 
 @pytest.mark.parametrize("periodic", [False, True])
 def test_never_stops_while_a_step_exists(tile, periodic):
-    """A swing starts every 4 s for 45 s on every map: stuck postures are re-gripped free."""
+    """A swing (or, for the periodic gait, a wait when its limb has no feasible option) starts
+    every 4 s for 45 s on every map; the non-periodic gait never waits: stuck postures are
+    re-gripped free."""
     for seed in SEEDS:
-        _, runner, _, ticks = climb(tile, periodic, seed)
+        planner, runner, _, ticks = climb(tile, periodic, seed)
         assert len(runner.steps) == int(np.ceil(SECONDS / CFG.swing_period))
-        assert all(t.swing is not None for t in ticks)
+        waits = [s for s in runner.steps if s.wait]
+        assert len(waits) == planner.passed and (periodic or not waits)
+        idle = sum(t.swing is None for t in ticks)
+        period = round(CFG.swing_period / DT)
+        assert max(0, len(waits) - 1) * period <= idle <= len(waits) * period  # last may be cut
 
 
 def test_regrip_when_no_stride_ahead_is_feasible():
@@ -162,8 +168,7 @@ def test_regrip_when_no_stride_ahead_is_feasible():
 
 
 def test_periodic_gait_follows_its_fixed_order(tile):
-    planner, runner, _, _ = climb(tile, True, seed=2, seconds=24.0)
-    assert planner.passed == 0
+    planner, runner, holds, _ = climb(tile, True, seed=2, seconds=24.0)
     limbs = [s.limb for s in runner.steps]
     assert limbs == [PERIODIC_ORDER[i % 4] for i in range(len(limbs))]
 
@@ -186,8 +191,10 @@ def test_non_periodic_swings_the_limb_with_most_holds_ahead():
 def test_non_periodic_outclimbs_the_periodic_gait(tile):
     """Paper 001 Fig. 7: 45 s on a 30° slope at G/6, both gaits on the same six hold maps.
 
-    The paper reports about 2× (0.17 m vs 0.08 m). With the same foothold rule for both, we
-    reach 1.5× on these maps (0.115 m vs 0.075 m): asserted at 1.4×, short of the paper's 2×.
+    The paper reports about 2× (0.17 m vs 0.08 m). With the periodic baseline as [9] runs in
+    ClimbLab (its limb's furthest feasible option, a step back if need be, else a wait), we
+    reach 1.2× on these maps (0.115 m vs 0.095 m): asserted at 1.15×, short of the paper's 2×
+    (see BENCHMARKS.md, bench/free_climb.py, for the twin's figures).
     """
     free = [climb(tile, False, s)[3][-1].base[0] for s in SEEDS]
     periodic = [climb(tile, True, s)[3][-1].base[0] for s in SEEDS]
@@ -195,7 +202,7 @@ def test_non_periodic_outclimbs_the_periodic_gait(tile):
     free_mean = np.mean(free) - start
     periodic_mean = np.mean(periodic) - start
     assert 0.05 < free_mean < 0.3  # the paper's scale: 0.17 m in 45 s
-    assert free_mean >= 1.4 * periodic_mean
+    assert free_mean >= 1.15 * periodic_mean
 
 
 def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):

@@ -1,0 +1,81 @@
+"""Paper 001's free climbing in the twin: the hold-map slope, grippers that hold only on its
+holds up to 9 N, and both gaits on one map (the full 45 s × 5 seeds run is bench/free_climb.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.sim.climb import SlopeClimb
+from drivers.sim.model import GRIP_FORCE
+from drivers.sim.worlds import hold_map_holds, wall_pose
+
+
+@pytest.fixture(scope="module")
+def standing() -> SlopeClimb:
+    return SlopeClimb(periodic=False, seed=0)
+
+
+def test_holds_are_the_map_and_the_only_graspable_geoms(standing):
+    twin = standing.twin
+    world = twin.world
+    holds = hold_map_holds(world)
+    names = [twin.model.geom(int(g)).name for g in twin.robot.graspable_geoms]
+    assert names == [f"hold_{i}" for i in range(len(holds))]
+    origin, rotation = wall_pose(world.hold_map)
+    for i, (x, y, top) in enumerate(holds):  # each hold's top face sits on the map's point
+        geom = twin.model.geom(f"hold_{i}")
+        centre = (twin.data.geom_xpos[geom.id] - origin) @ rotation
+        np.testing.assert_allclose(centre, [x, y, top / 2], atol=1e-9)
+        assert geom.size[1] == pytest.approx(top / 2)
+    assert holds[:, 2].min() > 0.02 and holds[:, 2].max() < 0.08  # the cloud's relief (m)
+    up = rotation @ [0.0, 0.0, 1.0]
+    assert np.degrees(np.arccos(up[2])) == pytest.approx(30.0)
+    assert twin.model.opt.gravity[2] == pytest.approx(-9.80665 / 6)
+
+
+def _pull(climb: SlopeClimb, force: float, seconds: float = 0.4) -> float:
+    """Pull the gripping robot's base off the wall with ``force`` N; base travel (m)."""
+    twin = climb.twin
+    start = twin.body_pose()[0]
+    normal = climb.rotation[:, 2]
+    twin.data.xfrc_applied[twin.robot.base_body, :3] = force * normal
+    twin.advance_to(twin.time + seconds)
+    twin.data.xfrc_applied[twin.robot.base_body, :3] = 0.0
+    return float(np.linalg.norm(twin.body_pose()[0] - start))
+
+
+def test_grippers_hold_on_holds_and_slip_above_9n():
+    climb = SlopeClimb(periodic=False, seed=1)
+    twin = climb.twin
+    assert twin.holding().all() and (twin.grip_load < GRIP_FORCE).all()
+    assert _pull(climb, 16.0) < 0.01  # 4 N per gripper: held
+    assert twin.slips.sum() == 0 and twin.holding().all()
+    assert _pull(climb, 60.0) > 0.05  # 15 N per gripper: every one lets go
+    assert twin.slips.sum() >= 4 and not twin.holding().any()
+    twin.grip[:] = False  # a slipped gripper holds again only after opening and closing
+    twin.step(1)
+    twin.grip[:] = True
+    twin.step(1)
+    assert not twin.holding().any()  # the feet are off the holds now
+
+
+def test_gripper_closed_on_the_board_does_not_hold(standing):
+    twin = standing.twin
+    board = twin.model.geom("board").id
+    assert board not in twin.robot.graspable_geoms
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_both_gaits_climb_without_slips_and_tsm_above_zero(periodic):
+    """Two swings each (9 s): the twin follows the plan up the slope, every grip engages, no
+    gripper slips, the TSM of the holding grippers stays ≥ 0."""
+    climb = SlopeClimb(periodic, seed=0)
+    start = climb.runner.base.copy()
+    log = climb.run(9.0)
+    assert log.steps + log.waits == 3 and log.steps >= 2
+    assert log.slips == 0 and log.missed == 0
+    assert min(log.tsm) >= 0.0 and log.max_load < GRIP_FORCE
+    planned = climb.runner.base[0] - start[0]
+    assert log.distance == pytest.approx(planned, abs=0.01)
+    assert planned > 0.01
