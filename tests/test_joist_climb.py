@@ -98,8 +98,10 @@ def test_decides_at_the_approach_distance():
     assert 0.50 <= distance < 0.55
 
 
-def test_low_joist_is_crossed_legs_clear_and_all_six_feet_down_on_the_far_side():
-    joist = JoistSpec(1.0, 0.0, 0.06)
+@pytest.mark.parametrize("height", [0.06, 0.10])
+def test_low_joist_is_crossed_legs_clear_and_all_six_feet_down_on_the_far_side(height: float):
+    """Paper 000 climbs its 10 cm joist: a free gait of checked, statically stable phases."""
+    joist = JoistSpec(1.0, 0.0, height)
     r = run([joist], goal=1.6)
     modes = [e.split(":")[0] for _, e in r.events]
     assert modes == ["approach", "settle", "cross", "walk", "done"]
@@ -137,9 +139,10 @@ def test_high_joist_is_sidestepped_until_clear_then_passed():
 
 
 def test_a_joist_the_legs_cannot_cross_safely_is_gone_round_instead():
-    """With the stock WidowX legs no safe back-pair crossing of a 10 cm joist exists (the
-    planner's finding); the robot must then treat it as a wall, never climb into it."""
-    joist = JoistSpec(1.0, 0.0, 0.10, length=1.0)
+    """Under the paper's 14 cm threshold but beyond the stock WidowX legs: at 13 cm no checked
+    crossing exists (the body would have to stand 16.5 cm high to clear it); the robot must
+    then treat it as a wall, never climb into it."""
+    joist = JoistSpec(1.0, 0.0, 0.13, length=1.0)
     r = run([joist], goal=1.6)
     causes = [e for _, e in r.events if e.startswith("sidestep")]
     assert causes and "cannot cross safely" in causes[0]

@@ -25,6 +25,7 @@ from daemon.kinematics import Kinematics
 from daemon.messages import BodyState, FootTargets, Joist, Joists, Message, MotionCommand
 from daemon.plugins import GaitPlugin, PluginError
 from plugins.gaits.joist_crossing import (
+    Bar,
     CrossingError,
     CrossingGeometry,
     CrossingParams,
@@ -55,13 +56,15 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     support_margin: float = 0.01
     body_clearance: float = 0.015
     body_half_height: float = 0.02
-    high_body: float = 0.135
-    stride: float = 0.04
+    climb_heights: list[float] = msgspec.field(default_factory=lambda: [0.135, 0.145, 0.155])
     step_height: float = 0.03
-    swing_time: float = 1.2
-    step_time: float = 0.5
-    shift_time: float = 0.6
+    reach: float = 0.15
+    lead: float = 0.03
+    body_speed: float = 0.04
+    swing_time: float = 0.8
+    shift_time: float = 0.4
     exit_distance: float = 0.06
+    row_angle_deg: float = 10.0
     goal_distance: float | None = None
     tripod: TripodConfig = msgspec.field(default_factory=TripodConfig)
 
@@ -124,6 +127,8 @@ class JoistClimb(GaitPlugin):
         self.pose = np.zeros(3)
         self.mode = Phase.WALK
         self.target: TrackedJoist | None = None
+        self.row: list[TrackedJoist] = []
+        self._phase = 0
         self.plan: CrossingPlan | None = None
         self.events: list[tuple[float, str]] = []
         self.impassable: list[TrackedJoist] = []
@@ -223,8 +228,9 @@ class JoistClimb(GaitPlugin):
 
     def _settled(self) -> bool:
         tri = self.tripod
-        still = not tri.moving and not tri.stepping.any()
-        home = np.hypot(*(tri.feet[:, :2] - tri.home).T).max() < HOME_TOLERANCE
+        still = not tri.moving and not any(tri.stepping)
+        feet = np.asarray(tri.feet, float)
+        home = np.hypot(*(feet[:, :2] - tri.home).T).max() < HOME_TOLERANCE
         return bool(still and home and abs(tri.height - tri.height0) < 1e-4)
 
     def step(
@@ -261,10 +267,10 @@ class JoistClimb(GaitPlugin):
         if self.mode == Phase.SETTLE:
             out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
             if self._settled():
-                self._begin_crossing(t)
+                self._begin_crossing(t, world)
             return out
         if self.mode == Phase.CROSS:
-            return self._step_cross(t, dt, body)
+            return self._step_cross(t, dt, body, world)
         return self._walk(t, dt, body, 0.0, 0.0, 0.0)
 
     def _ramp(self) -> float:
@@ -311,21 +317,42 @@ class JoistClimb(GaitPlugin):
             return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
         return self._walk(t, dt, body, 0.0, c.side_direction * c.side_speed, 0.0)
 
-    def _begin_crossing(self, t: float) -> None:
-        """Plan the crossing from here: the joist square ahead, the feet at home."""
+    def _grow_row(self, world: dict[str, Message]) -> bool:
+        """Add to the row being crossed every newly seen climbable joist parallel to it (an
+        attic's joists come in rows 16 in apart, closer than the robot is long)."""
         c = self.config
-        distance, _ = self.ahead(self.target)
-        home = np.column_stack([self.tripod.home, np.zeros(len(self.tripod.home))])
-        # What is left of the turn skews the face across the feet: widen the joist by it.
-        skew = abs(math.tan(self.ahead(self.target)[1])) * float(np.abs(home[:, 1]).max())
+        _, yaw = self.ahead(self.target)
+        grown = False
+        for j in self._relevant(world):
+            if j.height >= c.climb_max_height:
+                continue
+            seen = self.track(j)
+            d, y = self.ahead(seen)
+            parallel = abs(y - yaw) < math.radians(c.row_angle_deg)
+            new = all(abs(d - self.ahead(r)[0]) > 0.1 for r in self.row)
+            if parallel and new:
+                self.row.append(seen)
+                grown = True
+        return grown
+
+    def _bars(self) -> tuple[Bar, ...]:
+        """The row's joists as bars of the crossing frame (x along the heading from here); what
+        is left of the turn skews a face across the feet, so each is widened by it."""
+        c = self.config
+        half_width = float(np.abs(self.tripod.home[:, 1]).max()) + c.reach
+        bars = []
+        for joist in self.row:
+            distance, yaw = self.ahead(joist)
+            skew = abs(math.tan(yaw)) * half_width
+            bars.append(Bar(distance - skew, c.joist_width + 2.0 * skew, joist.height))
+        return tuple(sorted(bars, key=lambda bar: bar.face))
+
+    def _plan(self, feet: np.ndarray, height: float) -> CrossingPlan:
+        """A crossing of the row from here: ``feet`` relative to the body (n×3, z ignored)."""
+        c = self.config
         geometry = CrossingGeometry(
-            face=distance - skew,
-            width=c.joist_width + 2.0 * skew,
-            height=self.target.height,
-            home=home,
+            bars=self._bars(),
             half_length=float(np.abs(self.kin.mount[:, 0]).max()),
-            pairs=self.pairs,
-            groups=self.groups,
         )
         params = CrossingParams(
             foot_margin=c.foot_margin,
@@ -334,32 +361,64 @@ class JoistClimb(GaitPlugin):
             support_margin=c.support_margin,
             body_clearance=c.body_clearance,
             body_half_height=c.body_half_height,
-            high_body=c.high_body,
-            stride=c.stride,
+            climb_heights=tuple(c.climb_heights),
             step_height=c.step_height,
+            reach=c.reach,
+            lead=c.lead,
+            body_speed=c.body_speed,
             swing_time=c.swing_time,
-            step_time=c.step_time,
             shift_time=c.shift_time,
             exit_distance=c.exit_distance,
         )
+        feet = np.asarray(feet, float)
+        ground = np.column_stack([feet[:, :2], np.zeros(len(feet))])
+        return CrossingPlan(geometry, params, self.kin, ground, self.tripod.height0, height)
+
+    def _begin_crossing(self, t: float, world: dict[str, Message]) -> None:
+        """Plan the crossing from here: the joist (and its row) square ahead, the feet at home."""
+        self.row = [self.target]
+        self._grow_row(world)
         try:
-            self.plan = CrossingPlan(geometry, params, self.kin, home, self.tripod.height)
+            self.plan = self._plan(self.tripod.feet, self.tripod.height)
         except CrossingError as e:
             self.impassable.append(self.target)
             self._switch(t, Phase.SIDESTEP, f"cannot cross safely ({e})")
             return
         self._plan_origin = self.pose.copy()
+        self._phase = 0
+        distance, _ = self.ahead(self.target)
         self._switch(
             t, Phase.CROSS, f"crossing a {self.target.height:.3f} m joist at {distance:.3f} m"
         )
 
-    def _step_cross(self, t: float, dt: float, body: BodyState) -> FootTargets:
+    def _replan(self, t: float, body: np.ndarray, feet: np.ndarray) -> None:
+        """A joist of the row came into view: plan on from this phase boundary."""
+        local = feet - np.array([body[0], body[1], 0.0])
+        try:
+            plan = self._plan(local, float(body[2]))
+        except CrossingError as e:
+            self.events.append((t, f"cross: the longer row has no crossing ({e}); on as planned"))
+            return
+        self.travelled += float(body[0])
+        self.plan = plan
+        self._plan_origin = self.pose.copy()
+        self._t_mode = t
+        self._phase = 0
+        self.events.append((t, f"cross: {len(self.row)} joists in the row, replanned"))
+
+    def _step_cross(
+        self, t: float, dt: float, body: BodyState, world: dict[str, Message]
+    ) -> FootTargets:
         plan = self.plan
         elapsed = t - self._t_mode
         b, feet, stance = plan.sample(elapsed)
         origin = self._plan_origin
-        rel = b[:2]
-        self.pose[:2] = origin[:2] + _rot(origin[2]) @ rel
+        self.pose[:2] = origin[:2] + _rot(origin[2]) @ b[:2]
+        phase = plan.phase(elapsed)
+        if phase != self._phase:
+            self._phase = phase
+            if stance.all() and self._grow_row(world):
+                self._replan(t, b, feet)
         local = feet.copy()
         local[:, 0] -= b[0]
         local[:, 1] -= b[1]

@@ -1,18 +1,22 @@
-"""The joist crossing of paper 000 (Figure 8) as a timed plan of body moves and leg swings.
+"""The joist crossing of paper 000 (Figure 8) as a free gait of statically stable phases.
 
-Everything is planned in a ground frame whose x axis is the joist's normal (the robot has
-already turned square to it): the near face is the line ``x = face``, the far face
-``face + width``, the top at ``height`` above the floor (z = 0). Pairs cross, front, middle,
-back: both legs of a pair swing over the joist through waypoints (up before the near face,
-over, down past the far face) while the body leans forward, i.e. moves ahead on the other four
-feet. Before each pair the body advances in tripod cycles (one group of three legs steps, then
-the other, then the body moves) with footholds kept out of the joist's band, and the other
-feet are set ahead of or behind their home so they stay in reach and under the body. Where the
-pair starts, how far and when the body leans, its height and where the feet land are searched
-over a grid: every leg must stay reachable (the profile's kinematics, batched), the swinging
-legs' femur, tibia and foot must keep ``leg_radius`` off the joist, the body centre must stay
-inside the other feet's support polygon, and the body's underside must clear the joist when it
-is over it. When no candidate passes, ``CrossingError`` says which pair could not cross.
+Planned in a ground frame whose x axis is the joists' normal (the robot has already turned
+square to them): each joist is a bar with its near face at ``x = face``, ``width`` deep and
+``height`` tall on the floor (z = 0). The plan alternates two kinds of phase, each checked at
+sampled instants by the profile's kinematics before it is accepted:
+
+- a body move (all six feet down): the body rises to the climb height, advances, or lowers;
+- a single-leg swing (five feet down): up, over any bar in its way, down onto a foothold
+  outside every bar's band.
+
+Every sampled pose must have every foot reachable within the joint limits, the femur, tibia
+and foot of every leg ``leg_radius`` clear of every bar, the body's underside
+``body_clearance`` above any bar under it, and the body centre ``support_margin`` inside the
+support polygon of the standing feet. The order is the free gait's greedy rule: advance the
+body as far as the constraints allow, else swing the leg furthest behind its home to the
+foothold nearest its home ahead. The front legs thus cross first, the middle pair after the
+body has moved on, then the back pair (Figure 8), one leg at a time. When no phase fits,
+``CrossingError`` says which leg is stuck where.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from daemon.kinematics import Kinematics
-from plugins.gaits.swing import lift, progress
+from plugins.gaits.swing import progress
 
 
 class CrossingError(RuntimeError):
@@ -30,21 +34,25 @@ class CrossingError(RuntimeError):
 
 
 @dataclass(frozen=True)
-class CrossingGeometry:
-    """The joist (ground frame, m) and the robot's stand: home feet relative to the body."""
+class Bar:
+    """A joist in the crossing frame: near face x (m), depth along x (m), height (m)."""
 
     face: float
     width: float
     height: float
-    home: np.ndarray
+
+
+@dataclass(frozen=True)
+class CrossingGeometry:
+    """The bars to cross, in order, and the body's half length (m)."""
+
+    bars: tuple[Bar, ...]
     half_length: float
-    pairs: tuple[tuple[int, ...], ...]
-    groups: tuple[tuple[int, ...], ...]
 
 
 @dataclass(frozen=True)
 class CrossingParams:
-    """Clearances (m) and timing (s) of the crossing."""
+    """Clearances (m), body heights (m), step lengths (m) and timing (s, m/s) of the crossing."""
 
     foot_margin: float
     clearance: float
@@ -52,11 +60,12 @@ class CrossingParams:
     support_margin: float
     body_clearance: float
     body_half_height: float
-    high_body: float
-    stride: float
+    climb_heights: tuple[float, ...]
     step_height: float
+    reach: float
+    lead: float
+    body_speed: float
     swing_time: float
-    step_time: float
     shift_time: float
     exit_distance: float
 
@@ -65,7 +74,7 @@ class LegChains:
     """Batched coxa–femur–tibia kinematics: reachability and joint positions for many poses.
 
     Same convention and knee branch as daemon/kinematics.py (whose ``ik`` works on one pose);
-    used to search crossings, where thousands of candidate poses are checked at once.
+    used to check phases, where hundreds of candidate poses are checked at once.
     """
 
     def __init__(self, kin: Kinematics) -> None:
@@ -131,17 +140,52 @@ def support_margin(feet: np.ndarray, point: np.ndarray) -> np.ndarray:
     return inside.min(axis=-1)
 
 
-def joist_gap(points: np.ndarray, face: float, width: float, height: float) -> np.ndarray:
-    """Distance (m) of ground-frame points (..., 3) from the joist's x–z section (0 inside)."""
-    dx = np.maximum(np.maximum(face - points[..., 0], points[..., 0] - face - width), 0.0)
-    dz = np.maximum(points[..., 2] - height, 0.0)
-    inside_z = points[..., 2] <= height
-    return np.where(inside_z, dx, np.hypot(dx, dz))
+def bar_gap(points: np.ndarray, bar: Bar) -> np.ndarray:
+    """Distance (m) of ground-frame points (..., 3) from a bar's x–z section (0 inside)."""
+    dx = np.maximum(np.maximum(bar.face - points[..., 0], points[..., 0] - bar.face - bar.width), 0)
+    dz = np.maximum(points[..., 2] - bar.height, 0.0)
+    return np.where(points[..., 2] <= bar.height, dx, np.hypot(dx, dz))
+
+
+def corner_gap(a: np.ndarray, b: np.ndarray, bar: Bar) -> np.ndarray:
+    """Least x–z distance (m) of a bar's two top edges from the links a→b (..., k, 3): what
+    points sampled along a link can miss where it passes over an edge."""
+    d = b[..., [0, 2]] - a[..., [0, 2]]
+    length2 = np.maximum((d * d).sum(axis=-1), 1e-12)
+    out = np.full(a.shape[:-2], np.inf)
+    for x in (bar.face, bar.face + bar.width):
+        rel = np.array([x, bar.height]) - a[..., [0, 2]]
+        s = np.clip((rel * d).sum(axis=-1) / length2, 0.0, 1.0)
+        near = rel - s[..., None] * d
+        out = np.minimum(out, np.hypot(near[..., 0], near[..., 1]).min(axis=-1))
+    return out
+
+
+def waypoint_samples(paths: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """Points (C, T, 3) of C waypoint paths (C, W, 3) at swing fractions ``taus`` (T,): segments
+    timed by length, at rest at each waypoint (quintic progress), as ``path_point`` for one."""
+    seg = np.linalg.norm(np.diff(paths, axis=1), axis=2)
+    edges = np.concatenate([np.zeros((len(paths), 1)), np.cumsum(seg, axis=1)], axis=1)
+    edges /= np.maximum(edges[:, -1:], 1e-12)
+    last = paths.shape[1] - 2
+    k = np.clip((taus[None, :, None] >= edges[:, None, 1:-1]).sum(axis=2), 0, last)
+    lo = np.take_along_axis(edges, k, axis=1)
+    hi = np.take_along_axis(edges, k + 1, axis=1)
+    local = progress(np.clip((taus[None, :] - lo) / np.maximum(hi - lo, 1e-12), 0.0, 1.0))
+    a = np.take_along_axis(paths, k[..., None], axis=1)
+    b = np.take_along_axis(paths, (k + 1)[..., None], axis=1)
+    return a + local[..., None] * (b - a)
+
+
+def path_point(path: np.ndarray, tau: float) -> np.ndarray:
+    """Point of one waypoint path (W, 3) at ``tau`` ∈ [0, 1] (see ``waypoint_samples``)."""
+    tau = float(np.clip(tau, 0.0, 1.0))
+    return waypoint_samples(path[None], np.array([tau]))[0, 0]
 
 
 @dataclass
 class Move:
-    """One segment of the plan: body from ``body0`` to ``body1`` (x, y, height) while the legs
+    """One phase of the plan: body from ``body0`` to ``body1`` (x, y, height) while the legs
     in ``paths`` follow their waypoints (ground frame); all other feet stay put."""
 
     duration: float
@@ -149,89 +193,40 @@ class Move:
     body1: np.ndarray
     feet0: np.ndarray
     paths: dict[int, np.ndarray] = field(default_factory=dict)
-    hop: float = 0.0
-    lean_from: float = 0.0
 
     def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Body (x, y, height), ground-frame feet (n×3) and stance flags at ``tau`` ∈ [0, 1]."""
-        s = float(body_progress(np.asarray(tau), self.lean_from))
-        body = self.body0 + s * (self.body1 - self.body0)
+        tau = float(np.clip(tau, 0.0, 1.0))
+        body = self.body0 + float(progress(tau)) * (self.body1 - self.body0)
         feet = self.feet0.copy()
         stance = np.ones(len(feet), bool)
         for leg, path in self.paths.items():
-            feet[leg] = path_point(path, tau, self.hop)
+            feet[leg] = path_point(path, tau)
             stance[leg] = tau >= 1.0
         return body, feet, stance
 
 
-def body_progress(tau: np.ndarray, start: np.ndarray | float) -> np.ndarray:
-    """Quintic progress of the body over a swing that begins moving at ``start`` ∈ [0, 1)."""
-    return progress(np.clip((tau - start) / np.maximum(1.0 - start, 1e-9), 0.0, 1.0))
-
-
-def path_point(path: np.ndarray, tau: float, hop: float = 0.0) -> np.ndarray:
-    """Point of a waypoint path at ``tau``: segments timed by length, at rest at each waypoint
-    (quintic progress); a two-point path with ``hop`` > 0 is a step lifted by ``hop``."""
-    tau = float(np.clip(tau, 0.0, 1.0))
-    if hop > 0.0:
-        p = path[0] + float(progress(tau)) * (path[-1] - path[0])
-        p[2] += hop * float(lift(tau))
-        return p
-    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
-    total = seg.sum()
-    if total <= 0:
-        return path[-1].copy()
-    edges = np.concatenate([[0.0], np.cumsum(seg) / total])
-    k = min(int(np.searchsorted(edges, tau, side="right")) - 1, len(seg) - 1)
-    local = (tau - edges[k]) / max(edges[k + 1] - edges[k], 1e-12)
-    return path[k] + float(progress(local)) * (path[k + 1] - path[k])
-
-
-SEARCH_AHEAD = np.arange(-0.39, 0.201, 0.03)
-"""Candidate distances (m) of the near face ahead of a crossing leg's home at swing start."""
-SEARCH_LEAN = np.arange(0.0, 0.201, 0.04)
-"""Candidate body travel (m) during one leg's swing: how far the body leans forward."""
-SEARCH_LAND = np.array([0.02, 0.04, 0.06])
-"""Candidate landing distances (m) past the far face."""
-SEARCH_RESERVE = np.arange(-0.08, 0.081, 0.04)
-"""Candidate forward offsets (m) of the other feet's footholds before a swing, so they stay
-within reach while the body leans."""
-SEARCH_TAUS = np.linspace(0.0, 1.0, 11)
-COARSE = np.array([0.0, 0.3, 0.6, 1.0])
-"""Instants (swing fraction) of the pruning pass of the search."""
-TOUCH = 0.01
-"""Height (m) under which a landing foot counts as support in the stability check."""
-
-
-def swing_points(
-    start: np.ndarray, near: float, far: float, top: float, land_x: np.ndarray, taus: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Crossing-swing samples (C, T, 3) for C start feet (C, 3) and landings (C,): up to the
-    near face at ``top``, over to past the far face, down; as ``path_point`` does for one.
-    Also the fraction of each swing at which the foot is up before the near face."""
-    c = len(start)
-    path = np.empty((c, 4, 3))
-    path[:, 0] = start
-    path[:, 1, 0] = np.maximum(start[:, 0], near)
-    path[:, 2, 0] = np.maximum(far, land_x)
-    path[:, 3, 0] = land_x
-    path[:, 1:, 1] = start[:, 1:2]
-    path[:, 1:3, 2] = top
-    path[:, 3, 2] = 0.0
-    seg = np.linalg.norm(np.diff(path, axis=1), axis=2)
-    edges = np.concatenate([np.zeros((c, 1)), np.cumsum(seg, axis=1)], axis=1)
-    edges /= np.maximum(edges[:, -1:], 1e-12)
-    k = np.clip((taus[None, :, None] >= edges[:, None, 1:3]).sum(axis=2), 0, 2)
-    lo = np.take_along_axis(edges, k, axis=1)
-    hi = np.take_along_axis(edges, k + 1, axis=1)
-    local = progress(np.clip((taus[None, :] - lo) / np.maximum(hi - lo, 1e-12), 0.0, 1.0))
-    a = np.take_along_axis(path, k[..., None], axis=1)
-    b = np.take_along_axis(path, (k + 1)[..., None], axis=1)
-    return a + local[..., None] * (b - a), edges[:, 1]
+TAUS = np.linspace(0.0, 1.0, 17)
+"""Instants (fraction of a phase) at which a candidate phase is checked."""
+SLACK = 0.002
+"""Added (m) to the legs' clearance from a bar, for the motion between checked instants."""
+ADVANCES = np.arange(0.02, 0.0049, -0.005)
+"""Candidate body advances (m) of one body move, longest first."""
+FOOTHOLD_STEP = 0.005
+"""Spacing (m) of candidate footholds along x."""
+OVERSTEP = 0.06
+"""How far (m) past its goal a foothold may be, e.g. when the goal lies on a bar."""
+MIN_STEP = 0.01
+"""Shortest forward step (m) worth a swing."""
+MAX_PHASES = 300
+"""Bound on the phases of one plan (a crossing takes about 40)."""
+SPREADS = np.array([0.0, 0.03, 0.06])
+"""Candidate sideways spreads (m, outward) of a swinging foot at its apex."""
+LINK_SAMPLES = np.linspace(0.0, 1.0, 7)[:, None]
 
 
 class CrossingPlan:
-    """Builds and plays the crossing: ``sample(t)`` gives body, feet and stance at time t."""
+    """Builds and plays the free-gait crossing: ``sample(t)`` gives body, feet and stance."""
 
     def __init__(
         self,
@@ -239,243 +234,233 @@ class CrossingPlan:
         params: CrossingParams,
         kin: Kinematics,
         feet: np.ndarray,
+        stand_height: float,
         height: float,
     ) -> None:
+        """Plan from ground ``feet`` (n×3) under a body at (0, 0, ``height``); the plan ends
+        with the body lowered to ``stand_height``."""
         self.g = geometry
         self.p = params
         self.chains = LegChains(kin)
-        self.moves: list[Move] = []
-        self.body = np.array([0.0, 0.0, height])
-        self.stand_height = height
-        self.feet = np.array(feet, float)
-        self.crossed = np.zeros(len(feet), bool)
-        self.climb_height = max(
-            height, geometry.height + params.body_clearance + params.body_half_height
-        )
-        self._build()
+        self.n = kin.n_legs
+        self.stand_height = stand_height
+        out = np.column_stack([np.cos(kin.yaw), np.sin(kin.yaw)])
+        self.home = np.column_stack([kin.mount[:, :2] + params.reach * out, np.zeros(self.n)])
+        errors = []
+        for climb in self._heights(height):
+            try:
+                self.moves = self._build(np.array(feet, float), height, climb)
+                break
+            except CrossingError as e:
+                errors.append(f"{climb:.3f} m: {e}")
+        else:
+            raise CrossingError("joist crossing: no body height works; " + "; ".join(errors))
+        self.climb_height = climb
         self.duration = sum(m.duration for m in self.moves)
         self._starts = np.cumsum([0.0] + [m.duration for m in self.moves])
 
-    # --- planning ---------------------------------------------------------------------
+    def _heights(self, height: float) -> list[float]:
+        """Climb heights to try: the lowest whose underside clears the target bar first."""
+        p = self.p
+        need = max(bar.height for bar in self.g.bars) + p.body_clearance + p.body_half_height
+        return sorted({max(h, height) for h in p.climb_heights if h >= need}) or [need]
 
-    def _zone_clip(self, leg: int, point: np.ndarray) -> np.ndarray:
-        """A foothold moved out of the joist band: before it until the leg crosses, after it."""
-        g, p = self.g, self.p
-        out = point.copy()
-        if self.crossed[leg]:
-            out[0] = max(out[0], g.face + g.width + p.foot_margin)
-        else:
-            out[0] = min(out[0], g.face - p.foot_margin)
-        out[2] = 0.0
-        return out
+    # --- checks -------------------------------------------------------------------------
 
-    def _body_move(self, target: np.ndarray, duration: float) -> None:
-        if np.allclose(target, self.body, atol=1e-6):
-            return
-        self.moves.append(Move(duration, self.body.copy(), target.copy(), self.feet.copy()))
-        self.body = target.copy()
-
-    def _step_group(self, legs: tuple[int, ...], body_x: float) -> None:
-        """Legs of one tripod group step together to their footholds for body x ``body_x``."""
-        paths = {}
-        for leg in legs:
-            home = np.array([body_x, self.body[1], 0.0]) + self.g.home[leg]
-            target = self._zone_clip(leg, home)
-            if np.linalg.norm(target - self.feet[leg]) > 1e-3:
-                paths[leg] = np.array([self.feet[leg], target])
-        if not paths:
-            return
-        move = Move(self.p.step_time, self.body.copy(), self.body.copy(), self.feet.copy())
-        move.paths, move.hop = paths, self.p.step_height
-        self.moves.append(move)
-        for leg, path in paths.items():
-            self.feet[leg] = path[-1]
-
-    def _advance_to(self, body_x: float) -> None:
-        """Tripod cycles: each group steps towards the next body position, then the body moves."""
-        while self.body[0] < body_x - 1e-6:
-            nxt = min(body_x, self.body[0] + self.p.stride)
-            for group in self.g.groups:
-                self._step_group(group, nxt)
-            target = self.body.copy()
-            target[0] = nxt
-            self._body_move(target, self.p.shift_time)
-        for group in self.g.groups:
-            self._step_group(group, self.body[0])
-
-    def _swing_path(self, start: np.ndarray, land_x: float) -> np.ndarray:
-        """Waypoints of a crossing swing: up before the near face, over, down past the far face."""
-        g, p = self.g, self.p
-        top = g.height + p.clearance
-        near = g.face - p.leg_radius
-        far = g.face + g.width + p.leg_radius
-        land = np.array([land_x, start[1], 0.0])
-        return np.array(
-            [start, [max(start[0], near), start[1], top], [max(far, land_x), start[1], top], land]
-        )
-
-    def _footholds(self, body_x: np.ndarray, reserve: np.ndarray, legs: tuple[int, ...]):
-        """Zone-clipped footholds (C, n, 3): ``legs`` at home for body x ``body_x``, the other
-        feet ``reserve`` ahead of home."""
-        g, p = self.g, self.p
-        feet = np.zeros((len(body_x), len(g.home), 3))
-        feet[..., 0] = body_x[:, None] + g.home[None, :, 0] + reserve[:, None]
-        feet[:, list(legs), 0] -= reserve[:, None]
-        feet[..., 1] = self.body[1] + g.home[None, :, 1]
-        before = g.face - p.foot_margin
-        after = g.face + g.width + p.foot_margin
-        crossed = self.crossed[None, :]
-        feet[..., 0] = np.where(
-            crossed, np.maximum(feet[..., 0], after), np.minimum(feet[..., 0], before)
-        )
-        return feet
-
-    def _search(self, legs: tuple[int, ...]) -> tuple[float, ...]:
-        """Best (margin, body x, lean, landing x, reserve, height, lean start) for ``legs``.
-
-        All of ``legs`` swing together while the body leans. The margin is the least of: the
-        clearance (m) of their femurs, tibias and feet from the joist beyond ``leg_radius``,
-        and the distance of the body centre inside the support polygon of the other feet less
-        ``support_margin``; −inf when any leg cannot reach a sampled pose.
-        """
-        g, p = self.g, self.p
-        heights = np.unique([self.body[2], self.climb_height, max(self.climb_height, p.high_body)])
-        grid = np.array(
-            np.meshgrid(
-                SEARCH_AHEAD,
-                SEARCH_LEAN,
-                SEARCH_LAND,
-                SEARCH_RESERVE,
-                heights,
-                [0.0, 1.0],
-                indexing="ij",
+    def check(self, body: np.ndarray, feet: np.ndarray, stance: np.ndarray) -> np.ndarray:
+        """Worst margin (C,) over T instants of C candidates: body (C, T, 3) as (x, y, height),
+        ground feet (C, T, n, 3), stance (n,). Negative: a constraint is broken (-inf:
+        unreachable)."""
+        p = self.p
+        local = feet - body[:, :, None, :]
+        ok, _, knee = self.chains.solve(local)
+        # The chord from the coxa mount to the knee runs under the coxa and femur links.
+        femur = np.broadcast_to(self.chains.kin.mount, knee.shape)
+        origin = body[:, :, None, :]
+        joints = np.stack([femur + origin, knee + origin, feet], axis=3)
+        a, b = joints[..., :-1, :], joints[..., 1:, :]
+        pts = (a[..., None, :] + LINK_SAMPLES * (b - a)[..., None, :]).reshape(*a.shape[:3], -1, 3)
+        margin = np.full(body.shape[:2], np.inf)
+        underside = body[..., 2] - p.body_half_height
+        for bar in self.g.bars:
+            gap = np.minimum(bar_gap(pts, bar).min(axis=3), corner_gap(a, b, bar)).min(axis=2)
+            gap = gap - p.leg_radius - SLACK
+            margin = np.minimum(margin, gap)
+            over = (body[..., 0] + self.g.half_length > bar.face - p.body_clearance) & (
+                body[..., 0] - self.g.half_length < bar.face + bar.width + p.body_clearance
             )
-        ).reshape(6, -1)
-        body_x = g.face - grid[0] - max(g.home[i][0] for i in legs)
-        lean, land_x, reserve, height = grid[1], g.face + g.width + grid[2], grid[3], grid[4]
-        # The body's underside must clear the joist whenever the body is over it.
-        low = height - p.body_half_height < g.height + p.body_clearance
-        span = (body_x + lean + g.half_length > g.face - p.body_clearance) & (
-            body_x - g.half_length < g.face + g.width + p.body_clearance
-        )
-        keep = ~(low & span) & (body_x >= self.body[0] - 1e-9)
-        grid, body_x = grid[:, keep], body_x[keep]
-        lean, land_x, reserve, height = lean[keep], land_x[keep], reserve[keep], height[keep]
-        lean_from = grid[5]
-        # Reachability at a few instants prunes most candidates before the full check.
-        ok, _ = self._evaluate(legs, body_x, lean, land_x, reserve, height, lean_from, COARSE, True)
-        sel = np.flatnonzero(ok)
-        body_x, lean, land_x = body_x[sel], lean[sel], land_x[sel]
-        reserve, height, lean_from = reserve[sel], height[sel], lean_from[sel]
-        ok, score = self._evaluate(legs, body_x, lean, land_x, reserve, height, lean_from)
-        score = np.where(ok, score, -np.inf)
-        # Enough margin first, then the calmest move: least lean, reserve, landing distance.
-        good = score >= 0.0
-        order = np.lexsort((self._lean_start, height, land_x, reserve, lean, ~good))
-        i = order[0] if len(order) else None
-        if i is None or not good[i]:
-            names = [self.chains.kin.leg_names[j] for j in legs]
-            raise CrossingError(
-                f"joist crossing: legs {names} cannot swing over a {g.height:.3f} m joist "
-                f"with {p.clearance:.3f} m clearance and a stable body"
-            )
-        values = (score, body_x, lean, land_x, reserve, height, self._lean_start)
-        return tuple(float(v[i]) for v in values)
+            belly = np.where(over, underside - bar.height - p.body_clearance, np.inf)
+            margin = np.minimum(margin, belly)
+        support = support_margin(feet[:, :, stance, :2], body[..., :2]) - p.support_margin
+        margin = np.minimum(margin, support)
+        margin = np.where(ok.all(axis=2), margin, -np.inf)
+        return margin.min(axis=1)
 
-    def _evaluate(
-        self, legs, body_x, lean, land_x, reserve, height, delayed, taus=None, reach_only=False
+    def _free(self, x: np.ndarray) -> np.ndarray:
+        """Footholds x (m) outside every bar's band widened by ``foot_margin``."""
+        free = np.ones(x.shape, bool)
+        for bar in self.g.bars:
+            m = self.p.foot_margin
+            free &= (x <= bar.face - m) | (x >= bar.face + bar.width + m)
+        return free
+
+    def _apex(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """Swing height (m) from feet ``start`` to ``end`` (C, 3): over every bar in between."""
+        p = self.p
+        apex = np.maximum(start[:, 2], end[:, 2]) + p.step_height
+        lo = np.minimum(start[:, 0], end[:, 0]) - p.leg_radius
+        hi = np.maximum(start[:, 0], end[:, 0]) + p.leg_radius
+        for bar in self.g.bars:
+            spans = (lo < bar.face + bar.width) & (hi > bar.face)
+            apex = np.where(spans, np.maximum(apex, bar.height + p.clearance), apex)
+        return apex
+
+    def _swing_paths(self, start: np.ndarray, end: np.ndarray, spread: np.ndarray) -> np.ndarray:
+        """Waypoints (C, 4, 3): up and ``spread`` (m, signed) sideways, across at the apex,
+        down; spreading the foot out at the apex keeps the knee from folding past its limit."""
+        apex = self._apex(start, end)
+        paths = np.stack([start, start, end, end], axis=1)
+        paths[:, 1:3, 2] = apex[:, None]
+        paths[:, 1:3, 1] += spread[:, None]
+        return paths
+
+    # --- phases -------------------------------------------------------------------------
+
+    def _try_body(self, body: np.ndarray, feet: np.ndarray, targets: np.ndarray):
+        """The first candidate body pose (rows of ``targets``) reachable by a checked move."""
+        c = len(targets)
+        path = body + progress(TAUS)[None, :, None] * (targets - body)[:, None, :]
+        ground = np.broadcast_to(feet, (c, len(TAUS), self.n, 3))
+        margin = self.check(path, ground, np.ones(self.n, bool))
+        good = np.flatnonzero(margin >= 0.0)
+        return targets[good[0]] if len(good) else None
+
+    def _try_swing(
+        self, leg: int, body: np.ndarray, feet: np.ndarray, goal: float, y: float, cross: bool
     ):
-        """Reachability (C,) and margin (C,) of candidate swings sampled at ``taus``.
+        """The checked swing of ``leg`` to the free foothold nearest (``goal``, ``y``), or None.
+        With ``cross`` it steps over the next bar ahead (and no other); without, it crosses no
+        bar and must end nearer the goal."""
+        start = feet[leg]
+        xs = np.arange(goal - OVERSTEP, goal + OVERSTEP + 1e-9, FOOTHOLD_STEP)
+        keep = self._free(xs)
+        ahead = [bar for bar in self.g.bars if bar.face > start[0]]
+        over = ahead[0] if cross and ahead else None
+        if over is None and abs(y - start[1]) < MIN_STEP:
+            keep &= np.abs(xs - goal) <= abs(start[0] - goal) - MIN_STEP
+        for bar in self.g.bars:
+            same_side = (xs < bar.face) == (start[0] < bar.face)
+            keep &= ~same_side if bar is over else same_side
+        xs = xs[keep]
+        if not len(xs):
+            return None
+        side = np.sign(self.chains.kin.mount[leg, 1]) or 1.0
+        spread = np.repeat(side * SPREADS, len(xs))
+        xs = np.tile(xs, len(SPREADS))
+        order = np.argsort(np.abs(xs - goal), kind="stable")
+        xs, spread = xs[order], spread[order]
+        end = np.tile(start, (len(xs), 1))
+        end[:, 0], end[:, 1], end[:, 2] = xs, y, 0.0
+        paths = self._swing_paths(np.tile(start, (len(xs), 1)), end, spread)
+        swing = waypoint_samples(paths, TAUS)
+        ground = np.repeat(np.broadcast_to(feet, (len(xs), self.n, 3))[:, None], len(TAUS), 1)
+        ground = ground.copy()
+        ground[:, :, leg] = swing
+        stance = np.ones(self.n, bool)
+        stance[leg] = False
+        bodies = np.broadcast_to(body, (len(xs), len(TAUS), 3))
+        margin = self.check(bodies, ground, stance)
+        good = np.flatnonzero(margin >= 0.0)
+        return paths[good[0]] if len(good) else None
 
-        The margin is the least of the legs' clearance from the joist beyond ``leg_radius``
-        and the body centre's distance inside the other feet's support less
-        ``support_margin``. Sets ``_lean_start``: when each candidate's body starts to lean.
-        """
-        g, p = self.g, self.p
-        taus = SEARCH_TAUS if taus is None else taus
-        feet = self._footholds(body_x, reserve, legs)
-        near, far = g.face - p.leg_radius, g.face + g.width + p.leg_radius
-        ground = np.repeat(feet[:, None], len(taus), axis=1)
+    def _blocked(self, leg: int, body: np.ndarray, feet: np.ndarray, lead: float) -> bool:
+        """Whether a bar lies between ``leg``'s foot and its goal (home + ``lead``)."""
+        goal = body[0] + self.home[leg, 0] + lead
+        return any(feet[leg, 0] < bar.face < goal for bar in self.g.bars)
+
+    def _swing_first(self, legs, body, feet, lead, swing, cross=False) -> bool:
+        """Swing the first of ``legs`` that has a checked swing towards home + ``lead``."""
         for leg in legs:
-            ground[:, :, leg], up = swing_points(
-                feet[:, leg], near, far, g.height + p.clearance, land_x, taus
+            goal = body[0] + self.home[leg, 0] + lead
+            path = self._try_swing(leg, body, feet, goal, body[1] + self.home[leg, 1], cross)
+            if path is not None:
+                swing(leg, path)
+                return True
+        return False
+
+    def _build(self, feet: np.ndarray, height: float, climb: float) -> list[Move]:
+        g, p = self.g, self.p
+        moves: list[Move] = []
+        body = np.array([0.0, 0.0, height])
+        last = max(g.bars, key=lambda bar: bar.face)
+        goal = last.face + last.width + p.exit_distance - self.home[:, 0].min()
+
+        def body_move(target: np.ndarray) -> None:
+            nonlocal body
+            span = float(np.abs(target - body).max())
+            moves.append(Move(max(p.shift_time, span / p.body_speed), body, target, feet.copy()))
+            body = target
+
+        def swing(leg: int, path: np.ndarray) -> None:
+            moves.append(Move(p.swing_time, body, body, feet.copy(), {leg: path}))
+            feet[leg] = path[-1]
+
+        raised = np.array([body[0], body[1], climb])
+        if abs(climb - body[2]) > 1e-6:
+            if self._try_body(body, feet, raised[None]) is None:
+                raise CrossingError(f"cannot raise the body to {climb:.3f} m")
+            body_move(raised)
+        homing = False
+        for _ in range(MAX_PHASES):
+            homing = homing or body[0] >= goal - 1e-6
+            behind = feet[:, 0] - (body[0] + self.home[:, 0])
+            wide = np.abs(feet[:, 1] - body[1] - self.home[:, 1]) > MIN_STEP
+            behind = np.where(wide, np.minimum(behind, -1.0), behind)
+            lead = 0.0 if homing else p.lead
+            order = [int(i) for i in np.argsort(behind, kind="stable")]
+            blocked = [i for i in order if self._blocked(i, body, feet, lead)]
+            if self._swing_first(blocked, body, feet, lead, swing, cross=True):
+                continue
+            due = [i for i in order if behind[i] < -p.lead and i not in blocked]
+            if self._swing_first(due, body, feet, lead, swing):
+                continue
+            if not homing:
+                steps = np.minimum(body[0] + ADVANCES, goal)
+                targets = np.column_stack(
+                    [steps, np.full_like(steps, body[1]), [climb] * len(steps)]
+                )
+                target = self._try_body(body, feet, targets)
+                if target is not None and target[0] > body[0] + 1e-6:
+                    body_move(target)
+                    continue
+            off = np.abs(behind) > MIN_STEP
+            rest = [int(i) for i in np.argsort(-np.abs(behind), kind="stable") if off[i]]
+            if self._swing_first(rest, body, feet, 0.0, swing):
+                continue
+            if homing:
+                break
+            stuck = self.chains.kin.leg_names[order[0]]
+            raise CrossingError(
+                f"stuck at body x {body[0]:.3f} m (leg {stuck} cannot step, the body cannot "
+                f"advance) over a {last.height:.3f} m joist"
             )
-        # The body leans from the start of the swing, or once the foot is up (delayed).
-        self._lean_start = up * delayed if legs else np.zeros_like(body_x)
-        body = np.zeros((len(body_x), len(taus), 3))
-        body[..., 0] = (
-            body_x[:, None]
-            + body_progress(taus[None, :], self._lean_start[:, None]) * lean[:, None]
-        )
-        body[..., 1] = self.body[1]
-        body[..., 2] = height[:, None]
-        local = ground - body[:, :, None, :]
-        ok, femur, knee = self.chains.solve(local, joints=not reach_only)
-        if reach_only:
-            return ok.all(axis=(1, 2)), None
-        idx = list(legs)
-        links = np.linspace(0.0, 1.0, 7)[None, None, None, :, None]
-        f, k, t = femur[:, :, idx, None], knee[:, :, idx, None], local[:, :, idx, None]
-        pts = np.concatenate([f + links * (k - f), k + links * (t - k)], axis=3)
-        pts = pts + body[:, :, None, None, :]
-        gap = joist_gap(pts, g.face, g.width, g.height).min(axis=(1, 2, 3)) - p.leg_radius
-        support = [i for i in range(len(g.home)) if i not in legs]
-        margin = support_margin(ground[:, :, support, :2], body[..., :2])
-        # Once the swinging feet are within TOUCH of the floor they carry the body too.
-        landing = (ground[:, :, idx, 2] <= TOUCH).all(axis=2) & (taus[None, :] > 0.5)
-        margin = np.where(landing, np.inf, margin).min(axis=1)
-        return ok.all(axis=(1, 2)), np.minimum(gap, margin - p.support_margin)
-
-    def _restep(self, reserve: float, legs: tuple[int, ...]) -> None:
-        """Tripod groups (without ``legs``) step to footholds ``reserve`` ahead of home."""
-        target = self._footholds(np.array([self.body[0]]), np.array([reserve]), legs)[0]
-        for group in self.g.groups:
-            paths = {
-                i: np.array([self.feet[i], target[i]])
-                for i in group
-                if i not in legs and np.linalg.norm(target[i] - self.feet[i]) > 1e-3
-            }
-            if paths:
-                move = Move(self.p.step_time, self.body.copy(), self.body.copy(), self.feet.copy())
-                move.paths, move.hop = paths, self.p.step_height
-                self.moves.append(move)
-                for i, path in paths.items():
-                    self.feet[i] = path[-1]
-
-    def _cross(self, legs: tuple[int, ...]) -> None:
-        """Advance, set the other feet, and swing ``legs`` over the joist while the body leans."""
-        _, body_x, lean, land_x, reserve, height, lean_from = self._search(legs)
-        self._advance_to(body_x)
-        target = self.body.copy()
-        target[2] = height
-        self._body_move(target, self.p.shift_time)
-        self._restep(reserve, legs)
-        end = self.body + np.array([lean, 0.0, 0.0])
-        move = Move(self.p.swing_time, self.body.copy(), end, self.feet.copy())
-        move.paths = {leg: self._swing_path(self.feet[leg], land_x) for leg in legs}
-        move.lean_from = lean_from
-        self.moves.append(move)
-        self.body = end
-        for leg in legs:
-            self.feet[leg] = move.paths[leg][-1]
-            self.crossed[leg] = True
-
-    def _build(self) -> None:
-        g, p = self.g, self.p
-        for pair in g.pairs:
-            self._cross(pair)
-        beyond = g.face + g.width + p.exit_distance - g.home[:, 0].min()
-        self._advance_to(max(beyond, self.body[0]))
-        lowered = self.body.copy()
-        lowered[2] = self.stand_height
-        self._body_move(lowered, p.shift_time)
+        else:
+            raise CrossingError(f"no crossing within {MAX_PHASES} phases")
+        lowered = np.array([body[0], body[1], self.stand_height])
+        if self._try_body(body, feet, lowered[None]) is None:
+            raise CrossingError(f"cannot lower the body to {self.stand_height:.3f} m")
+        body_move(lowered)
+        return moves
 
     # --- playing ----------------------------------------------------------------------
 
+    def phase(self, t: float) -> int:
+        """Index of the phase playing ``t`` s into the plan."""
+        k = np.searchsorted(self._starts, t, side="right") - 1
+        return int(np.clip(k, 0, len(self.moves) - 1))
+
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Body (x, y, height), ground-frame feet and stance flags ``t`` s into the plan."""
-        if not self.moves:
-            return self.body.copy(), self.feet.copy(), np.ones(len(self.feet), bool)
-        k = int(np.clip(np.searchsorted(self._starts, t, side="right") - 1, 0, len(self.moves) - 1))
+        k = self.phase(t)
         move = self.moves[k]
         return move.sample((t - self._starts[k]) / move.duration)
