@@ -160,28 +160,33 @@ class PeriodicGait(GaitPlugin):
         self.home = kin.stand_feet(self.height0)[:, :2].copy()
         self.home_perp = np.column_stack([-self.home[:, 1], self.home[:, 0]])
         self.swing_time = (1.0 - c.duty_factor) * c.cycle_time
+        self._offsets = self.offsets.tolist()
+        self._home = self.home.tolist()
+        self._home_perp = self.home_perp.tolist()
         self.stance_time = c.duty_factor * c.cycle_time
         self.sway_coef = self._sway_series(c.sway)
         self._reset(np.column_stack([self.home, np.full(n, -self.height0)]))
 
     def _reset(self, feet: np.ndarray) -> None:
-        # Ground-fixed points in the level frame, advected together: the feet, the swing
-        # legs' lift-off points and their touch-down anchors.
-        self.points = np.repeat(np.array(feet, float)[None], 3, axis=0)
-        self.feet, self.lift_point, self.anchor = self.points
+        # Ground-fixed points in the level frame, one [x, y, z] list per leg: the feet, and the
+        # stepping legs' lift-off points and touch-down anchors (plain lists: for a few legs
+        # scalar math beats numpy's per-call overhead in the tick).
+        self._feet = np.asarray(feet, float).tolist()
+        self._lift_point = [list(f) for f in self._feet]
+        self._anchor = [list(f) for f in self._feet]
         self._command: MotionCommand | None = None
         self._command_targets = self._targets(None)
         self.phase = 0.0
-        self.pose = np.array([0.0, 0.0, 0.0, -self.feet[:, 2].mean(), 0.0, 0.0])
+        self.pose = np.array([0.0, 0.0, 0.0, -float(np.mean(feet, 0)[2]), 0.0, 0.0])
         self.pose_rate = np.zeros(6)
         self.pose_acc = np.zeros(6)
         self._settled = False
         self.sway_gain = 0.0
         self.commanded = False
-        psi = (self.phase - self.offsets) % 1.0
-        self.in_window = psi < 1.0 - self.config.duty_factor
-        self.stepping = np.zeros(self.n, bool)
-        self.swing_start = np.zeros(self.n)
+        swing_fraction = 1.0 - self.config.duty_factor
+        self._in_window = [(self.phase - o) % 1.0 < swing_fraction for o in self._offsets]
+        self._stepping = [False] * self.n
+        self._swing_start = [0.0] * self.n
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
         """Begin from the measured feet (body frame, body level): the first targets equal them."""
@@ -220,6 +225,16 @@ class PeriodicGait(GaitPlugin):
         return v, w, height, roll, pitch
 
     @property
+    def feet(self) -> np.ndarray:
+        """Feet in the level frame now (n_legs, 3), m."""
+        return np.array(self._feet)
+
+    @property
+    def stepping(self) -> np.ndarray:
+        """Legs stepping (lifted off in this swing window and not yet landed)."""
+        return np.array(self._stepping)
+
+    @property
     def velocity(self) -> np.ndarray:
         """Body velocity (vx, vy) now, m/s."""
         return self.pose[:2]
@@ -245,7 +260,7 @@ class PeriodicGait(GaitPlugin):
             self._command, self._command_targets = command, self._targets(command)
             self._settled = False
         v, w, height, roll, pitch = self._command_targets
-        self.commanded = bool(v.any()) or w != 0.0
+        self.commanded = bool(v[0] or v[1] or w)
         if self.config.sway > 0.0:
             v, w = v * self.sway_gain, w * self.sway_gain
             self._settled &= self.sway_gain in (0.0, 1.0)
@@ -268,32 +283,41 @@ class PeriodicGait(GaitPlugin):
 
     # --- the tick ---------------------------------------------------------------------
 
-    def _advect(self, points: np.ndarray, dt: float, dz: float) -> None:
-        """Move ground-fixed points (level frame) by the body's motion over ``dt``, in place.
-
-        p' = Rz(-w dt) (p - v dt) - dz z, as one affine map on the row vectors.
+    def _advect(self, dt: float, dz: float) -> None:
+        """Move the ground-fixed points (level frame) by the body's motion over ``dt``, in place:
+        p' = Rz(-w dt) (p - v dt) - dz z; a leg's lift-off and anchor points only while it steps.
         """
-        vx, vy, w = self.pose[:3]
-        shift = np.array([vx * dt, vy * dt, 0.0])
+        vx, vy, w = self.pose[:3].tolist()
+        sx, sy = vx * dt, vy * dt
+        points = self._feet + [
+            p
+            for i, step in enumerate(self._stepping)
+            if step
+            for p in (self._lift_point[i], self._anchor[i])
+        ]
         if w == 0.0:
-            shift[2] = dz
-            points -= shift
+            for p in points:
+                p[0] -= sx
+                p[1] -= sy
+                p[2] -= dz
             return
         c, s = math.cos(w * dt), math.sin(w * dt)
-        rot_t = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        points[:] = (points - shift) @ rot_t
-        points[:, 2] -= dz
+        for p in points:
+            x, y = p[0] - sx, p[1] - sy
+            p[0] = c * x + s * y
+            p[1] = c * y - s * x
+            p[2] -= dz
 
-    def _touch_down(self, t_rem: np.ndarray) -> np.ndarray:
-        """Where, now (level frame), lies the ground point each foot lands on in ``t_rem`` s."""
-        v, w = self.pose[:2], self.pose[2]
-        target = self.home + (v + w * self.home_perp) * (0.5 * self.stance_time)
+    def _touch_down(self, leg: int, t_rem: float) -> tuple[float, float]:
+        """Where, now (level frame), lies the ground point foot ``leg`` lands on in ``t_rem`` s."""
+        vx, vy, w = self.pose[:3].tolist()
+        (hx, hy), (px, py) = self._home[leg], self._home_perp[leg]
+        half = 0.5 * self.stance_time
+        tx, ty = hx + (vx + w * px) * half, hy + (vy + w * py) * half
         if w == 0.0:
-            return target + np.multiply.outer(t_rem, v)
-        a = w * t_rem
-        ca, sa = np.cos(a), np.sin(a)
-        tx, ty = target[:, 0], target[:, 1]
-        return np.column_stack([ca * tx - sa * ty + v[0] * t_rem, sa * tx + ca * ty + v[1] * t_rem])
+            return tx + t_rem * vx, ty + t_rem * vy
+        ca, sa = math.cos(w * t_rem), math.sin(w * t_rem)
+        return ca * tx - sa * ty + vx * t_rem, sa * tx + ca * ty + vy * t_rem
 
     def step(
         self,
@@ -309,40 +333,57 @@ class PeriodicGait(GaitPlugin):
         if c.sway > 0.0:
             self._update_sway(dt)
         dz = self._follow(dt, command)
-        feet, lift_point = self.feet, self.lift_point
-        self._advect(self.points.reshape(-1, 3), dt, dz)
+        self._advect(dt, dz)
+        self.phase = phase = (self.phase + dt / c.cycle_time) % 1.0
+        late = LATE_START * swing_fraction + 1e-9
+        may_lift = c.sway == 0.0 or self.sway_gain == 1.0
+        moving = None
+        height = self.height
+        stance = []
+        for leg, offset in enumerate(self._offsets):
+            psi = (phase - offset) % 1.0
+            window = psi < swing_fraction
+            was_in, was_stepping = self._in_window[leg], self._stepping[leg]
+            stepping = was_stepping and was_in
+            if window and not stepping and may_lift and psi <= late:
+                if moving is None:
+                    moving = self.moving
+                if moving or self._away(leg):
+                    stepping = True
+                    self._swing_start[leg] = psi
+                    self._lift_point[leg] = list(self._feet[leg])
+                    self._anchor[leg] = list(self._feet[leg])
+            swinging = window and stepping
+            if swinging:
+                self._swing(leg, psi, height)
+            elif was_in and not window and was_stepping:
+                # The swing ended: the foot lands on its (ground-fixed) touch-down point.
+                touch = self._anchor[leg]
+                touch[2] = -height
+                self._feet[leg] = list(touch)
+            self._stepping[leg] = stepping and window
+            self._in_window[leg] = window
+            stance.append(not swinging)
+        return FootTargets(stamp=t, positions=self._posed(), stance=stance)
 
-        self.phase = (self.phase + dt / c.cycle_time) % 1.0
-        psi = (self.phase - self.offsets) % 1.0
-        window = psi < swing_fraction
-        ended = self.in_window & ~window & self.stepping
-        self.stepping &= self.in_window
-        ready = window & ~self.stepping & (psi <= LATE_START * swing_fraction + 1e-9)
-        if ready.any() and (c.sway == 0.0 or self.sway_gain == 1.0):
-            moving = self.moving
-            lift_off = ready & (moving | self._away())
-            self.stepping |= lift_off
-            self.swing_start = np.where(lift_off, psi, self.swing_start)
-            lift_point[lift_off] = feet[lift_off]
-            self.anchor[lift_off] = feet[lift_off]
-        swinging = window & self.stepping
-        if swinging.any() or ended.any():
-            span = swing_fraction - self.swing_start
-            tau = np.minimum(np.maximum((psi - self.swing_start) / span, 0.0), 1.0)
-            s = progress(tau)
-            # The touch-down point follows the command early in the swing and is held on the
-            # ground as the swing ends, so the foot lands at rest relative to the ground.
-            touch = self.anchor
-            predicted = self._touch_down((swing_fraction - psi) * c.cycle_time)
-            touch[:, :2] += np.where(swinging, 1.0 - s, 0.0)[:, None] * (predicted - touch[:, :2])
-            touch[:, 2] = -self.height
-            path = lift_point + s[:, None] * (touch - lift_point)
-            path[:, 2] += self.step_height * lift(tau)
-            feet[swinging] = path[swinging]
-            feet[ended] = touch[ended]
-        self.stepping &= window
-        self.in_window = window
-        return FootTargets(stamp=t, positions=self._posed().tolist(), stance=(~swinging).tolist())
+    def _swing(self, leg: int, psi: float, height: float) -> None:
+        """Move swinging foot ``leg`` along its path at cycle phase ``psi`` (its window's)."""
+        c: PeriodicConfig = self.config
+        swing_fraction = 1.0 - c.duty_factor
+        start = self._swing_start[leg]
+        tau = min(max((psi - start) / (swing_fraction - start), 0.0), 1.0)
+        s = progress(tau)
+        # The touch-down point follows the command early in the swing and is held on the
+        # ground as the swing ends, so the foot lands at rest relative to the ground.
+        touch, lift_point = self._anchor[leg], self._lift_point[leg]
+        px, py = self._touch_down(leg, (swing_fraction - psi) * c.cycle_time)
+        touch[0] += (1.0 - s) * (px - touch[0])
+        touch[1] += (1.0 - s) * (py - touch[1])
+        touch[2] = -height
+        foot = self._feet[leg]
+        for k in range(3):
+            foot[k] = lift_point[k] + s * (touch[k] - lift_point[k])
+        foot[2] += self.step_height * lift(tau)
 
     def _sway_series(self, sway: float) -> np.ndarray:
         """Trigonometric series of the body sway over the cycle phase (coefficients, (k, 2)).
@@ -362,32 +403,33 @@ class PeriodicGait(GaitPlugin):
         ones = np.ones((*np.shape(phase), 1))
         return np.concatenate([ones, np.cos(angle), np.sin(angle)], -1)
 
-    def _away(self) -> np.ndarray:
-        """Legs whose foot is more than HOME_TOLERANCE from its stand position."""
-        feet = self.feet
-        away = np.hypot(feet[:, 0] - self.home[:, 0], feet[:, 1] - self.home[:, 1])
-        return np.maximum(away, np.abs(feet[:, 2] + self.height)) > HOME_TOLERANCE
+    def _away(self, leg: int) -> bool:
+        """Whether foot ``leg`` is more than HOME_TOLERANCE from its stand position."""
+        (x, y, z), (hx, hy) = self._feet[leg], self._home[leg]
+        return max(math.hypot(x - hx, y - hy), abs(z + self.height)) > HOME_TOLERANCE
 
     def _update_sway(self, dt: float) -> None:
         """Establish the sway (over a quarter cycle, smoothstep) while walking; remove it once
         still. The body only follows a velocity command in proportion to the established sway."""
-        walking = bool(self.stepping.any()) or self.moving or bool(self._away().any())
+        walking = any(self._stepping) or self.moving or any(map(self._away, range(self.n)))
         rate = 4.0 * dt / self.config.cycle_time
         self.sway_gain = min(max(self.sway_gain + (rate if walking else -rate), 0.0), 1.0)
 
-    def _posed(self) -> np.ndarray:
+    def _posed(self) -> list[list[float]]:
         """Feet in the body frame: level-frame feet shifted by the sway and tilted by roll/pitch."""
-        out = self.feet.copy()
+        roll, pitch = self.pose[4:].tolist()
+        if self.sway_gain == 0.0 and roll == 0.0 and pitch == 0.0:
+            return [list(foot) for foot in self._feet]
+        out = np.array(self._feet)
         if self.sway_gain > 0.0:
             g = self.sway_gain
             out[:, :2] -= g * g * (3.0 - 2.0 * g) * (self._sway_basis(self.phase) @ self.sway_coef)
-        roll, pitch = self.pose[4], self.pose[5]
         if roll != 0.0 or pitch != 0.0:
             cr, sr = math.cos(roll), math.sin(roll)
             cp, sp = math.cos(pitch), math.sin(pitch)
             rot = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
             out = out @ rot
-        return out
+        return out.tolist()
 
 
 class Tripod(PeriodicGait):
