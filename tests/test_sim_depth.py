@@ -12,6 +12,7 @@ from conftest import ROOT
 
 from daemon.kinematics import Kinematics
 from daemon.profile import load
+from drivers.sim.camera_process import CameraProcess
 from drivers.sim.depth import RayCastDepth
 from drivers.sim.gl_depth import gl_available
 from drivers.sim.twin import Twin
@@ -106,3 +107,24 @@ def test_rasterised_frames_are_deterministic_across_twins_and_threads():
     assert len(frames[0]) == len(frames[1]) >= 3
     for a, b in zip(*frames, strict=True):
         assert a.any() and np.array_equal(a, b)
+
+
+def test_camera_process_renders_what_the_twin_would_in_process():
+    """The real-time twin's camera process (own model, same seeds) returns, frame after frame,
+    the images the twin renders in-process at the same joint state, bit for bit."""
+    profile = _small_camera("widowx")
+    twin = Twin(profile, _joist_world(), stepped=True, bus=False, seed=7)
+    worker = CameraProcess(profile, twin.world, twin.model.opt.timestep, seed=7)
+    try:
+        cam = twin.cameras["front"]
+        for t in (0.0, 0.05):
+            twin.advance_to(t)
+            qpos, now = twin.data.qpos.copy(), twin.time
+            remote = worker.render(cam, "front", qpos, now)
+            local = twin.depth_frame("front")
+            assert remote.number + 1 == local.number
+            assert remote.timestamp == local.timestamp
+            assert local.depth.any() and np.array_equal(remote.depth, local.depth)
+    finally:
+        worker.close()
+        twin.stop()

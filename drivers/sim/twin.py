@@ -20,7 +20,8 @@ position, speed, load, temperature (a thermal model) and voltage. Without a bus
 (``bus=False``) ``command()`` / ``command_mit()`` set the goals in-process. Torque legs answer
 MIT-mode CAN frames on a python-can ``virtual`` channel (``twin.port``) from the physics.
 Stepped mode is deterministic: the same inputs give the same joint logs. Real-time mode runs
-physics in a thread that follows the monotonic clock and renders depth at each camera's rate.
+physics in a thread that follows the monotonic clock and renders depth at each camera's rate,
+in a child process (drivers/sim/camera_process.py) unless ``camera_process=False``.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from daemon.profile import Profile
 from daemon.profile import load as load_profile
 from drivers.base import DepthFrame, ImuSample
 from drivers.sim import servos
+from drivers.sim.camera_process import CameraProcess
 from drivers.sim.depth import RayCastDepth
 from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 from drivers.sim.mit_motors import MitMotorChain
@@ -170,11 +172,19 @@ class Twin:
         depth_threads: int = 1,
         depth_backend: str = "auto",
         camera_duty: float = 0.5,
+        camera_process: bool = True,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
         self.world = world if isinstance(world, World) else load_world(world)
         self.stepped = stepped
         self.camera_duty = camera_duty
+        self.camera_process = camera_process
+        self._depth_options = {
+            "seed": seed,
+            "depth_backend": depth_backend,
+            "depth_threads": depth_threads,
+        }
+        self._camera_worker: CameraProcess | None = None
         self.robot: RobotModel = build(self.profile, self.world, timestep)
         self.model = self.robot.model
         self.data = mujoco.MjData(self.model)
@@ -285,6 +295,10 @@ class Twin:
             self._thread = threading.Thread(target=self._run, name="twin-physics", daemon=True)
             self._thread.start()
             if self.cameras:
+                if self.camera_process:
+                    self._camera_worker = CameraProcess(
+                        self.profile, self.world, self.model.opt.timestep, **self._depth_options
+                    )
                 self._camera_thread = threading.Thread(
                     target=self._run_cameras, name="twin-cameras", daemon=True
                 )
@@ -298,6 +312,9 @@ class Twin:
             if thread is not None:
                 thread.join(timeout=2.0)
         self._thread = self._camera_thread = None
+        if self._camera_worker is not None:
+            self._camera_worker.close()
+            self._camera_worker = None
         for cam in self.cameras.values():
             cam.close()
         if self.emulator is not None:
@@ -572,9 +589,18 @@ class Twin:
         for name, cam in self.cameras.items():
             if now + 1e-9 >= self._next_frame[name]:
                 self._next_frame[name] = max(self._next_frame[name] + cam.period, now)
-                frame = self.depth_frame(name)
+                frame = self._render(name)
                 for callback in self._depth_callbacks:
                     callback(name, frame)
+
+    def _render(self, name: str) -> DepthFrame:
+        """A frame of camera ``name`` now: from the camera process in real time, else here."""
+        worker = self._camera_worker
+        if worker is None:
+            return self.depth_frame(name)
+        with self.lock:
+            qpos, t = self.data.qpos.copy(), self.data.time
+        return worker.render(self.cameras[name], name, qpos, t)
 
     # --- commands without a bus -------------------------------------------------------------
 
