@@ -61,7 +61,9 @@ def real_time_with_daemon(robot: str, seconds: float, cameras: str) -> dict:
     """The daemon's control side as ``climbd run --sim attic`` runs it: the SimHost twin in
     real time in this process, the profile's own driver on the twin's port, the Controller at
     the profile's rate on the monotonic clock, depth frames encoded as for ``sim/depth``.
-    ``cameras``: ``gl`` (rasterised), ``rays`` (mj_multiRay) or ``none`` (the baseline)."""
+    ``cameras``: ``gl`` (rasterised in the twin's camera process), ``gl-here`` (rasterised in
+    this process), ``rays`` (mj_multiRay in this process, as the last release did) or ``none``
+    (the baseline)."""
     from daemon.control import Controller
     from daemon.loop import ControlLoop
     from daemon.messages import Mode, encode
@@ -78,7 +80,9 @@ def real_time_with_daemon(robot: str, seconds: float, cameras: str) -> dict:
         encode(message)
         frames.append(time.monotonic())
 
-    host = SimHost(profile, "attic", False, publish, "auto" if cameras == "none" else cameras)
+    backend = {"none": "auto", "gl-here": "gl"}.get(cameras, cameras)
+    host = SimHost(profile, "attic", False, publish, backend)
+    host.twin.camera_process = cameras == "gl"
     host.start()
     driver_profile, options = host.driver()
     bus = make_joint_bus(driver_profile, None, options)
@@ -167,7 +171,7 @@ def main() -> None:
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for robot in ROBOTS:
         base = None
-        for cameras in ("none", "gl", "rays"):
+        for cameras in ("none", "gl", "gl-here", "rays"):
             r = real_time_with_daemon(robot, args.daemon_seconds, cameras)
             base = base or r["ticks"] / r["expected"]
             cam = r["camera"]
