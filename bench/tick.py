@@ -1,11 +1,12 @@
-"""One full motion tick for 18 joints: gait + IK + ruckig + guard, vectorised vs joint by joint.
+"""One full motion tick for 18 joints: gait + IK + ruckig + guard, pipeline vs joint by joint.
 
-The vectorised tick is what the controller runs: ``PeriodicGait.step`` then
-``MotionPipeline.feet_step`` (IK of all legs at once, one 18-DOF ruckig, guard). The
-baseline computes the same tick in a plain Python loop: the same gait object (one call per
-tick either way), then leg by leg scalar IK with ``math``, joint by joint finite differences,
-target clipping, one single-DOF ruckig per joint and the position clamp. Both run interleaved
-in the same process on the same foot targets, and every tick's commands are checked equal.
+The pipeline tick is what the controller runs: ``PeriodicGait.step`` then
+``MotionPipeline.feet_step`` (scalar IK of each leg, target clipping on lists, one 18-DOF
+ruckig call, guard). The baseline computes the same tick in a plain Python loop: the same gait
+object (one call per tick either way), then leg by leg scalar IK with ``math``, joint by joint
+finite differences, target clipping, one single-DOF ruckig per joint and the position clamp.
+Both run interleaved in the same process on the same foot targets, and every tick's commands
+are checked equal.
 
     .venv/bin/python bench/tick.py --robot qingzhui --ticks 5000
 """
@@ -140,7 +141,7 @@ def run(robot: str, ticks: int, speed: float) -> dict:
     for gait in gaits:
         gait.start(BodyState(), kin.fk(stand))
     command, body = MotionCommand(vx=speed), BodyState()
-    gait_t, vector_t, loop_t = np.empty(ticks), np.empty(ticks), np.empty(ticks)
+    gait_t, pipeline_t, loop_t = np.empty(ticks), np.empty(ticks), np.empty(ticks)
     warm = int(10.0 * profile.rate_hz)
     worst = 0.0
     clock = time.perf_counter
@@ -156,15 +157,15 @@ def run(robot: str, ticks: int, speed: float) -> dict:
         worst = max(worst, float(np.max(np.abs(np.array(cmd.position) - ref))))
         if k >= warm:
             i = k - warm
-            gait_t[i], vector_t[i], loop_t[i] = t1 - t0, t2 - t0, t3 - t2
+            gait_t[i], pipeline_t[i], loop_t[i] = t1 - t0, t2 - t0, t3 - t2
     if worst > 1e-9:
-        raise SystemExit(f"{robot}: vectorised and loop ticks differ by {worst:.3g} rad")
+        raise SystemExit(f"{robot}: pipeline and loop ticks differ by {worst:.3g} rad")
     return {
         "robot": robot,
         "joints": kin.n_joints,
         "rate": profile.rate_hz,
         "gait": np.median(gait_t) * 1e6,
-        "vector": np.percentile(vector_t, [50, 99]) * 1e6,
+        "pipeline": np.percentile(pipeline_t, [50, 99]) * 1e6,
         "loop": np.percentile(loop_t, [50, 99]) * 1e6,
         "worst": worst,
     }
@@ -177,14 +178,14 @@ def main() -> None:
     parser.add_argument("--speed", type=float, default=0.1, help="commanded vx, m/s")
     args = parser.parse_args()
     print(
-        "| robot | joints | rate Hz | gait median µs | vectorised tick median µs | p99 µs "
-        "| loop tick median µs | p99 µs | loop / vectorised (median) | vectorised / period "
+        "| robot | joints | rate Hz | gait median µs | pipeline tick median µs | p99 µs "
+        "| loop tick median µs | p99 µs | loop / pipeline (median) | pipeline / period "
         "| max Δq rad |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for robot in args.robot or ["qingzhui", "widowx"]:
         r = run(robot, args.ticks, args.speed)
-        (vm, vp), (lm, lp) = r["vector"], r["loop"]
+        (vm, vp), (lm, lp) = r["pipeline"], r["loop"]
         share = vm * 1e-6 * r["rate"]
         print(
             f"| {robot} | {r['joints']} | {r['rate']:.0f} | {r['gait']:.1f} | {vm:.1f} | {vp:.1f} "

@@ -11,12 +11,12 @@ from __future__ import annotations
 import numpy as np
 
 
-def progress(tau: np.ndarray) -> np.ndarray:
+def progress(tau: float | np.ndarray) -> float | np.ndarray:
     """Quintic horizontal progress from lift-off (0) to touch-down (1)."""
     return tau * tau * tau * (10.0 + tau * (-15.0 + 6.0 * tau))
 
 
-def lift(tau: np.ndarray) -> np.ndarray:
+def lift(tau: float | np.ndarray) -> float | np.ndarray:
     """Normalised height above the lift-off/touch-down line: 0 at the ends, 1 mid-swing."""
     u = tau * (1.0 - tau)
     return 64.0 * u * u * u
