@@ -564,7 +564,8 @@ class Twin:
                     wall0 += behind
                     self.lag += behind
                     target = sim0 + time.monotonic() - wall0
-                while self.data.time < target - 0.5 * h:
+            while self.data.time < target - 0.5 * h and not self._stop.is_set():
+                with self.lock:  # per step: a bus packet waits one step, not a catch-up batch
                     self._physics_step()
             time.sleep(0.002)
 
