@@ -13,6 +13,7 @@ error switched their torque off and torques limp servos again at their present p
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import select
@@ -35,15 +36,19 @@ STATUS_RETURN_ALL = 2
 # What dynamixel_sdk raises when a late status is taken for the reply to the next instruction.
 MISPARSE = (IndexError, KeyError, ValueError)
 BRING_UP_MARGIN_MS = 50.0  # bring-up is not time-critical: wait long, never misread a late reply
+BRING_UP_ATTEMPTS = 8  # a servo just powered up (or a loaded host) may miss the first packets
 
 
 class LatencyPort(sdk.PortHandler):
-    """The SDK's port with packet timeouts sized for our adapter latency, not a fixed 16 ms.
+    """The SDK's port with packet timeouts sized for our adapter latency, and lean I/O.
 
     The SDK waits ``bytes × tx time + 2 × 16 ms + 2 ms`` for a reply, assuming the FTDI default
     latency timer; we set the timer to ``latency_ms``, so a silent servo costs ~4 ms, not 34.
     Waiting blocks in select() rather than busy-polling: no core burnt on a Raspberry Pi, and
     other threads of the process (an in-process emulator, Zenoh callbacks) get the GIL.
+    Reads, writes and flushes go straight to the file descriptor (pyserial adds an ioctl and a
+    select per call, and tcflush takes the tty's buffer lock): a round trip costs two system
+    calls fewer at each end. Timeouts run on the monotonic clock, not the SDK's wall clock.
     """
 
     def __init__(self, name: str, latency_ms: float, margin_ms: float = 2.0) -> None:
@@ -51,18 +56,47 @@ class LatencyPort(sdk.PortHandler):
         self.latency_ms = latency_ms
         self.margin_ms = margin_ms
 
+    def getCurrentTime(self) -> float:  # noqa: N802 - SDK override
+        return time.monotonic_ns() / 1e6
+
     def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 - SDK override
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = (
             self.tx_time_per_byte * packet_length + 2.0 * self.latency_ms + self.margin_ms
         )
 
+    def _read(self, length: int) -> bytes:
+        """What has arrived, up to ``length`` bytes; b"" if nothing (VMIN = VTIME = 0)."""
+        try:
+            return os.read(self.ser.fd, length)
+        except BlockingIOError:
+            return b""
+
     def readPort(self, length: int) -> bytes:  # noqa: N802 - SDK override
-        """Wait in select() for bytes until the packet deadline instead of spinning a core."""
+        """Bytes already there at once; else wait in select() for them until the deadline."""
+        data = self._read(length)
+        if data:
+            return data
         remaining = (self.packet_timeout - self.getTimeSinceStart()) / 1000.0
-        if remaining > 0 and not self.ser.in_waiting:
-            select.select([self.ser.fd], [], [], remaining)
-        return self.ser.read(length)
+        if remaining > 0 and select.select([self.ser.fd], [], [], remaining)[0]:
+            data = self._read(length)
+            if not data:  # readable yet empty: hung up
+                raise OSError(errno.EIO, "the port hung up (device unplugged?)")
+        return data
+
+    def writePort(self, packet: list[int]) -> int:  # noqa: N802 - SDK override
+        """Write the whole packet (the tty normally takes it in one call)."""
+        data = bytes(packet)
+        done = os.write(self.ser.fd, data)
+        while done < len(data):
+            select.select([], [self.ser.fd], [], 0.1)
+            done += os.write(self.ser.fd, data[done:])
+        return done
+
+    def clearPort(self) -> None:  # noqa: N802 - SDK override
+        """Drop stale received bytes (a late status) by reading them: one call if none."""
+        while self._read(4096):
+            pass
 
 
 def set_latency_timer(port: str, latency_ms: int) -> None:
@@ -192,11 +226,20 @@ class DynamixelBus:
             self.close()
             raise
 
+    def _patient(self, call, *args) -> tuple:
+        """A bring-up SDK call; a late reply the SDK misparses is a corrupt packet (flushed,
+        retried by the caller), not a failed bring-up."""
+        try:
+            return call(self.port, *args)
+        except MISPARSE:
+            self.port.clearPort()
+            return 0, sdk.COMM_RX_CORRUPT, 0
+
     def _check_models(self) -> None:
         problems = []
         for k, ident in enumerate(self.ids):
-            for _ in range(3):  # a servo just powered up may miss the first packet
-                number, result, _ = self.ph.ping(self.port, ident)
+            for _ in range(BRING_UP_ATTEMPTS):
+                number, result, _ = self._patient(self.ph.ping, ident)
                 if result == sdk.COMM_SUCCESS:
                     break
                 time.sleep(self.port.packet_timeout / 1000.0)  # let a late status drain
@@ -211,18 +254,18 @@ class DynamixelBus:
         if problems:
             raise DriverError(f"{self._where()}: " + "; ".join(problems))
 
-    def _configure(self, item: Item, value: int, attempts: int = 3) -> None:
+    def _configure(self, item: Item, value: int, attempts: int = BRING_UP_ATTEMPTS) -> None:
         """Write ``item`` where it differs, answered or not, and verify by reading it back."""
         for k, ident in enumerate(self.ids):
             for _ in range(attempts):
-                current, result, _ = self.ph.read1ByteTxRx(self.port, ident, item.address)
+                current, result, _ = self._patient(self.ph.read1ByteTxRx, ident, item.address)
                 if result == sdk.COMM_SUCCESS and current == value:
                     break
-                level, result, _ = self.ph.read1ByteTxRx(
-                    self.port, ident, self.model.status_return_level.address
+                level, result, _ = self._patient(
+                    self.ph.read1ByteTxRx, ident, self.model.status_return_level.address
                 )
                 if result == sdk.COMM_SUCCESS and level >= STATUS_RETURN_ALL:
-                    self.ph.write1ByteTxRx(self.port, ident, item.address, value)
+                    self._patient(self.ph.write1ByteTxRx, ident, item.address, value)
                 else:
                     self.ph.write1ByteTxOnly(self.port, ident, item.address, value)
                 time.sleep(self.port.packet_timeout / 1000.0)  # let a late status drain

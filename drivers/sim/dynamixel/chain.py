@@ -297,6 +297,7 @@ class ServoChain:
         body = bytearray(b"\xff\xff\xfd\x00" + bytes([BROADCAST, n & 0xFF, n >> 8, STATUS]))
         first = None
         broken = False
+        running = crc16(body)  # the CRC of everything chained so far
         for ident, address, length in reads:
             s = self._alive(ident)
             if s is None or not self._answers(s, FAST_SYNC_READ):
@@ -304,9 +305,11 @@ class ServoChain:
             first = first or s
             data = s.read_bytes(address, length)
             error = sv.P2_ACCESS if data is None else 0
-            body += bytes([s.status_error(error), ident]) + (data or bytes(length))
-            crc = crc16(body)
-            body += bytes([crc & 0xFF, crc >> 8])
+            segment = bytes([s.status_error(error), ident]) + (data or bytes(length))
+            crc = crc16(segment, running)
+            tail = bytes([crc & 0xFF, crc >> 8])
+            body += segment + tail
+            running = crc16(tail, crc)
             if self.corrupting.get(ident, 0) != 0:
                 broken = True
                 left = self.corrupting[ident]

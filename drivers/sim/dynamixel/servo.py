@@ -55,6 +55,7 @@ class EmulatedServo:
         self.t: float | None = None
         self.state = MotorState(angle=angle)
         self.memory = bytearray(spec.table_size)
+        self._touched_cache: dict[tuple[int, int], tuple[Field, ...]] = {}
         for f in spec.fields.values():
             self._put(f, f.default)
         self._put(spec.fields["id"], ident)
@@ -102,11 +103,7 @@ class EmulatedServo:
             return P1_RANGE if p1 else P2_ACCESS
         end = address + len(data)
         with self.lock:
-            touched = [
-                f
-                for f in self.spec.fields.values()
-                if f.address < end and address < f.address + f.size
-            ]
+            touched = self._touched(address, end)
             if any(f.read_only for f in touched):
                 return P1_RANGE if p1 else P2_ACCESS
             if (
@@ -121,6 +118,20 @@ class EmulatedServo:
             if error:
                 self.memory[:] = before
             return error
+
+    def _touched(self, address: int, end: int) -> tuple[Field, ...]:
+        """Fields overlapping ``[address, end)``; remembered, a servo is written the same way
+        every cycle."""
+        key = (address, end)
+        touched = self._touched_cache.get(key)
+        if touched is None:
+            touched = tuple(
+                f
+                for f in self.spec.fields.values()
+                if f.address < end and address < f.address + f.size
+            )
+            self._touched_cache[key] = touched
+        return touched
 
     def _check_goal(self) -> int:
         f = self.spec.fields
