@@ -6,10 +6,12 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from daemon.cloud import PAPER_000, PAPER_000_TEST_7, CropBox, crop, frame_to_points
 from daemon.profile import CameraConfig, CameraMount
-from drivers.base import DepthFrame, DriverError, mount_extrinsics
+from drivers.base import DepthFrame, DriverError, Intrinsics, mount_extrinsics
 from drivers.realsense import camera as camera_module
 from drivers.realsense.camera import LiveSource, RealSenseCamera
 from drivers.realsense.models import D435, L515
@@ -181,6 +183,58 @@ def test_crop_box_with_decimation_and_ranges_equals_cropping_the_cloud(
     inside, near = _in_box(want, box, -1e-5), _in_box(want, box, 1e-5)
     assert np.count_nonzero(inside) <= len(fused) <= np.count_nonzero(near)
     assert np.count_nonzero(inside) > 50
+
+
+SMALL = Intrinsics(width=80, height=60, fx=60.0, fy=60.0, ppx=40.0, ppy=30.0)
+"""A small sensor whose centre row and column have rays with exact zero components."""
+
+_corner = st.floats(-1.0, 2.0, allow_nan=False).map(lambda c: round(c, 2))
+_size = st.floats(0.01, 2.0, allow_nan=False).map(lambda c: round(c, 2))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    tilt=st.sampled_from([0.0, 15.0, 30.0, 45.0, 60.0, 90.0]) | st.floats(-10.0, 95.0),
+    height=st.floats(0.0, 0.5),
+    scale=st.sampled_from([0.001, 0.00025]),
+    decimation=st.integers(1, 3),
+    corner=st.tuples(_corner, _corner.map(lambda c: c - 0.5), _corner.map(lambda c: c - 0.5)),
+    size=st.tuples(_size, _size, _size),
+    seed=st.integers(0, 2**16),
+)
+@example(  # faces through the camera, met by the centre row and column's exactly zero rays
+    tilt=90.0,
+    height=0.3,
+    scale=0.001,
+    decimation=1,
+    corner=(0.1, 0.0, -0.5),
+    size=(0.5,) * 3,
+    seed=0,
+)
+def test_fused_crop_equals_cropping_the_cloud_for_any_box_and_mount(
+    tilt, height, scale, decimation, corner, size, seed
+):
+    config = CameraConfig(mount=CameraMount(position=[0.1, 0.0, height], tilt_deg=tilt))
+    extrinsics = mount_extrinsics(config)
+    (x, y, z), (dx, dy, dz) = corner, size
+    box = CropBox(x_min=x, x_max=x + dx, y_min=y, y_max=y + dy, z_min=z, z_max=z + dz)
+    # half the pixels at random depths, half within a raw step of where their ray crosses a face
+    rng = np.random.default_rng(seed)
+    shape = (SMALL.height, SMALL.width)
+    v, u = np.mgrid[0 : SMALL.height, 0 : SMALL.width]
+    optical = np.stack([(u - SMALL.ppx) / SMALL.fx, (v - SMALL.ppy) / SMALL.fy, np.ones(shape)])
+    rays = np.einsum("ij,jhw->ihw", extrinsics[:3, :3], optical)
+    axis = rng.integers(0, 3, shape)
+    faces = np.array([[x, y, z], [x + dx, y + dy, z + dz]])[rng.integers(0, 2, shape), axis]
+    ray = np.take_along_axis(rays, axis[None], 0)[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        crossing = (faces - extrinsics[axis, 3]) / ray / scale
+    near = np.nan_to_num(np.round(crossing), nan=0, posinf=0, neginf=0) + rng.integers(-1, 2, shape)
+    depth = rng.integers(0, int(3.0 / scale), shape)
+    depth = np.where((rng.random(shape) < 0.5) & (near > 0) & (near < 65536), near, depth)
+    frame = DepthFrame(depth.astype(np.uint16), scale, SMALL, extrinsics, 0.0)
+    fused = frame_to_points(frame, decimation, box=box)
+    np.testing.assert_array_equal(fused, crop(frame_to_points(frame, decimation), box))
 
 
 def test_box_out_of_view_gives_no_points():
