@@ -103,6 +103,50 @@ def complete(
     return Member(cylinder, t0, t1, support)
 
 
+def node_ends(
+    member: Member, points: np.ndarray, *, distance: float, bin_size: float, linker: float
+) -> Member:
+    """Members of a space frame end at nodes inside linkers of size ``linker`` (ours, after the
+    gap rule, which runs on through a linker and into the members crossing at its node).
+
+    Along the axis, in bins of ``bin_size``, the share of points on the cylinder surface is
+    high on the tube and low on a linker and on members crossing at the node (smoothed over
+    three bins). Within 2.5 linkers of each end, the run of low bins nearest the end, if at
+    least half a linker long, is the linker: the end moves to its centre, the node.
+    """
+    if linker <= 0:
+        return member
+    cylinder = member.cylinder
+    w = points[member.indices] - cylinder.point
+    t = w @ cylinder.axis
+    radial = np.sqrt(np.maximum((w * w).sum(axis=1) - t * t, 0.0))
+    on = np.abs(radial - cylinder.radius) < distance
+    edges = np.arange(member.t0, member.t1 + bin_size, bin_size)
+    total = np.histogram(t, edges)[0]
+    window = np.ones(3)
+    share = np.convolve(np.histogram(t[on], edges)[0], window, "same") / np.maximum(
+        np.convolve(total, window, "same"), 1
+    )
+    low = (share < 0.5) & (np.convolve(total, window, "same") > 0)
+    reach = int(np.ceil(2.5 * linker / bin_size))
+    shortest = int(np.ceil(0.5 * linker / bin_size))
+    ends = [member.t0, member.t1]
+    for side, run_of in ((0, low[:reach]), (1, low[::-1][:reach])):
+        runs = _runs(run_of)
+        run = next((r for r in runs if r[1] - r[0] >= shortest), None)
+        if run is not None:
+            middle = 0.5 * (run[0] + run[1]) * bin_size
+            ends[side] = member.t0 + middle if side == 0 else member.t1 - middle
+    return Member(cylinder, ends[0], ends[1], member.indices, member.pieces)
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True in ``flags``, in order."""
+    padded = np.concatenate([[False], flags, [False]]).astype(np.int8)
+    change = np.flatnonzero(np.diff(padded))
+    return list(zip(change[::2].tolist(), change[1::2].tolist(), strict=True))
+
+
 def _aligned_ends(a: Member, b: Member) -> tuple[np.ndarray, np.ndarray]:
     """b's end points ordered to face a's (p0 with p0)."""
     if a.cylinder.axis @ b.cylinder.axis >= 0:

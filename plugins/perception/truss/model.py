@@ -20,6 +20,7 @@ from plugins.perception.truss.completion import (
     complete,
     from_segment,
     merge_members,
+    node_ends,
     suppress_duplicates,
 )
 from plugins.perception.truss.cylinders import Segment, refine, segment_cylinders, surface_fit
@@ -57,6 +58,7 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_segments: int = 64
     slide_lambda: float = 2.5
     gap: float = 0.12
+    linker: float = 0.0
     box_margin: float = 0.01
     max_slides: int = 3
     merge_distance: float = 0.1
@@ -76,6 +78,8 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
             raise ValueError(
                 f"truss: slide_lambda must be >= 1 (paper: about 2.5), got {self.slide_lambda}"
             )
+        if self.linker < 0:
+            raise ValueError(f"truss: linker must be >= 0 (0: members end free), got {self.linker}")
         for name in ("voxel", "gap", "cylinder_distance", "plane_distance", "segment_gap"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"truss: {name} must be > 0, got {getattr(self, name)}")
@@ -138,7 +142,18 @@ class TrussModeller:
             angle_deg=c.merge_angle_deg,
             line=c.merge_line,
         )
-        members = suppress_duplicates([self._refit(m, points, normals) for m in merged])
+        members = suppress_duplicates(
+            [
+                node_ends(
+                    self._refit(m, points, normals),
+                    points,
+                    distance=c.cylinder_distance,
+                    bin_size=c.voxel,
+                    linker=c.linker,
+                )
+                for m in merged
+            ]
+        )
         return TrussModel(members, [from_segment(s) for s in segments], points)
 
     def _without_planes(
