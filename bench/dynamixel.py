@@ -1,23 +1,36 @@
 """Dynamixel bus cycle time vs the physical bus limit and a naive per-servo SDK baseline.
 
 The emulator runs in its own process (as servos would be their own hardware) and delivers
-each reply when its last byte would arrive: bytes × 10 / baud plus return delay. The bus
-limit of a cycle is computed here from the packet sizes of the published protocols, averaged
-over one health period (every ``rate_hz / health_rate_hz`` cycles the read block is longer).
-Baseline, same run, same emulator: what the SDK examples do — read present position and
-write goal position one servo at a time. Cycle times are medians (this machine is shared;
-the mean is printed beside them).
+each reply when its last byte would arrive: bytes × 10 / baud plus return delay, counted from
+when it reads the instruction (never earlier than a real wire could).
 
-    .venv/bin/python bench/dynamixel.py [--cycles 300]
+Bus limit: the wire time of one cycle's packets at the baud rate (10 bits a byte) plus the
+return delays (0 here), with zero host turnaround — a bound no host reaches. It is computed
+from the published packet formats for ordinary cycles and for health cycles (every
+``rate_hz / health_rate_hz`` cycles the read block is longer), and the driver is measured the
+same way: median of its ordinary cycles and median of its health cycles, each weighted by how
+often it runs. Per round trip, a real host also pays a turnaround the wire does not show; the
+floor of that here is the round trip of a pty between two processes, measured in the same run
+(``pty RTT``), and ``limit + floor`` adds it once per round trip of the cycle.
+
+Baseline, same run, same emulator: what the SDK examples do — read present position and write
+goal position one servo at a time. Both processes run SCHED_FIFO (emulator above the driver,
+as servos have their own processors) unless ``--no-realtime``: on a shared machine the
+scheduler's latency otherwise swamps the figures (a deployed control loop runs real-time too).
+
+    .venv/bin/python bench/dynamixel.py [--cycles 300] [--no-realtime]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import select
 import subprocess
 import sys
 import tempfile
 import time
+import tty
 from pathlib import Path
 
 import dynamixel_sdk as sdk
@@ -25,37 +38,92 @@ import numpy as np
 
 from daemon.messages import JointCommand
 from daemon.profile import load
-from drivers.dynamixel.bus import DynamixelBus
+from drivers.dynamixel.bus import MISPARSE, DynamixelBus
 
 ROOT = Path(__file__).resolve().parent.parent
+DRIVER_PRIORITY, EMULATOR_PRIORITY = 40, 50
 
 
-def bus_limit_s(protocol: int, n: int, baud: int, health_every: int, delay_s: float = 0.0):
-    """Seconds a cycle needs on the wire (average over a health period), and its bytes."""
+def cycle_bytes(protocol: int, n: int) -> tuple[int, int, int]:
+    """Bytes on the wire of an ordinary and of a health cycle, and the round trips of each."""
     if protocol == 1:
-        # READ: FF FF ID LEN INST ADDR N CHK = 8; status: 6 + data. SYNC WRITE: 8 + 3 per servo.
-        ordinary = n * (8 + 6 + 6) + (8 + 3 * n)
-        health = n * (8 + 6 + 8) + (8 + 3 * n)
-        replies_ordinary = replies_health = n
-    else:
-        # (FAST) SYNC READ: 14 + n; one chained status of 8 + n × (data + 4).
-        # SYNC WRITE: 14 + 5 per servo. Health adds a fast sync read of Hardware Error Status.
-        ordinary = (14 + n) + (8 + n * 14) + (14 + 5 * n)
-        health = (14 + n) + (8 + n * 25) + (14 + n) + (8 + n * 5) + (14 + 5 * n)
-        replies_ordinary, replies_health = 1, 2
-    total = (health_every - 1) * ordinary + health
-    replies = (health_every - 1) * replies_ordinary + replies_health
-    seconds = (total * 10.0 / baud + replies * delay_s) / health_every
-    return seconds, total / health_every
+        # READ: FF FF ID LEN INST ADDR N CHK = 8; status: 6 + data (6, health 8).
+        # SYNC WRITE of goals: 8 + 3 per servo, no reply. One round trip per servo.
+        write = 8 + 3 * n
+        return n * (8 + 6 + 6) + write, n * (8 + 6 + 8) + write, n
+    # (FAST) SYNC READ: 14 + n; one chained status of 8 + n × (data + 4), data 10 (health 21).
+    # SYNC WRITE: 14 + 5 per servo. Health adds a fast sync read of Hardware Error Status.
+    write = 14 + 5 * n
+    ordinary = (14 + n) + (8 + n * 14) + write
+    health = (14 + n) + (8 + n * 25) + (14 + n) + (8 + n * 5) + write
+    return ordinary, health, 1
+
+
+def bus_limit_s(protocol: int, n: int, baud: int, delay_s: float = 0.0) -> tuple[float, float]:
+    """Seconds an ordinary and a health cycle need on the wire (plus the return delays)."""
+    ordinary, health, _ = cycle_bytes(protocol, n)
+    replies = (n, n) if protocol == 1 else (1, 2)
+    return (
+        ordinary * 10.0 / baud + replies[0] * delay_s,
+        health * 10.0 / baud + replies[1] * delay_s,
+    )
+
+
+def weighted(ordinary: float, health: float, every: int) -> float:
+    """Average cycle over a health period: ``every - 1`` ordinary cycles and one health cycle."""
+    return ((every - 1) * ordinary + health) / every
+
+
+def realtime(priority: int) -> bool:
+    """Run the calling process SCHED_FIFO at ``priority``; False if not permitted."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError):
+        return False
+    return True
+
+
+def pty_round_trip_s(count: int = 2000) -> float:
+    """Median round trip of 8 bytes through a pty to an echoing child process."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    pid = os.fork()
+    if pid == 0:
+        os.close(slave)
+        if os.sched_getscheduler(0) == os.SCHED_FIFO:
+            realtime(EMULATOR_PRIORITY)
+        while (data := os.read(master, 64)) != b"q":
+            os.write(master, data)
+        os._exit(0)
+    os.close(master)
+    times = np.empty(count)
+    for k in range(count):
+        t0 = time.perf_counter()
+        os.write(slave, b"\x55" * 8)
+        got = 0
+        while got < 8:
+            select.select([slave], [], [])
+            got += len(os.read(slave, 64))
+        times[k] = time.perf_counter() - t0
+    os.write(slave, b"q")
+    os.waitpid(pid, 0)
+    os.close(slave)
+    return float(np.median(times))
 
 
 class Emulator:
     """``python -m drivers.sim.dynamixel`` in a child process; ``.port`` is its pty."""
 
-    def __init__(self, profile_path: Path, baud: int) -> None:
+    def __init__(self, profile_path: Path, baud: int, rt: bool) -> None:
         cmd = [sys.executable, "-m", "drivers.sim.dynamixel", "--profile", str(profile_path)]
         cmd += ["--baud", str(baud), "--return-delay-us", "0", "--spin-us", "150"]
-        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, text=True)
+        self.proc = subprocess.Popen(
+            cmd,
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            text=True,
+            preexec_fn=(lambda: realtime(EMULATOR_PRIORITY)) if rt else None,
+        )
         self.port = self.proc.stdout.readline().strip()
 
     def close(self) -> None:
@@ -72,15 +140,17 @@ def profile_file(tmp: Path, base: str, protocol: int, model: str, baud: int) -> 
     return path
 
 
-def run_driver(profile, port: str, cycles: int) -> float:
+def run_driver(profile, port: str, cycles: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seconds of each read() + write() cycle, and which cycles were health cycles."""
     bus = DynamixelBus.from_profile(profile, port=port)
     bus.open()
-    q = np.zeros(len(bus.ids))
-    command = JointCommand(position=q.tolist())
+    command = JointCommand(position=np.zeros(len(bus.ids)).tolist())
     for _ in range(bus.health_every):
         bus.read()
     times = np.empty(cycles)
+    health = np.zeros(cycles, bool)
     for k in range(cycles):
+        health[k] = (bus.reads + 1) % bus.health_every == 0
         t0 = time.perf_counter()
         bus.read()
         bus.write(command)
@@ -89,10 +159,10 @@ def run_driver(profile, port: str, cycles: int) -> float:
     bus.close()
     if lost:
         raise SystemExit(f"servos lost during the benchmark: {lost}")
-    return times
+    return times, health
 
 
-def run_naive(profile, port: str, cycles: int) -> float:
+def run_naive(profile, port: str, cycles: int) -> np.ndarray:
     """The SDK examples' pattern: readNByteTxRx then writeNByteTxRx, servo by servo."""
     handler = sdk.PortHandler(port)
     handler.openPort()
@@ -107,7 +177,10 @@ def run_naive(profile, port: str, cycles: int) -> float:
     for k in range(cycles):
         t0 = time.perf_counter()
         for i in ids:
-            read(handler, i, present)
+            try:
+                read(handler, i, present)
+            except MISPARSE:  # a reply later than the SDK's timeout, taken for the next one
+                handler.clearPort()
         for i in ids:
             write(handler, i, goal, value)
         times[k] = time.perf_counter() - t0
@@ -118,34 +191,46 @@ def run_naive(profile, port: str, cycles: int) -> float:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cycles", type=int, default=300)
+    parser.add_argument("--no-realtime", action="store_true", help="normal scheduling")
     args = parser.parse_args()
+    rt = not args.no_realtime and realtime(DRIVER_PRIORITY)
+    rtt = pty_round_trip_s()
+    print(
+        f"scheduling: {'SCHED_FIFO' if rt else 'normal'}; load average "
+        f"{os.getloadavg()[0]:.1f}; pty RTT (median) {rtt * 1e6:.0f} µs\n"
+    )
     cases = [("widowx", 1, "AX-18A", 1_000_000)]
     for base in ("hubrobo", "widowx"):  # 12 and 18 X-series servos
         cases += [(base, 2, "XL430-W250", b) for b in (1_000_000, 2_000_000, 3_000_000, 4_000_000)]
-    header = (
-        "| model | servos | baud | bytes/cycle | bus limit µs (Hz) | driver median µs (Hz) "
-        "| driver mean µs | % of limit (median) | naive SDK median µs | speed-up |"
+    print(
+        "| model | servos | baud | bytes/cycle | round trips | bus limit µs (Hz) "
+        "| limit + pty floor µs | driver µs (Hz) | % of bus limit | % of limit + floor "
+        "| naive SDK µs | speed-up |"
     )
-    print(header)
-    print("|" + "---|" * 10)
+    print("|" + "---|" * 12)
     with tempfile.TemporaryDirectory() as tmp:
         for base, protocol, model, baud in cases:
             path = profile_file(Path(tmp), base, protocol, model, baud)
             profile = load(path)
             n = len(profile.joints)
             every = max(1, round(profile.rate_hz / profile.bus.health_rate_hz))
-            limit, nbytes = bus_limit_s(protocol, n, baud, every)
-            emu = Emulator(path, baud)
+            ordinary_b, health_b, trips = cycle_bytes(protocol, n)
+            limit = weighted(*bus_limit_s(protocol, n, baud), every)
+            floor = limit + weighted(trips, trips + (protocol == 2), every) * rtt
+            emu = Emulator(path, baud, rt)
             try:
-                driver = run_driver(profile, emu.port, args.cycles)
+                times, health = run_driver(profile, emu.port, args.cycles)
                 naive = run_naive(profile, emu.port, max(20, args.cycles // 5))
             finally:
                 emu.close()
-            d, d_mean, b = np.median(driver), driver.mean(), np.median(naive)
+            d = weighted(np.median(times[~health]), np.median(times[health]), every)
+            b = np.median(naive)
             print(
-                f"| {model} P{protocol}.0 | {n} | {baud / 1e6:g} M | {nbytes:.0f} "
-                f"| {limit * 1e6:.0f} ({1 / limit:.0f}) | {d * 1e6:.0f} ({1 / d:.0f}) "
-                f"| {d_mean * 1e6:.0f} | {100 * limit / d:.0f} % | {b * 1e6:.0f} | {b / d:.1f}× |",
+                f"| {model} P{protocol}.0 | {n} | {baud / 1e6:g} M "
+                f"| {weighted(ordinary_b, health_b, every):.0f} | {trips} "
+                f"| {limit * 1e6:.0f} ({1 / limit:.0f}) | {floor * 1e6:.0f} "
+                f"| {d * 1e6:.0f} ({1 / d:.0f}) | {100 * limit / d:.0f} % "
+                f"| {100 * floor / d:.0f} % | {b * 1e6:.0f} | {b / d:.1f}× |",
                 flush=True,
             )
     return 0
