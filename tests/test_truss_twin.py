@@ -1,7 +1,8 @@
-"""Truss perception in the physics twin's truss world: ray-cast depth entering through the
-pyrealsense2 software device (the capture path of a USB camera), frames to body-frame points,
-accumulated with the twin's body pose from five views around the truss, members published as
-TrussMembers and checked against the world's members with issue 10's accuracy figures.
+"""Truss perception in the physics twin's truss world through the perception role's sim path:
+ray-cast depth as ``sim/depth`` messages into the role's pyrealsense2 software camera and its
+capture thread, frames to body-frame points, accumulated with the twin's body pose from five
+views around the truss (the robot placed at each), members published as TrussMembers and
+checked against the world's members with issue 10's accuracy figures.
 
 The twin's truss is a space frame: members run node to node and end inside cubic linkers, so
 the plugin is configured with the world's linker size (``linker``), and each end goes to the
@@ -20,9 +21,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from daemon.messages import BodyState, TrussMembers, decode, encode
-from daemon.plugins import instantiate
-from daemon.profile import load
+from daemon.messages import BodyState, DepthImage, TrussMembers, decode, encode
+from daemon.perception_role import make_camera, make_plugins
+from daemon.profile import PluginSpec, load
+from daemon.sim_host import SimHost, feed
+from drivers.realsense.capture import Capture
 from drivers.sim.twin import Twin
 from plugins.perception.truss import TrussConfig, TrussModeller, TrussPerception
 from plugins.perception.truss.evaluate import evaluate
@@ -44,35 +47,55 @@ def _place(twin: Twin, x: float, y: float) -> None:
 
 @pytest.fixture(scope="module")
 def published() -> tuple[list, Twin, TrussPerception]:
+    """The perception role's sim path without the Zenoh hop: the sim host's ``sim/depth``
+    messages (through the wire encoding) feed the role's camera, its capture thread hands out
+    the newest frame, the isolated plugin turns it into features with the body pose."""
     profile = load("robots/widowx.toml")
     # the mount tilts 0-90 deg down (paper 000); level, the L515 sees the whole truss
     cameras = [
         msgspec.structs.replace(c, mount=msgspec.structs.replace(c.mount, tilt_deg=0.0))
         for c in profile.cameras
     ]
-    twin = Twin(msgspec.structs.replace(profile, cameras=cameras), "truss", stepped=True, bus=False)
-    camera = twin.software_camera("front", timeout=5.0)
-    period = twin.cameras["front"].period
+    profile = msgspec.structs.replace(profile, cameras=cameras)
+    feeds = []
+    host = SimHost(profile, "truss", stepped=True, publish=lambda m: feeds[0](_wire(m)))
+    twin = host.twin
     config = {"model_every": len(VIEWS), "linker": twin.world.truss.linker}
-    plugin = instantiate("climbd.perception", "truss", config, profile, "test")
-    camera.open()
+    plugins = msgspec.structs.replace(
+        profile.plugins, perception=[PluginSpec(name="truss", config=config)]
+    )
+    profile = msgspec.structs.replace(profile, plugins=plugins)
+    camera = make_camera(profile, "sim", None, None)
+    feeds.append(feed(camera, camera.config))
+    (plugin,) = make_plugins(profile, None, lambda name, error: None)
+    capture = Capture(camera, camera.config.name)
+    period = twin.cameras["front"].period
     messages = []
+    capture.start()
+    host.start()
     try:
-        frames = camera.frames()
         for k, (x, y) in enumerate(VIEWS):
             placed = 0.2 + k * 3 * period  # the robot first settles after its drop
             twin.advance_to(placed)
             _place(twin, x, y)
             twin.advance_to(placed + 2.5 * period)
-            frame = next(frames)
-            while frame.timestamp < placed + 0.5 * period:  # rendered after the move
-                frame = next(frames)
+            frame = capture.latest(timeout=5.0)
+            while frame is not None and frame.timestamp < placed + 0.5 * period:
+                frame = capture.latest(timeout=5.0)  # one rendered after the move
+            assert frame is not None, f"no frame from view {k}"
             position, orientation = twin.body_pose()
             body = BodyState(position=position.tolist(), orientation=orientation.tolist())
-            messages.append(plugin.process(frame, body))
+            messages.append(plugin.call("process", frame, body))
     finally:
-        camera.close()
-    return messages, twin, plugin
+        capture.stop()
+        host.stop()
+    assert plugin.status == "ok", plugin.status
+    return messages, twin, plugin.plugin
+
+
+def _wire(message: DepthImage) -> DepthImage:
+    """A ``sim/depth`` message as the perception role receives it over Zenoh."""
+    return decode(encode(message), DepthImage)
 
 
 def _world_members(twin: Twin) -> list[tuple[int, int]]:
