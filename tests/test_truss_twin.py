@@ -75,10 +75,10 @@ def published() -> tuple[list, Twin, TrussPerception]:
     host.start()
     try:
         for k, (x, y) in enumerate(VIEWS):
-            placed = 0.2 + k * 3 * period  # the robot first settles after its drop
+            placed = (1 + 2 * k) * period
             twin.advance_to(placed)
             _place(twin, x, y)
-            twin.advance_to(placed + 2.5 * period)
+            twin.advance_to(placed + 1.6 * period)
             frame = capture.latest(timeout=5.0)
             while frame is not None and frame.timestamp < placed + 0.5 * period:
                 frame = capture.latest(timeout=5.0)  # one rendered after the move
