@@ -5,7 +5,8 @@
 2. Real time with the daemon alongside, per robot, as ``climbd run --sim attic`` runs it: the
    twin in the control role's process (SimHost), the profile's own driver on the twin's pty or
    virtual CAN channel, the Controller at the profile's rate on the monotonic clock, depth
-   frames encoded for ``sim/depth``; cameras rasterised (``gl``), ray cast (``rays``) or none
+   frames encoded for ``sim/depth``; the profile's camera at its model's 240-line stream
+   (L515 320×240, D435 424×240) rasterised (``gl``), ray cast (``rays``) or none
    (the baseline the loop's ticks are compared with); sim/wall time, loop ticks, depth rate.
 3. Depth frames at 320×240 and 640×480 (L515) and 424×240 / 640×480 (D435) in the attic,
    rasterised and ray cast, beside the 33.3 ms frame period; baseline: one bare
@@ -72,8 +73,10 @@ def real_time_with_daemon(robot: str, seconds: float, cameras: str) -> dict:
     from daemon.sim_host import SimHost
 
     profile = load(f"robots/{robot}.toml")
-    if cameras == "none":
-        profile = msgspec.structs.replace(profile, cameras=[])
+    camera = profile.cameras[0]
+    width = 320 if camera.model == "L515" else 424
+    small = msgspec.structs.replace(camera, width=width, height=240)
+    profile = msgspec.structs.replace(profile, cameras=[] if cameras == "none" else [small])
     frames: list[float] = []
 
     def publish(message) -> None:

@@ -572,16 +572,17 @@ class Twin:
     def _run_cameras(self) -> None:
         """Real-time mode: render every camera at its rate and hand frames to the callbacks.
 
-        Rendering may use at most ``camera_duty`` of a core: after a frame that took r seconds
-        the thread rests r · (1/duty − 1), so a camera too costly for its rate drops frames
-        (as a USB camera on a busy host does) instead of starving the daemon beside it.
+        The thread may use at most ``camera_duty`` of a core of this process: after frames that
+        cost it c seconds of CPU it rests c · (1/duty − 1), so a camera too costly for its rate
+        drops frames (as a USB camera on a busy host does) instead of starving the daemon
+        beside it. With the camera process it only waits for the child, which costs no rest.
         """
         rest = 1.0 / self.camera_duty - 1.0
         while not self._stop.is_set():
-            t0 = time.perf_counter()
+            c0 = time.thread_time()
             if self._depth_callbacks:
                 self._cameras_due()
-            time.sleep(max(0.002, (time.perf_counter() - t0) * rest))
+            time.sleep(max(0.002, (time.thread_time() - c0) * rest))
 
     def _cameras_due(self) -> None:
         if not self._depth_callbacks:
