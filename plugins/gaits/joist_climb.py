@@ -60,9 +60,10 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     step_height: float = 0.03
     reach: float = 0.15
     lead: float = 0.03
-    body_speed: float = 0.04
-    swing_time: float = 0.8
-    shift_time: float = 0.4
+    body_speed: float = 0.05
+    foot_speed: float = 0.1
+    swing_time: float = 0.5
+    shift_time: float = 0.3
     exit_distance: float = 0.06
     row_angle_deg: float = 10.0
     goal_distance: float | None = None
@@ -366,6 +367,7 @@ class JoistClimb(GaitPlugin):
             reach=c.reach,
             lead=c.lead,
             body_speed=c.body_speed,
+            foot_speed=c.foot_speed,
             swing_time=c.swing_time,
             shift_time=c.shift_time,
             exit_distance=c.exit_distance,

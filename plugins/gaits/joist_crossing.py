@@ -65,6 +65,7 @@ class CrossingParams:
     reach: float
     lead: float
     body_speed: float
+    foot_speed: float
     swing_time: float
     shift_time: float
     exit_distance: float
@@ -88,37 +89,39 @@ class LegChains:
         self.direction = kin.direction.reshape(shape)
         self.zero = kin.zero_offset.reshape(shape)
 
-    def solve(self, feet: np.ndarray, joints: bool = True):
-        """For body-frame feet (..., n, 3): reachable mask (..., n), femur joints and knees
-        (None unless ``joints``)."""
+    def solve(self, feet: np.ndarray, joints: bool = True, legs=slice(None)):
+        """For body-frame feet (..., k, 3) of ``legs`` (all by default): reachable mask (..., k),
+        femur joints and knees (None unless ``joints``)."""
         k = self.kin
-        rel = feet - k.mount
-        x = self.cos * rel[..., 0] + self.sin * rel[..., 1]
-        y = -self.sin * rel[..., 0] + self.cos * rel[..., 1]
+        mount, cos, sin = k.mount[legs], self.cos[legs], self.sin[legs]
+        l1, l2, l3, sign = k.l1[legs], k.l2[legs], k.l3[legs], k.knee_sign[legs]
+        rel = feet - mount
+        x = cos * rel[..., 0] + sin * rel[..., 1]
+        y = -sin * rel[..., 0] + cos * rel[..., 1]
         z = rel[..., 2]
         gamma = np.arctan2(y, x)
-        u = np.hypot(x, y) - k.l1
-        c = (u * u + z * z - k.l2**2 - k.l3**2) / (2.0 * k.l2 * k.l3)
+        u = np.hypot(x, y) - l1
+        c = (u * u + z * z - l2**2 - l3**2) / (2.0 * l2 * l3)
         ok = np.abs(c) <= 1.0
-        beta = k.knee_sign * np.arccos(np.clip(c, -1.0, 1.0))
-        alpha = np.arctan2(z, u) - np.arctan2(k.l3 * np.sin(beta), k.l2 + k.l3 * np.cos(beta))
+        beta = sign * np.arccos(np.clip(c, -1.0, 1.0))
+        alpha = np.arctan2(z, u) - np.arctan2(l3 * np.sin(beta), l2 + l3 * np.cos(beta))
         theta = np.stack([gamma, alpha, beta], axis=-1)
-        q = theta * self.direction + self.zero
+        q = theta * self.direction[legs] + self.zero[legs]
         tol = 1e-9
-        ok &= ((q >= self.lower - tol) & (q <= self.upper + tol)).all(axis=-1)
+        ok &= ((q >= self.lower[legs] - tol) & (q <= self.upper[legs] + tol)).all(axis=-1)
         if not joints:
             return ok, None, None
-        r = k.l1 + k.l2 * np.cos(alpha)
+        r = l1 + l2 * np.cos(alpha)
         cg, sg = np.cos(gamma), np.sin(gamma)
 
         def to_body(radial: np.ndarray, height: np.ndarray) -> np.ndarray:
             lx, ly = radial * cg, radial * sg
-            bx = self.cos * lx - self.sin * ly + k.mount[:, 0]
-            by = self.sin * lx + self.cos * ly + k.mount[:, 1]
-            return np.stack([bx, by, height + k.mount[:, 2]], axis=-1)
+            bx = cos * lx - sin * ly + mount[:, 0]
+            by = sin * lx + cos * ly + mount[:, 1]
+            return np.stack([bx, by, height + mount[:, 2]], axis=-1)
 
-        femur = to_body(np.broadcast_to(k.l1, r.shape), np.zeros_like(r))
-        knee = to_body(r, k.l2 * np.sin(alpha))
+        femur = to_body(np.broadcast_to(l1, r.shape), np.zeros_like(r))
+        knee = to_body(r, l2 * np.sin(alpha))
         return ok, femur, knee
 
 
@@ -210,12 +213,14 @@ TAUS = np.linspace(0.0, 1.0, 17)
 """Instants (fraction of a phase) at which a candidate phase is checked."""
 SLACK = 0.002
 """Added (m) to the legs' clearance from a bar, for the motion between checked instants."""
-ADVANCES = np.arange(0.02, 0.0049, -0.005)
+ADVANCES = np.arange(0.03, 0.0049, -0.005)
 """Candidate body advances (m) of one body move, longest first."""
 FOOTHOLD_STEP = 0.005
 """Spacing (m) of candidate footholds along x."""
 OVERSTEP = 0.06
 """How far (m) past its goal a foothold may be, e.g. when the goal lies on a bar."""
+LOOK_AHEAD = 0.10
+"""How far (m) ahead of its goal a bar makes a leg try to cross it."""
 MIN_STEP = 0.01
 """Shortest forward step (m) worth a swing."""
 MAX_PHASES = 300
@@ -267,17 +272,21 @@ class CrossingPlan:
 
     # --- checks -------------------------------------------------------------------------
 
-    def check(self, body: np.ndarray, feet: np.ndarray, stance: np.ndarray) -> np.ndarray:
+    def check(
+        self, body: np.ndarray, feet: np.ndarray, stance: np.ndarray, legs=slice(None)
+    ) -> np.ndarray:
         """Worst margin (C,) over T instants of C candidates: body (C, T, 3) as (x, y, height),
-        ground feet (C, T, n, 3), stance (n,). Negative: a constraint is broken (-inf:
+        ground feet (C, T, n, 3), stance (n,); reach and clearance of ``legs`` only (the
+        others stand still on a checked pose). Negative: a constraint is broken (-inf:
         unreachable)."""
         p = self.p
-        local = feet - body[:, :, None, :]
-        ok, _, knee = self.chains.solve(local)
+        moving = feet[:, :, legs]
+        local = moving - body[:, :, None, :]
+        ok, _, knee = self.chains.solve(local, legs=legs)
         # The chord from the coxa mount to the knee runs under the coxa and femur links.
-        femur = np.broadcast_to(self.chains.kin.mount, knee.shape)
+        femur = np.broadcast_to(self.chains.kin.mount[legs], knee.shape)
         origin = body[:, :, None, :]
-        joints = np.stack([femur + origin, knee + origin, feet], axis=3)
+        joints = np.stack([femur + origin, knee + origin, moving], axis=3)
         a, b = joints[..., :-1, :], joints[..., 1:, :]
         pts = (a[..., None, :] + LINK_SAMPLES * (b - a)[..., None, :]).reshape(*a.shape[:3], -1, 3)
         margin = np.full(body.shape[:2], np.inf)
@@ -342,10 +351,12 @@ class CrossingPlan:
         With ``cross`` it steps over the next bar ahead (and no other); without, it crosses no
         bar and must end nearer the goal."""
         start = feet[leg]
-        xs = np.arange(goal - OVERSTEP, goal + OVERSTEP + 1e-9, FOOTHOLD_STEP)
-        keep = self._free(xs)
         ahead = [bar for bar in self.g.bars if bar.face > start[0]]
         over = ahead[0] if cross and ahead else None
+        if over is not None:
+            goal = max(goal, over.face + over.width + self.p.foot_margin)
+        xs = np.arange(goal - OVERSTEP, goal + OVERSTEP + 1e-9, FOOTHOLD_STEP)
+        keep = self._free(xs)
         if over is None and abs(y - start[1]) < MIN_STEP:
             keep &= np.abs(xs - goal) <= abs(start[0] - goal) - MIN_STEP
         for bar in self.g.bars:
@@ -369,13 +380,19 @@ class CrossingPlan:
         stance = np.ones(self.n, bool)
         stance[leg] = False
         bodies = np.broadcast_to(body, (len(xs), len(TAUS), 3))
-        margin = self.check(bodies, ground, stance)
+        local = (swing - bodies)[:, :, None, :]
+        reach, _, _ = self.chains.solve(local, joints=False, legs=[leg])
+        sel = np.flatnonzero(reach[..., 0].all(axis=1))
+        if not len(sel):
+            return None
+        margin = self.check(bodies[sel], ground[sel], stance, [leg])
         good = np.flatnonzero(margin >= 0.0)
-        return paths[good[0]] if len(good) else None
+        return paths[sel[good[0]]] if len(good) else None
 
     def _blocked(self, leg: int, body: np.ndarray, feet: np.ndarray, lead: float) -> bool:
-        """Whether a bar lies between ``leg``'s foot and its goal (home + ``lead``)."""
-        goal = body[0] + self.home[leg, 0] + lead
+        """Whether a bar lies between ``leg``'s foot and ``LOOK_AHEAD`` past its goal (home +
+        ``lead``): then it tries to cross at every phase, so it finds the body's window."""
+        goal = body[0] + self.home[leg, 0] + lead + LOOK_AHEAD
         return any(feet[leg, 0] < bar.face < goal for bar in self.g.bars)
 
     def _swing_first(self, legs, body, feet, lead, swing, cross=False) -> bool:
@@ -402,7 +419,9 @@ class CrossingPlan:
             body = target
 
         def swing(leg: int, path: np.ndarray) -> None:
-            moves.append(Move(p.swing_time, body, body, feet.copy(), {leg: path}))
+            length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+            duration = max(p.swing_time, length / p.foot_speed)
+            moves.append(Move(duration, body, body, feet.copy(), {leg: path}))
             feet[leg] = path[-1]
 
         raised = np.array([body[0], body[1], climb])
@@ -421,8 +440,12 @@ class CrossingPlan:
             blocked = [i for i in order if self._blocked(i, body, feet, lead)]
             if self._swing_first(blocked, body, feet, lead, swing, cross=True):
                 continue
-            due = [i for i in order if behind[i] < -p.lead and i not in blocked]
+            due = [i for i in order if behind[i] < -p.lead]
             if self._swing_first(due, body, feet, lead, swing):
+                continue
+            # A leg waits to cross: set the others at home, the support it needs to swing.
+            off = [i for i in order if abs(behind[i]) > MIN_STEP]
+            if blocked and self._swing_first(off, body, feet, 0.0, swing):
                 continue
             if not homing:
                 steps = np.minimum(body[0] + ADVANCES, goal)
