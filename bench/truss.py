@@ -7,8 +7,9 @@ merged cloud (the scaffold keeps its whole cloud). On the same points, in the sa
   completion, merging); its RANSAC-only initial model is scored too, as in the paper;
 - the peer: pyransac3d, its own ``Plane`` fit to drop the floor, then one ``Cylinder`` fit per
   ground-truth member, each removing its inliers, ends at the inliers' extent on the axis.
-Prints time per scene (median of ``--repeat``), the peer/ours time ratio, and the paper's
-metrics; writes a figure like the paper's Figs. 9-11 to bench/out/truss.png.
+Prints time per scene (median of ``--repeat``; wall and the process's CPU time, which a
+loaded shared machine inflates less), the peer/ours time ratio, the load average around the
+run, and the paper's metrics; writes a figure like the paper's Figs. 9-11 to bench/out/truss.png.
 
     .venv/bin/python bench/truss.py [--repeat 5] [--peer-iterations 300]
 """
@@ -65,22 +66,42 @@ def peer_model(points: np.ndarray, members: int, iterations: int) -> list[tuple]
 
 
 def timed(function, repeat: int):
-    times, result = [], None
+    """Median wall and process CPU time (s) of ``repeat`` calls, and the last result."""
+    times, cpu, result = [], [], None
     for _ in range(repeat):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         result = function()
         times.append(time.perf_counter() - start)
-    return statistics.median(times), result
+        cpu.append(time.process_time() - start_cpu)
+    return statistics.median(times), statistics.median(cpu), result
 
 
-def row(name: str, method: str, seconds: float | None, accuracy: Accuracy, total: int) -> str:
-    time_ms = "(same run)" if seconds is None else f"{seconds * 1000:.0f}"
+def load_average() -> str:
+    """The 1, 5 and 15 minute load averages (/proc/loadavg), for reading timings on a shared
+    machine."""
+    try:
+        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+    except OSError:
+        return "n/a"
+
+
+def row(name: str, method: str, seconds: tuple | None, accuracy: Accuracy, total: int) -> str:
+    times = (
+        "(same run) | (same run)"
+        if seconds is None
+        else " | ".join(f"{s * 1000:.0f}" for s in seconds)
+    )
+    errors = [
+        f"{accuracy.mean('relative_length_error') * 100:.2f}",
+        f"{accuracy.mean('length_error') * 1000:.1f}",
+        f"{accuracy.mean('midpoint_error') * 1000:.1f}",
+        f"{accuracy.mean('angle_error_deg'):.2f}",
+    ]
+    if accuracy.found == 0:
+        errors = ["–"] * len(errors)
     return (
-        f"| {name} | {method} | {time_ms} | {accuracy.found}/{total} "
-        f"| {accuracy.false_members} | {accuracy.mean('relative_length_error') * 100:.2f} "
-        f"| {accuracy.mean('length_error') * 1000:.1f} "
-        f"| {accuracy.mean('midpoint_error') * 1000:.1f} "
-        f"| {accuracy.mean('angle_error_deg'):.2f} |"
+        f"| {name} | {method} | {times} | {accuracy.found}/{total} "
+        f"| {accuracy.false_members} | {' | '.join(errors)} |"
     )
 
 
@@ -133,10 +154,11 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     modeller = TrussModeller(TrussConfig(seed=args.seed))
     lines = [
-        "| truss | method | ms/scene | found | false | length err % | length err mm "
-        "| midpoint err mm | axis err deg |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| truss | method | ms/scene | CPU ms/scene | found | false | length err % "
+        "| length err mm | midpoint err mm | axis err deg |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
+    print(f"load average before: {load_average()}")
     ratios, plotted = [], []
     for name, scene, points in scenes(args.seed):
         cloud = scene.cloud
@@ -146,22 +168,25 @@ def main() -> None:
         truth = [(t.p0, t.p1, t.radius) for t in scene.members]
         modeller.model(cloud)  # warm-up
         count = len(truth)
-        ours_s, model = timed(lambda cloud=cloud: modeller.model(cloud), args.repeat)
-        peer_s, peer = timed(
+        ours_s, ours_cpu, model = timed(lambda cloud=cloud: modeller.model(cloud), args.repeat)
+        peer_s, peer_cpu, peer = timed(
             lambda cloud=cloud, n=count: peer_model(cloud, n, args.peer_iterations), 1
         )
         initial = evaluate([(m.p0, m.p1) for m in model.initial], truth)
         completed = evaluate([(m.p0, m.p1) for m in model.members], truth)
         lines.append(row(name, "ours, RANSAC only (initial model)", None, initial, len(truth)))
-        lines.append(row(name, "ours, sliding box (TEM)", ours_s, completed, len(truth)))
-        lines.append(row(name, "pyransac3d", peer_s, evaluate(peer, truth), len(truth)))
-        ratios.append((name, peer_s / ours_s))
+        lines.append(
+            row(name, "ours, sliding box (TEM)", (ours_s, ours_cpu), completed, len(truth))
+        )
+        lines.append(row(name, "pyransac3d", (peer_s, peer_cpu), evaluate(peer, truth), len(truth)))
+        ratios.append((name, peer_s / ours_s, peer_cpu / ours_cpu))
         plotted.append((name, initial, completed))
+    print(f"load average after: {load_average()}")
     print(f"median of {args.repeat} runs (ours), 1 run (peer)\n")
     print("\n".join(lines))
     print()
-    for name, ratio in ratios:
-        print(f"{name}: pyransac3d / ours time = {ratio:.1f}x")
+    for name, ratio, cpu_ratio in ratios:
+        print(f"{name}: pyransac3d / ours time = {ratio:.1f}x (CPU time {cpu_ratio:.1f}x)")
     figure(plotted, args.out)
     print(f"figure: {args.out}")
 

@@ -99,8 +99,10 @@ def complete(
                 break
     t0, t1 = ends[-1], ends[+1]
     within = in_section[(t_section >= t0) & (t_section <= t1)]
-    support = np.union1d(segment.indices, within)
-    return Member(cylinder, t0, t1, support)
+    support = np.zeros(len(points), bool)
+    support[segment.indices] = True
+    support[within] = True
+    return Member(cylinder, t0, t1, np.flatnonzero(support))
 
 
 def node_ends(
