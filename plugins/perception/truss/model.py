@@ -29,7 +29,9 @@ from plugins.perception.truss.planes import accept_plane, find_planes, plane_hei
 
 class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Truss modelling parameters (m, deg). ``slide_lambda`` is the paper's λ ≈ 2.5 (eq. 2);
-    ``gap`` is the gap-rule threshold of step 7; the rest are ours, for a Kinect-2-like cloud."""
+    ``gap`` is the gap-rule threshold of step 7; the rest are ours, for a Kinect-2-like cloud.
+    ``linker`` is the size of the linkers members end in, for a space frame (its members end
+    at the nodes); 0 for tubes that end free and run through their couplers (scaffolds)."""
 
     voxel: float = 0.01
     max_range: float = 4.5
