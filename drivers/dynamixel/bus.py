@@ -213,15 +213,13 @@ class DynamixelBus:
         self.port = port
         set_latency_timer(self.port_name, bus.latency_timer_ms)
         try:
-            with self._device("bring-up"):
-                port.margin_ms = max(self.timeout_margin_ms, BRING_UP_MARGIN_MS)
+            with self._device("bring-up"), self._patience():
                 self._check_models()
                 self._configure(self.model.status_return_level, STATUS_RETURN_ALL)
                 self._configure(self.model.return_delay_time, bus.return_delay_us // 2)
                 self._sync_write(self.model.speed_limit, self.speed_caps)
                 self._choose_read_mode()
                 self._read_blocks(True)
-                port.margin_ms = self.timeout_margin_ms
         except DriverError:
             self.close()
             raise
@@ -496,12 +494,18 @@ class DynamixelBus:
         span = Item(m.torque_enable.address, last.address + last.size - m.torque_enable.address)
         limp = np.zeros(len(self.ids), bool)
         latched = np.zeros(len(self.ids), bool)
-        with self._device("fault reset"):
+        with self._device("fault reset"), self._patience():
             for k, ident in enumerate(self.ids):
                 if self.lost[k]:
                     continue
-                data, result, _ = self._read_one(ident, span)
-                if result != sdk.COMM_SUCCESS or len(data) != span.size or data[0]:
+                for _ in range(3):
+                    data, result, _ = self._read_one(ident, span)
+                    if result == sdk.COMM_SUCCESS and len(data) == span.size:
+                        break
+                else:
+                    log.warning("%s: no answer to the fault reset, not reset", self._where(k))
+                    continue
+                if data[0]:
                     continue
                 limp[k] = True
                 if m.hardware_error_status is not None and data[-1]:
@@ -513,6 +517,15 @@ class DynamixelBus:
                 self._read_blocks(False)  # where the limp horns are now
                 self._repower(limp & ~latched)
         return [self.names[k] for k in np.flatnonzero(limp)]
+
+    @contextlib.contextmanager
+    def _patience(self) -> Iterator[None]:
+        """Wait long for replies: bring-up and the operator's reset are not time-critical."""
+        self.port.margin_ms = max(self.timeout_margin_ms, BRING_UP_MARGIN_MS)
+        try:
+            yield
+        finally:
+            self.port.margin_ms = self.timeout_margin_ms
 
     def _reboot(self, k: int) -> None:
         """REBOOT servo ``k`` and count it lost until it has booted and answers again."""
