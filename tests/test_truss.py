@@ -15,7 +15,14 @@ from daemon.messages import BodyState, TrussMembers, decode, encode
 from daemon.plugins import PluginError, instantiate
 from drivers.sim import truss_scene as ts
 from plugins.perception.truss import TrussConfig, TrussModeller, TrussPerception
-from plugins.perception.truss.completion import Member, complete, gap_reach, merge_members
+from plugins.perception.truss.cloud import ball_normals, voxel_downsample
+from plugins.perception.truss.completion import (
+    Member,
+    complete,
+    gap_reach,
+    merge_members,
+    node_ends,
+)
 from plugins.perception.truss.cylinders import Cylinder, Segment, hypotheses, refine
 from plugins.perception.truss.evaluate import evaluate
 
@@ -128,6 +135,53 @@ def test_split_pieces_merge_but_distinct_members_do_not():
     assert len(merged) == 3
     assert merged[0].pieces == 3
     assert merged[0].t0 == pytest.approx(0.0) and merged[0].t1 == pytest.approx(1.8)
+
+
+def test_ball_normals_match_the_principal_axes_of_each_ball_and_count_its_points():
+    """The voxel-key ball (no KD-tree) holds exactly the points within two voxels' reach and
+    gives each point the smallest principal direction of that ball: radial on a tube."""
+    rng = np.random.default_rng(3)
+    voxel = 0.01
+    points = voxel_downsample(
+        _tube_points([0.2, 0.1, 0], [0.5, 0.9, 0.4], 0.024, rng, noise=0.001), voxel
+    )
+    normals, neighbours = ball_normals(points, voxel, 2.0)
+    cells = np.floor(points / voxel).astype(int)
+    for j in range(0, len(points), 7):
+        d = cells - cells[j]
+        ball = points[(d * d).sum(axis=1) <= 4]
+        assert neighbours[j] == len(ball) - 1
+        _, vectors = np.linalg.eigh(np.cov(ball.T))
+        assert _angle_deg(vectors[:, 0], normals[j]) < 1e-4
+    axis = np.array([0.3, 0.8, 0.4]) / np.linalg.norm([0.3, 0.8, 0.4])
+    w = points - np.array([0.2, 0.1, 0])
+    radial = w - np.outer(w @ axis, axis)
+    cos = np.abs((radial * normals).sum(axis=1)) / np.linalg.norm(radial, axis=1)
+    assert np.median(cos) > np.cos(np.radians(10.0))  # the segmentation allows 25 deg
+
+
+def test_a_member_ending_in_a_linker_ends_at_its_node():
+    """A tube from node to node whose ends hide in 70 mm cubes: the gap rule's end is the
+    cube's far face, 35 mm past the node; with the linker size the end goes to the node."""
+    rng = np.random.default_rng(4)
+    linker, radius = 0.07, 0.025
+    tube = _tube_points([0, 0, 0], [0.8, 0, 0], radius, rng, noise=0.001, facing=[0, 0, 1])
+    tube = tube[(tube[:, 0] > linker / 2) & (tube[:, 0] < 0.8 - linker / 2)]
+    faces = []
+    for node in (0.0, 0.8):  # the cube faces the camera sees, up and sideways (+z, +y)
+        a, b = np.meshgrid(np.arange(-0.035, 0.035, 0.004), np.arange(-0.035, 0.035, 0.004))
+        faces.append(np.column_stack([node + a.ravel(), b.ravel(), np.full(a.size, 0.035)]))
+        faces.append(np.column_stack([node + a.ravel(), np.full(a.size, 0.035), b.ravel()]))
+    points = voxel_downsample(np.concatenate([tube, *faces]), 0.01)
+    cylinder = Cylinder(np.zeros(3), np.array([1.0, 0, 0]), radius)
+    t = points[:, 0]
+    gap_rule = Member(cylinder, float(t.min()), float(t.max()), np.arange(len(points)))
+    assert gap_rule.t0 == pytest.approx(-0.035, abs=0.006)
+    kept = node_ends(gap_rule, points, distance=0.008, bin_size=0.01, linker=0.0)
+    assert (kept.t0, kept.t1) == (gap_rule.t0, gap_rule.t1)
+    at_nodes = node_ends(gap_rule, points, distance=0.008, bin_size=0.01, linker=linker)
+    assert at_nodes.t0 == pytest.approx(0.0, abs=0.008)
+    assert at_nodes.t1 == pytest.approx(0.8, abs=0.008)
 
 
 # --- acceptance on generated trusses --------------------------------------------------------
