@@ -67,26 +67,23 @@ def rotate(points: np.ndarray, rot: np.ndarray) -> np.ndarray:
     return np.einsum("ij,kj->ik", points, rot)
 
 
-def surface_normals(points: np.ndarray) -> np.ndarray:
-    """Unit normals (H×W×3) of an organised point image (H×W×3, NaN = no return): the cross
-    product of the image-row and image-column tangents, each from the neighbour (left or
-    right, up or down) nearer in range, so a pixel at an edge takes its own surface's slope."""
+def surface_normals(z: np.ndarray, rays: np.ndarray, fx: float, fy: float) -> np.ndarray:
+    """Unit normals (H×W×3, optical frame) of a z-depth image (H×W, NaN = no return) whose
+    pixel (u, v) looks along ``rays`` (H×W×3, (x̃, ỹ, 1)). For P = z·(x̃, ỹ, 1) the normal
+    ∂P/∂u × ∂P/∂v is ∝ (−fx·z_u, −fy·z_v, fx·x̃·z_u + fy·ỹ·z_v + z); each image gradient is
+    the one-sided step to the neighbour nearer in range, so an edge pixel keeps its surface."""
 
-    def tangent(axis: int) -> np.ndarray:
-        step = np.diff(points, axis=axis)
-        pad = [(0, 0)] * 3
-        pad[axis] = (1, 0)
-        back = np.pad(step, pad, constant_values=np.nan)
-        pad[axis] = (0, 1)
-        ahead = np.pad(step, pad, constant_values=np.nan)
-        jump_back = np.nan_to_num(np.abs(back[..., 2]), nan=np.inf)
-        jump_ahead = np.nan_to_num(np.abs(ahead[..., 2]), nan=np.inf)
-        return np.where((jump_back <= jump_ahead)[..., None], back, ahead)
+    def gradient(axis: int) -> np.ndarray:
+        step = np.diff(z, axis=axis)
+        gap = np.full_like(np.take(z, [0], axis=axis), np.nan)
+        back = np.concatenate([gap, step], axis=axis)
+        ahead = np.concatenate([step, gap], axis=axis)
+        return np.where(np.isnan(ahead) | (np.abs(back) <= np.abs(ahead)), back, ahead)
 
-    normal = np.cross(tangent(1), tangent(0))
-    length = np.linalg.norm(normal, axis=2, keepdims=True)
+    zu, zv = fx * gradient(1), fy * gradient(0)
+    normal = np.stack([-zu, -zv, rays[..., 0] * zu + rays[..., 1] * zv + z], axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return normal / length
+        return normal / np.sqrt(np.einsum("...i,...i->...", normal, normal))[..., None]
 
 
 class RayCastDepth:
@@ -156,8 +153,10 @@ class RayCastDepth:
                 self._gl = GlDepthPass(self.model, self.intrinsics, GEOM_GROUPS, NEAR, far)
             depth, geom = self._gl.render(data, rot, pos)
             i = self.intrinsics
-            points = (self.rays * depth[:, None]).reshape(i.height, i.width, 3)
-            normal = rotate(surface_normals(points).reshape(-1, 3), rot)
+            shape = (i.height, i.width)
+            rays = self.rays.reshape(*shape, 3)
+            normal = surface_normals(depth.reshape(shape), rays, i.fx, i.fy)
+            normal = rotate(normal.reshape(-1, 3), rot)
             return depth, geom, normal, vec
         cutoff = self.max_range * float(self.ray_norm.max())
 
