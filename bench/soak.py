@@ -5,13 +5,16 @@
   claims the session again and re-requests ACTIVE whenever the robot holds, counting each
   HOLD and its reason), the baseline idle in HOLD. Every ``--sample`` seconds: resident memory
   (/proc) and the loop's lateness from Health over Zenoh; ratios walking / idle.
-  The physics twin does not walk under the daemon yet, so the soak walks on the fake bus.
+- Twin soak (``--twin [--perception]``): ``climbd run --sim`` in real time on a flat floor,
+  walked in a circle by a teleop client; per ``--window``: RSS of each process, loop lateness,
+  ticks missed, modes, odometry path, perception output; ratios to the first window.
 - Fuzz: ``--fuzz N`` inputs per message decoder and for the profile parser (tests/fuzzing.py),
   with our decode beside msgspec's untyped decode of the same inputs as the baseline.
 - Campaign: runs tests/test_campaign.py and tabulates fault × robot → outcome.
 
 ``--write`` replaces the ``## bench/soak.py`` section of BENCHMARKS.md with this run's tables.
-Usage: ``python bench/soak.py [--minutes 5] [--sample 30] [--fuzz 10000] [--campaign] [--write]``
+Usage: ``python bench/soak.py [--minutes 5] [--sample 30] [--twin [--perception] [--window 300]]
+[--fuzz 10000] [--campaign] [--write]``
 """
 
 from __future__ import annotations
