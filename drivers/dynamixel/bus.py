@@ -394,7 +394,8 @@ class DynamixelBus:
     def _read_sync(self, item: Item, want: np.ndarray) -> list[bytes | None]:
         """Protocol 2.0: one (fast) sync read of the answering servos; on failure, each alone."""
         out: list[bytes | None] = [None] * len(self.ids)
-        active = [k for k in range(len(self.ids)) if want[k] and not self.lost[k]]
+        want_l, lost_l = want.tolist(), self.lost.tolist()  # lists: cheap to index one by one
+        active = [k for k, w in enumerate(want_l) if w and not lost_l[k]]
         if active:
             group = self._group(item, tuple(self.ids[k] for k in active))
             if self._sync_read(group) == sdk.COMM_SUCCESS:
@@ -402,7 +403,7 @@ class DynamixelBus:
                     out[k] = bytes(group.data_dict[self.ids[k]])
                 active = []
         for k in range(len(self.ids)):
-            if want[k] and (self.lost[k] or k in active):
+            if want_l[k] and (lost_l[k] or k in active):
                 data, result, _ = self._read_one(self.ids[k], item)
                 if result == sdk.COMM_SUCCESS and len(data) == item.size:
                     out[k] = bytes(data)
@@ -431,6 +432,9 @@ class DynamixelBus:
         """Count consecutive misses; mark lost after ``lost_after``; re-admit on an answer.
 
         Returns the servos re-admitted by this read."""
+        if got.all() and not self.lost.any():  # the usual cycle: every servo answered
+            self.misses[:] = 0
+            return ~got
         back = got & self.lost
         for k in np.flatnonzero(back):
             log.warning("%s: answers again, re-admitted", self._where(k))

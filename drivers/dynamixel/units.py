@@ -55,7 +55,8 @@ def _signed(model: Model, raw: np.ndarray, size: int) -> np.ndarray:
 
 def little_endian(blocks: np.ndarray, offset: int, size: int) -> np.ndarray:
     """Unsigned little-endian integers of ``size`` bytes at ``offset`` in each row of ``blocks``."""
-    out = np.zeros(blocks.shape[0], np.int64)
-    for k in range(size):
-        out |= blocks[:, offset + k].astype(np.int64) << (8 * k)
-    return out
+    field = np.ascontiguousarray(blocks[:, offset : offset + size])
+    return field.view(_UNSIGNED[size])[:, 0].astype(np.int64)
+
+
+_UNSIGNED = {1: np.dtype("u1"), 2: np.dtype("<u2"), 4: np.dtype("<u4")}
