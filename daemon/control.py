@@ -372,8 +372,9 @@ class Controller:
         return bool(np.max(np.abs(q - target)) < STAND_TOLERANCE)
 
     def stand_reached(self, q: np.ndarray) -> bool:
-        """The command has arrived at the stand pose and the joints are there with it."""
-        return self.reached(self.motion.command, self.stand_q) and self.reached(q, self.stand_q)
+        """The command has arrived at the stand pose and the joints followed it there."""
+        followed = np.max(np.abs(q - self.stand_q)) < self.profile.safety.stand_tolerance
+        return self.reached(self.motion.command, self.stand_q) and bool(followed)
 
     def _command(self, t: float) -> MotionCommand | None:
         timed = self.motion_command

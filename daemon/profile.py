@@ -137,7 +137,11 @@ class CameraConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 
 class SafetyConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """Safety policy: e-stop behaviour, heartbeat window, servo health thresholds."""
+    """Safety policy: e-stop behaviour, heartbeat window, servo health thresholds.
+
+    ``stand_tolerance`` (rad): how close the joints must follow the stand command before the
+    stand counts as complete; compliant servos under the robot's weight sit a little off it.
+    """
 
     estop_policy: EstopPolicy = EstopPolicy.TORQUE_OFF
     heartbeat_window: float = 0.3
@@ -148,6 +152,7 @@ class SafetyConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     min_voltage: float = 9.0
     max_voltage: float = 16.0
     stand_time: float = 2.0
+    stand_tolerance: float = 0.05
 
 
 class PluginSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -277,6 +282,8 @@ def validate(profile: Profile) -> Profile:
     src = profile.source or profile.name
     _check(profile.rate_hz > 0, src, "$.rate_hz", f"expected > 0, found {profile.rate_hz}")
     _check(profile.mass > 0, src, "$.mass", f"expected > 0, found {profile.mass}")
+    tol = profile.safety.stand_tolerance
+    _check(tol > 0, src, "$.safety.stand_tolerance", f"expected > 0, found {tol}")
     _check(len(profile.legs) >= 2, src, "$.legs", f"expected >= 2 legs, found {len(profile.legs)}")
     ids: dict[int, str] = {}
     names: set[str] = set()

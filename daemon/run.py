@@ -230,14 +230,15 @@ class ControlRole:
         loop.stop()
         await aio.run_in_executor(None, thread.join, 2.0)
         sdnotify.notify("STOPPING=1")
+        joint_bus.close()
+        if sim is not None:
+            sim.stop()  # before the bus closes: the twin's cameras publish on it
         bus.close()
         if gate is not None:
             gate.close()
-        joint_bus.close()
         self._report(loop, safety, controller)
         if sim is not None:
             print(sim.summary(Path(args.snapshot)), flush=True)
-            sim.stop()
         return 0
 
     def _sim(self, publish):

@@ -64,6 +64,11 @@ MALFORMED = [
         ["$.rate_hz", "expected > 0", "-5.0"],
     ),
     (
+        "zero stand tolerance",
+        lambda t: replace_once(t, "[safety]\n", "[safety]\nstand_tolerance = 0.0\n"),
+        ["$.safety.stand_tolerance", "expected > 0", "0.0"],
+    ),
+    (
         "limit min > max",
         lambda t: re.sub(r"lower = -?[0-9.]+", "lower = 9.5", t, count=1),
         ["$.legs[0].joints[0].limits", "lower < upper", "lower=9.5"],
