@@ -164,8 +164,8 @@ class TrussModeller:
         """Remove planes, voxel-downsample the rest, drop isolated points; normals of the rest.
 
         Every point within ``plane_distance`` of a plane goes, and within twice that if its
-        normal is the plane's. Plane candidates come from per-voxel normals of a coarse grid
-        over at most ``plane_sample`` points, so the full cloud is only read by a few passes."""
+        normal is the plane's. Planes are found (per-voxel normals of a coarse grid) and judged
+        on every k-th point, at most ``plane_sample``: the full cloud is read by a few passes."""
         c = self.config
         candidates: list = []
         sample = cloud[:: max(1, len(cloud) // c.plane_sample)]
@@ -183,7 +183,7 @@ class TrussModeller:
         planes = []
         for candidate in candidates:
             plane, real = accept_plane(
-                cloud,
+                sample,
                 candidate,
                 distance=c.plane_distance,
                 min_width=c.plane_min_width,
