@@ -55,6 +55,8 @@ class LatencyPort(sdk.PortHandler):
         super().__init__(name)
         self.latency_ms = latency_ms
         self.margin_ms = margin_ms
+        self.written = 0
+        """Bytes written since open (a lock-step twin waits until its emulator read them all)."""
 
     def getCurrentTime(self) -> float:  # noqa: N802 - SDK override
         return time.monotonic_ns() / 1e6
@@ -91,6 +93,7 @@ class LatencyPort(sdk.PortHandler):
         while done < len(data):
             select.select([], [self.ser.fd], [], 0.1)
             done += os.write(self.ser.fd, data[done:])
+        self.written += done
         return done
 
     def clearPort(self) -> None:  # noqa: N802 - SDK override

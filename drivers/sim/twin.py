@@ -62,6 +62,9 @@ log = logging.getLogger("climbd.sim")
 
 DepthCallback = Callable[[str, DepthFrame], None]
 
+SETTLE_COUNT_TIMEOUT = 5.0
+"""Wall seconds the servo emulator has to handle the driver's bytes before a step fails."""
+
 
 @dataclass(frozen=True)
 class JointMap:
@@ -258,6 +261,9 @@ class Twin:
         self._accel = self.model.sensor_adr[sensor("imu_accel").id]
         self._steps = 0
         self._select_line: int | None = None
+        self.bytes_sent: Callable[[], int] | None = None
+        """Bytes the in-process driver wrote to the pty: a stepped run then waits until the
+        emulator handled exactly those, so a loaded machine cannot change what physics sees."""
         self._recv_line: int | None = None
         self._thread: threading.Thread | None = None
         self._camera_thread: threading.Thread | None = None
@@ -537,6 +543,9 @@ class Twin:
         emu = self.emulator
         if emu is None or emu._master < 0 or emu._thread is None:
             return
+        if self.bytes_sent is not None:
+            self._settle_count(emu)
+            return
         if self._select_line is None:
             source, first = inspect.getsourcelines(type(emu)._serve)
             self._select_line = first + next(
@@ -551,6 +560,18 @@ class Twin:
             quiet = pending[0] == 0 and frame is not None and frame.f_lineno == self._select_line
             idle = idle + 1 if quiet else 0
             time.sleep(0.0005)
+
+    def _settle_count(self, emu: DynamixelEmulator) -> None:
+        """Wait until the emulator handled every byte the driver wrote (``bytes_sent``)."""
+        want = self.bytes_sent()
+        deadline = time.monotonic() + SETTLE_COUNT_TIMEOUT
+        while emu.bytes_handled < want:
+            if time.monotonic() > deadline:
+                raise RuntimeError(
+                    f"servo emulator on {emu.port} handled {emu.bytes_handled} of {want} bytes "
+                    f"in {SETTLE_COUNT_TIMEOUT:g} s"
+                )
+            time.sleep(0.0001)
 
     def _run(self) -> None:
         """Real-time mode: keep simulated time on the monotonic clock, in 2 ms batches."""

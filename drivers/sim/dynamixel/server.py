@@ -63,6 +63,8 @@ class DynamixelEmulator:
         self.spin = spin
         self.inter_byte_timeout = inter_byte_timeout
         self.port = ""
+        self.bytes_handled = 0
+        """Bytes read from the bus and acted on (replies queued, goals applied)."""
         self._master = -1
         self._slave = -1
         self._wake_r = self._wake_w = -1
@@ -141,6 +143,7 @@ class DynamixelEmulator:
                         t += reply.delay + chain.wire_time(len(reply.data))
                         pending.append((t, reply.data))
                     bus_free = t
+                self.bytes_handled += len(data)
             while pending:
                 due, data = pending[0]
                 now = time.monotonic()
