@@ -59,20 +59,19 @@ def board_plane(points: np.ndarray, tolerance: float = 0.002) -> tuple[np.ndarra
     is refined by least squares on its inliers. Returns (point on plane, unit normal to sensor).
     """
     rng = np.random.default_rng(0)
-    best, best_count = None, -1
-    for _ in range(300):
-        a, b, c = points[rng.choice(len(points), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        if np.linalg.norm(n) < 1e-12:
-            continue
-        n /= np.linalg.norm(n)
-        count = int((np.abs((points - a) @ n) < tolerance).sum())
-        if count > best_count:
-            best, best_count = (a, n), count
-    a, n = best
+    triples = points[np.array([rng.choice(len(points), 3, replace=False) for _ in range(300)])]
+    a, b, c = triples[:, 0], triples[:, 1], triples[:, 2]
+    normals = np.cross(b - a, c - a)
+    length = np.linalg.norm(normals, axis=1)
+    keep = length >= 1e-12
+    a, normals = a[keep], normals[keep] / length[keep, None]
+    offsets = np.einsum("ij,ij->i", a, normals)
+    counts = (np.abs(points @ normals.T - offsets) < tolerance).sum(axis=0)
+    best = int(np.argmax(counts))
+    a, n = a[best], normals[best]
     inliers = points[np.abs((points - a) @ n) < tolerance]
     centre = inliers.mean(axis=0)
-    normal = np.linalg.svd(inliers - centre)[2][2]
+    normal = np.linalg.svd(inliers - centre, full_matrices=False)[2][2]
     if normal @ -centre < 0:
         normal = -normal
     return centre, normal

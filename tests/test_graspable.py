@@ -3,6 +3,7 @@ synthetic holds with known apexes, and the real RealSense clouds of climbing hol
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from pathlib import Path
@@ -161,7 +162,8 @@ def test_flat_board_has_no_graspable_point(detector):
 
 
 class RealCloud:
-    """A real cloud with its board plane and the holds identified from it (see hold_cores)."""
+    """A real cloud with its board plane, the holds identified from it (see hold_cores) and the
+    default detector's result on it (computed once, shared by the tests that read it)."""
 
     def __init__(self, name: str) -> None:
         self.points = read_cloud(DATA / name)
@@ -169,6 +171,7 @@ class RealCloud:
         self.height = (self.points - self.centre) @ self.normal
         self.holds = hold_cores(self.points, self.height)
         self.trees = [cKDTree(self.points[h]) for h in self.holds]
+        self.detection = GraspableDetector(GraspableConfig()).detect(self.points)
 
     def board_uv(self, points: np.ndarray) -> np.ndarray:
         e1 = np.cross(self.normal, [0.0, 0.0, 1.0])
@@ -195,9 +198,14 @@ class RealCloud:
         return np.min([t.query(targets)[0] for t in self.trees], axis=0) < 0.006
 
 
+@functools.cache
+def real_cloud(name: str) -> RealCloud:
+    return RealCloud(name)
+
+
 @pytest.fixture(scope="module", params=CLOUDS)
 def real(request) -> RealCloud:
-    return RealCloud(request.param)
+    return real_cloud(request.param)
 
 
 def test_real_cloud_holds_are_found_by_analysis(real):
@@ -208,8 +216,8 @@ def test_real_cloud_holds_are_found_by_analysis(real):
         assert np.ptp(uv, axis=0).max() > 0.032
 
 
-def test_real_cloud_targets_on_hold_tops_never_on_the_board(detector, real):
-    detection = detector.detect(real.points)
+def test_real_cloud_targets_on_hold_tops_never_on_the_board(real):
+    detection = real.detection
     targets = detection.points
     height = (targets - real.centre) @ real.normal
     assert real.on_hold(targets).all()
@@ -224,7 +232,7 @@ def test_real_cloud_targets_on_hold_tops_never_on_the_board(detector, real):
 
 
 def test_real_cloud_stable_under_1mm_jitter(detector, real):
-    base = detector.detect(real.points).points
+    base = real.detection.points
     view = set(real.in_view())
     rng = np.random.default_rng(7)
     hits = {i: 0 for i in view}
@@ -276,5 +284,5 @@ def test_perceive_cli_prints_body_frame_json(capsys):
     assert climbd(["perceive", "graspable", str(DATA / CLOUDS[1])]) == 0
     out = json.loads(capsys.readouterr().out)
     points = np.array(out["points"])
-    cloud = RealCloud(CLOUDS[1])
+    cloud = real_cloud(CLOUDS[1])
     assert len(points) >= 9 and cloud.on_hold(points).all()
