@@ -26,6 +26,8 @@ from plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 DT = 0.01
+TIMESTEP = 0.002
+"""Physics step (s): 2 ms keeps the servos and contacts stable and the tests fast."""
 PERCEPTION_PERIOD = 10
 """Ticks between joist messages (10 Hz, the paper's L515 pipeline rate or better)."""
 
@@ -61,20 +63,23 @@ def _yaw(quat: np.ndarray) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-def _contacts(twin: Twin) -> tuple[set[str], bool]:
-    """Leg links (not feet) and whether the body box touch a joist now."""
-    m, d = twin.model, twin.data
-    links, base = set(), False
+def _geoms(twin: Twin) -> tuple[np.ndarray, np.ndarray, int]:
+    """Geom ids of the joists and of the leg links (not feet), and the body box's."""
+    m = twin.model
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(m.ngeom)]
+    joists = np.array([g for g, n in enumerate(names) if n.startswith("joist")], int)
+    links = np.array([g for g, n in enumerate(names) if n.endswith("_link")], int)
+    return joists, links, names.index("base")
+
+
+def _contacts(twin: Twin, geoms: tuple[np.ndarray, np.ndarray, int]) -> tuple[set[int], bool]:
+    """Leg links (geom ids) and whether the body box touch a joist now."""
+    joists, links, base = geoms
+    d = twin.data
     with twin.lock:
-        for c in d.contact[: d.ncon]:
-            names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in (c.geom1, c.geom2)]
-            if not any(n.startswith("joist") for n in names):
-                continue
-            other = names[1] if names[0].startswith("joist") else names[0]
-            if other.endswith("_link"):
-                links.add(other)
-            base |= other == "base"
-    return links, base
+        g1, g2 = d.contact.geom1[: d.ncon].copy(), d.contact.geom2[: d.ncon].copy()
+    other = np.concatenate([g2[np.isin(g1, joists)], g1[np.isin(g2, joists)]])
+    return set(other[np.isin(other, links)].tolist()), bool((other == base).any())
 
 
 def run_scenario(
@@ -86,7 +91,9 @@ def run_scenario(
     through ``process(frame, body)``; without, from the world's truth (joist_world.perceive
     at the twin's true body pose), for tests of the gait only.
     """
-    twin = Twin(WIDOWX, World(name="joists", joists=rows), stepped=True, bus=False)
+    twin = Twin(
+        WIDOWX, World(name="joists", joists=rows), stepped=True, bus=False, timestep=TIMESTEP
+    )
     twin.start()
     truth = [s for row in rows for s in specs(row)]
     try:
@@ -98,7 +105,8 @@ def run_scenario(
         behaviour = JoistClimb(JoistClimbConfig(goal_distance=goal, **config), WIDOWX)
         behaviour.start(BodyState(), kin.fk(twin.joint_positions()))
         world: dict = {}
-        hits: set[str] = set()
+        geoms = _geoms(twin)
+        hits: set[int] = set()
         base_hits = 0
         t = 1.0
         for k in range(int(seconds / DT)):
@@ -114,7 +122,7 @@ def run_scenario(
             twin.command(np.array(pipeline.feet_step(targets).position))
             t += DT
             twin.advance_to(t)
-            links, base = _contacts(twin)
+            links, base = _contacts(twin, geoms)
             hits |= links
             base_hits += int(base)
             if behaviour.done:
@@ -128,7 +136,7 @@ def run_scenario(
             tilt_deg=math.degrees(math.acos(min(1.0, up))),
             feet_down=twin.foot_contacts(),
             feet=twin.foot_positions(),
-            link_hits=hits,
+            link_hits={mujoco.mj_id2name(twin.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in hits},
             base_hits=base_hits,
             unreachable_ticks=pipeline.unreachable_ticks,
             seconds=t,

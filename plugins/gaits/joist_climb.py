@@ -2,14 +2,18 @@
 
 The robot walks forward with the tripod gait until the nearest joist across its path is
 closer than ``approach_distance`` (0.55 m). Under ``climb_max_height`` (14 cm) it turns square
-to the joist (when oblique), walks up to it, stops, and crosses it (plugins/gaits/
-joist_crossing.py: front pair, a tripod cycle, middle pair, a tripod cycle, back pair, the body
-leaning forward). At or above it, it walks sideways until no high joist blocks its path, then
-walks on; a joist for which the crossing planner finds no safe motion (legs clear of it, feet
-reachable, body over its support) is gone round the same way. The crossing is planned once,
-standing still, in the tick that ends the settle (about 0.1–0.5 s of computation). The joist
-is tracked on the ground by dead reckoning of the behaviour's own motion from the moment it is
-chosen, so it stays known once it is under the body and out of view.
+to the joist (when oblique), walks up to it, stops, and crosses it with the free gait of
+plugins/gaits/joist_crossing.py: body raised to the climb height, legs stepped one at a time
+over the joist (front, then middle, then back, as in Figure 8) while five feet stand, the
+body moved on six. Joists parallel to it in view (an attic row, 16 in apart, closer than the
+robot is long) are crossed in the same plan, which is extended when another comes into view
+and replanned when the measured body has drifted from the planned one (feet slip, servo lag).
+At or above the threshold, it walks sideways until no high joist blocks its path, then walks
+on; a joist for which the planner finds no safe motion (legs clear of it, feet reachable, body
+over its support) is gone round the same way. The crossing is planned standing still, in the
+tick that ends the settle (about 0.2–2 s of computation). The joist is tracked on the ground
+by dead reckoning of the behaviour's own motion from the moment it is chosen, so it stays
+known once it is under the body and out of view.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     side_speed: float = 0.05
     turn_rate: float = 0.3
     align_tolerance_deg: float = 3.0
+    square_tolerance_deg: float = 1.0
     side_direction: int = 1
     side_margin: float = 0.10
     crossing_start: float = 0.10
@@ -65,6 +70,8 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     swing_time: float = 0.5
     shift_time: float = 0.3
     exit_distance: float = 0.06
+    replan_drift: float = 0.006
+    replan_yaw_deg: float = 0.5
     row_angle_deg: float = 10.0
     goal_distance: float | None = None
     tripod: TripodConfig = msgspec.field(default_factory=TripodConfig)
@@ -77,6 +84,14 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
         for name in ("approach_distance", "climb_max_height", "walk_speed", "side_speed"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"joist_climb: {name} must be > 0, got {getattr(self, name)}")
+
+
+BACK_OFF = 0.03
+"""How much closer (m) than ``crossing_start`` the front feet may be before backing off."""
+
+
+SQUARINGS = 4
+"""Turns at most, after the first, to square up to a joist within ``square_tolerance_deg``."""
 
 
 class Phase(str, enum.Enum):
@@ -102,6 +117,13 @@ class TrackedJoist(msgspec.Struct, kw_only=True):
 def _rot(yaw: float) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s], [s, c]])
+
+
+def _planar(body: BodyState) -> np.ndarray:
+    """The measured body pose on the floor: x, y (m) and yaw (rad)."""
+    w, x, y, z = body.orientation
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return np.array([body.position[0], body.position[1], yaw])
 
 
 class JoistClimb(GaitPlugin):
@@ -136,6 +158,7 @@ class JoistClimb(GaitPlugin):
         self.travelled = 0.0
         self._t_mode = 0.0
         self._turn_left = 0.0
+        self._squarings = 0
         self._clear_since: float | None = None
 
     # --- frames and perception ------------------------------------------------------------
@@ -144,6 +167,7 @@ class JoistClimb(GaitPlugin):
         """Begin walking from the measured feet (body frame)."""
         self.tripod.start(body, feet)
         self.pose = np.zeros(3)
+        self._odometry0 = _planar(body)
         self.mode = Phase.WALK
         self.target = None
         self.plan = None
@@ -261,14 +285,27 @@ class JoistClimb(GaitPlugin):
             self._refresh(world)
             distance, _ = self.ahead(self.target)
             front = max(h[0] for h in self.tripod.home)
-            if distance - front <= c.crossing_start + self._stopping_distance():
+            # Where the walk would stop; an oblique joist may be under the feet once squared.
+            gap = distance - front - self._stopping_distance()
+            if gap < c.crossing_start - BACK_OFF:
+                return self._walk(t, dt, body, -c.walk_speed, 0.0, 0.0)
+            if gap <= c.crossing_start:
                 self._switch(t, Phase.SETTLE, f"front feet {distance - front:.3f} m from it")
                 return self._walk(t, dt, body, 0.0, 0.0, 0.0)
             return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
         if self.mode == Phase.SETTLE:
             out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
             if self._settled():
-                self._begin_crossing(t, world)
+                # From here on the measured pose is the frame: the joist is tracked in it.
+                self.pose = self._measured(body)
+                self._refresh(world)
+                _, yaw = self.ahead(self.target)
+                if abs(yaw) > math.radians(c.square_tolerance_deg) and self._squarings < SQUARINGS:
+                    self._squarings += 1
+                    self._turn_left = yaw
+                    self._switch(t, Phase.ALIGN, f"{math.degrees(yaw):.1f} deg left to square")
+                else:
+                    self._begin_crossing(t, world)
             return out
         if self.mode == Phase.CROSS:
             return self._step_cross(t, dt, body, world)
@@ -378,6 +415,7 @@ class JoistClimb(GaitPlugin):
 
     def _begin_crossing(self, t: float, world: dict[str, Message]) -> None:
         """Plan the crossing from here: the joist (and its row) square ahead, the feet at home."""
+        self._squarings = 0
         self.row = [self.target]
         self._grow_row(world)
         try:
@@ -393,20 +431,40 @@ class JoistClimb(GaitPlugin):
             t, Phase.CROSS, f"crossing a {self.target.height:.3f} m joist at {distance:.3f} m"
         )
 
+    def _measured(self, body: BodyState) -> np.ndarray:
+        """The estimator's body pose (x, y, yaw) in this behaviour's frame."""
+        p0 = self._odometry0
+        now = _planar(body)
+        xy = _rot(-p0[2]) @ (now[:2] - p0[:2])
+        return np.array([xy[0], xy[1], now[2] - p0[2]])
+
+    def _drifted(self, body: BodyState) -> bool:
+        """Whether the measured body has drifted from the planned one (feet slip, servo lag):
+        then the pose becomes the measured one and the rest of the crossing is replanned."""
+        c = self.config
+        measured = self._measured(body)
+        turn = math.remainder(measured[2] - self.pose[2], math.tau)
+        off = np.hypot(*(measured[:2] - self.pose[:2]))
+        if off <= c.replan_drift and abs(turn) <= math.radians(c.replan_yaw_deg):
+            return False
+        self.pose = measured
+        return True
+
     def _replan(self, t: float, body: np.ndarray, feet: np.ndarray) -> None:
-        """A joist of the row came into view: plan on from this phase boundary."""
+        """Plan on from this phase boundary (a joist of the row came into view, or the body
+        drifted): the feet stay where they stand relative to the body."""
         local = feet - np.array([body[0], body[1], 0.0])
         try:
             plan = self._plan(local, float(body[2]))
         except CrossingError as e:
-            self.events.append((t, f"cross: the longer row has no crossing ({e}); on as planned"))
+            self.events.append((t, f"cross: no new plan from here ({e}); on as planned"))
             return
         self.travelled += float(body[0])
         self.plan = plan
         self._plan_origin = self.pose.copy()
         self._t_mode = t
         self._phase = 0
-        self.events.append((t, f"cross: {len(self.row)} joists in the row, replanned"))
+        self.events.append((t, f"cross: replanned ({len(self.row)} joists in the row)"))
 
     def _step_cross(
         self, t: float, dt: float, body: BodyState, world: dict[str, Message]
@@ -419,7 +477,7 @@ class JoistClimb(GaitPlugin):
         phase = plan.phase(elapsed)
         if phase != self._phase:
             self._phase = phase
-            if stance.all() and self._grow_row(world):
+            if stance.all() and (self._grow_row(world) or self._drifted(body)):
                 self._replan(t, b, feet)
         local = feet.copy()
         local[:, 0] -= b[0]

@@ -9,14 +9,20 @@ sampled instants by the profile's kinematics before it is accepted:
 - a single-leg swing (five feet down): up, over any bar in its way, down onto a foothold
   outside every bar's band.
 
-Every sampled pose must have every foot reachable within the joint limits, the femur, tibia
-and foot of every leg ``leg_radius`` clear of every bar, the body's underside
-``body_clearance`` above any bar under it, and the body centre ``support_margin`` inside the
-support polygon of the standing feet. The order is the free gait's greedy rule: advance the
-body as far as the constraints allow, else swing the leg furthest behind its home to the
-foothold nearest its home ahead. The front legs thus cross first, the middle pair after the
-body has moved on, then the back pair (Figure 8), one leg at a time. When no phase fits,
-``CrossingError`` says which leg is stuck where.
+Every sampled pose must have every foot reachable within the joint limits, the coxa–femur
+chord, tibia and foot of every moving leg ``leg_radius`` clear of every bar (links sampled,
+plus the bars' top edges against each link), the body's underside ``body_clearance`` above
+any bar under it, and the body centre ``support_margin`` inside the support polygon of the
+standing feet. During the crossing the feet stand on a wider stance (``reach`` from the coxa
+mount), so a foot lifted to the joist top does not fold the knee past its limit, and a
+swinging foot may spread outward at its apex for the same reason. The order is the free
+gait's greedy rule: a leg with a bar just ahead tries to step over it at every phase (so the
+back pair finds the short window of body positions where it can), a leg far behind its home
+steps, the others step home while one waits to cross, else the body advances as far as the
+constraints allow (at most 3 cm). The front legs thus cross first, then the middle pair, then
+the back pair (Figure 8), one leg at a time. Body heights are tried from the lowest whose
+underside clears the joist; when none gives a plan, ``CrossingError`` says which leg is
+stuck where.
 """
 
 from __future__ import annotations
