@@ -3,6 +3,7 @@ graspable points detected on the real cloud (the paper's §4.1 map)."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import msgspec
@@ -29,11 +30,13 @@ from drivers.base import FakeJointBus
 from plugins.gaits.free_climb import (
     GOAL,
     PERIODIC_ORDER,
+    RECENT,
     ClimbConfig,
     ClimbPlanner,
     ClimbRunner,
     LegReach,
     diagonal_crossing,
+    stance_key,
     swing_lift,
 )
 from plugins.gaits.hold_map import tile_map
@@ -61,12 +64,17 @@ def start_feet() -> np.ndarray:
     return feet
 
 
-@pytest.fixture(scope="module")
-def tile() -> np.ndarray:
+@functools.cache
+def detected_tile() -> np.ndarray:
     """Graspable points detected on the real cloud, on its regression plane (the map's tile)."""
     cloud = read_cloud(CLOUD)
     points = GraspableDetector(GraspableConfig()).detect(cloud).points
     return regression_frame(cloud, np.zeros(3)).to_plane(points)[:, :2]
+
+
+@pytest.fixture(scope="module")
+def tile() -> np.ndarray:
+    return detected_tile()
 
 
 def hold_map(tile: np.ndarray, seed: int) -> np.ndarray:
@@ -75,10 +83,18 @@ def hold_map(tile: np.ndarray, seed: int) -> np.ndarray:
 
 
 def climb(tile: np.ndarray, periodic: bool, seed: int, seconds: float = SECONDS):
+    """A kinematic climb on map ``seed`` of the detected tile. The planners are deterministic,
+    so runs are shared between tests: read them, do not change them."""
+    assert tile is detected_tile()
+    return shared_climb(periodic, seed, seconds)
+
+
+@functools.cache
+def shared_climb(periodic: bool, seed: int, seconds: float):
     planner = ClimbPlanner(KIN, CFG, periodic)
     feet = start_feet()
     runner = ClimbRunner(planner, feet, planner.base_for(feet))
-    holds = hold_map(tile, seed)
+    holds = hold_map(detected_tile(), seed)
     ticks = [runner.tick(DT, holds) for _ in range(round(seconds / DT))]
     return planner, runner, holds, ticks
 
@@ -173,28 +189,67 @@ def test_periodic_gait_follows_its_fixed_order(tile):
     assert limbs == [PERIODIC_ORDER[i % 4] for i in range(len(limbs))]
 
 
-def test_non_periodic_swings_the_limb_with_most_holds_ahead():
+def best_sequence(planner: ClimbPlanner, feet, base, holds, depth: int, barred: set):
+    """Brute force over every feasible sequence of ≤ ``depth`` swings: (swings, base x) of the
+    best, ranked as the planner ranks them (more swings first, then the base furthest ahead)."""
+    best = (0, float(base @ GOAL))
+    if depth == 0:
+        return best
+    for limb, opts in enumerate(planner.options(feet, base, holds)):
+        for target in opts:
+            after = feet.copy()
+            after[limb] = target
+            step = planner.feasible(feet, base, limb, target)
+            if step is None or stance_key(after) in barred:
+                continue
+            swings, x = best_sequence(planner, after, step.base_end, holds, depth - 1, barred)
+            best = max(best, (swings + 1, x))
+    return best
+
+
+def test_non_periodic_takes_the_first_swing_of_the_best_sequence(tile):
+    """With an unbounded beam the look-ahead is exact: the first swing it takes starts a
+    sequence of ``horizon`` swings that brings the base as far as the best of all sequences."""
+    config = msgspec.structs.replace(CFG, horizon=3, beam=10**6)
     feet = start_feet()
-    planner = ClimbPlanner(KIN, CFG, periodic=False)
+    holds = hold_map(tile, 4)
+    near = np.linalg.norm(holds[:, None, :2] - feet[None, :, :2], axis=2).min(axis=1) < 0.1
+    holds = holds[near]
+    planner = ClimbPlanner(KIN, config, periodic=False)
     base = planner.base_for(feet)
-    lf = feet[3]
-    ahead = np.array([lf + [dx, dy, 0.0] for dx in (0.02, 0.035, 0.05) for dy in (-0.01, 0.02)])
-    holds = np.vstack((feet, ahead, feet[0] + [0.03, 0.0, 0.0]))
     step = planner.plan(feet, base, holds)
-    assert step is not None and step.limb == 3 and not step.regrip
-    # the longest feasible stride among its options
-    assert step.target[0] == pytest.approx(
-        max(h[0] for h in ahead if planner.feasible(feet, base, 3, h) is not None)
-    )
+    barred = {stance_key(feet)}
+    best = best_sequence(planner, feet, base, holds, 3, barred)
+    after = feet.copy()
+    after[step.limb] = step.target
+    taken = best_sequence(planner, after, step.base_end, holds, 2, barred)
+    assert best[0] == 3 and taken[0] + 1 == 3
+    assert taken[1] == pytest.approx(best[1], abs=1e-12)
+    assert best[1] > base[0] + 0.02  # the map lets the base climb: the test is not vacuous
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_non_periodic_never_returns_to_a_recent_stance(tile, seed):
+    """No undoing a step and redoing it: the stances of a 45 s climb are all different within
+    the planner's memory (it may step back, but only to a stance it has not just left)."""
+    _, runner, _, _ = climb(tile, False, seed)
+    stances = [stance_key(start_feet())]
+    for step in runner.steps:
+        feet = np.array(stances[-1]).reshape(4, 2)
+        feet[step.limb] = step.target[:2]
+        stances.append(stance_key(np.column_stack((feet, np.zeros(4)))))
+    for i in range(1, len(stances)):
+        assert stances[i] not in stances[max(0, i - RECENT) : i]
 
 
 def test_non_periodic_outclimbs_the_periodic_gait(tile):
     """Paper 001 Fig. 7: 45 s on a 30° slope at G/6, both gaits on the same six hold maps.
 
     The paper reports about 2× (0.17 m vs 0.08 m). With the periodic baseline as [9] runs in
-    ClimbLab (its limb's furthest feasible option, a step back if need be, else a wait), we
-    reach 1.2× on these maps (0.115 m vs 0.095 m): asserted at 1.15×, short of the paper's 2×
-    (see BENCHMARKS.md, bench/free_climb.py, for the twin's figures).
+    ClimbLab (its limb's furthest feasible option, a step back if need be, else a wait) and
+    the non-periodic gait choosing by the base's progress over 8 swings, we reach 1.6× on
+    these maps (0.151 m vs 0.093 m): asserted at 1.5×, short of the paper's 2× (see
+    BENCHMARKS.md, bench/free_climb.py, for the twin's figures).
     """
     free = [climb(tile, False, s)[3][-1].base[0] for s in SEEDS]
     periodic = [climb(tile, True, s)[3][-1].base[0] for s in SEEDS]
@@ -202,7 +257,7 @@ def test_non_periodic_outclimbs_the_periodic_gait(tile):
     free_mean = np.mean(free) - start
     periodic_mean = np.mean(periodic) - start
     assert 0.05 < free_mean < 0.3  # the paper's scale: 0.17 m in 45 s
-    assert free_mean >= 1.15 * periodic_mean
+    assert free_mean >= 1.5 * periodic_mean
 
 
 def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):

@@ -11,20 +11,27 @@ Both gaits choose among the same options: the graspable points each limb reaches
 current base (IK within joint limits), no farther than ``max_stride`` from its foot and clear
 of the other grippers, and both take the option with the longest stride towards the goal
 whose step is feasible: every foot reachable along the base's path and the predicted Tumble
-Stability Margin ≥ 0 throughout (§3.2, [9]). They differ only in the swing limb (§3.1): the
-non-periodic gait swings the limb with most options ahead, dropping options that prove
-infeasible and recounting (as ClimbLab does); the periodic baseline swings limbs in a fixed
+Stability Margin ≥ 0 throughout (§3.2, [9]). The periodic baseline swings limbs in a fixed
 crawl order and, as [9] in ClimbLab, takes its limb's feasible option furthest towards the
 goal even when that is a step back, or holds still for the period when its limb has no
-feasible option. When no option ahead is feasible the non-periodic gait re-grips (the
-feasible step that frees a splayed posture, else loses least), so it never stops while any
-feasible step exists.
+feasible option.
+
+The non-periodic gait chooses the swing limb freely (§3.1). The paper counts each limb's
+options ahead, a stand-in (its two stated assumptions) for the stride and the lag that move
+the whole robot; on maps tiled from the real cloud (about one hold per palm) that count
+walks the robot into postures with no step ahead (1.2-1.3x the periodic gait, see
+BENCHMARKS.md). So it selects by what the count stands for: the base's progress towards the
+goal (the base follows the diagonals' crossing, §3.3), looking ``horizon`` swings ahead over
+feasible steps (a beam of ``beam`` postures per swing), and takes the first swing of the best
+sequence; among equals, the longer stride. It never returns to one of its recent stances, so
+it cannot undo a step and redo it; a step back is taken only when it leads further.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -50,13 +57,18 @@ GOAL = np.array([1.0, 0.0, 0.0])
 PERIODIC_ORDER = (1, 0, 2, 3)  # rr, rf, lr, lf: the crawl order of [9]
 SWING_SAMPLES = (0.25, 0.5, 0.75, 1.0)
 """Swing phases at which a step's reach and TSM are checked before it is taken."""
+RECENT = 32
+"""Stances the non-periodic gait remembers and does not return to."""
+KNOWN_POSTURES = 4096
+"""Postures whose feasible steps the non-periodic gait keeps between plans."""
 
 
 class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Paper 001 §4.1 conditions (swing height/period, base height, grip force, slope, gravity,
     mass) and the foothold rule's limits: ``max_stride`` is ClimbLab's allowable maximum stride
     for discrete footholds, ``min_stride`` its same-point distance, ``hold_spacing`` the least
-    distance (m) between two grippers' holds (one palm's width)."""
+    distance (m) between two grippers' holds (one palm's width). ``horizon`` (swings) and
+    ``beam`` (postures kept per swing) bound the non-periodic gait's look-ahead."""
 
     swing_height: float = 0.02
     swing_period: float = 4.0
@@ -68,12 +80,14 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_stride: float = 0.1
     min_stride: float = 0.005
     hold_spacing: float = 0.03
+    horizon: int = 8
+    beam: int = 6
 
 
 @dataclass(frozen=True)
 class Step:
     """One planned swing: limb, foot start/target and base start/end (wall frame, m);
-    ``regrip`` when no option ahead was feasible and the limb moved to keep going; ``wait``
+    ``regrip`` when the swing does not advance its foot (a step back or aside); ``wait``
     when the periodic gait's limb had no feasible option and holds still for its period."""
 
     limb: int
@@ -98,6 +112,11 @@ def smooth(s: float) -> float:
 def swing_lift(s: float, height: float) -> float:
     """Cubic-spline height of the swing foot over the wall: 0 → ``height`` at s = ½ → 0."""
     return height * (smooth(2 * s) if s < 0.5 else 1.0 - smooth(2 * s - 1.0))
+
+
+def stance_key(feet: np.ndarray) -> tuple[float, ...]:
+    """A stance as a hashable key: the feet's wall-plane positions rounded to 0.1 mm."""
+    return tuple(np.round(feet[:, :2], 4).ravel().tolist())
 
 
 def diagonal_crossing(feet: np.ndarray) -> np.ndarray | None:
@@ -154,11 +173,15 @@ class ClimbPlanner:
         self.passed = 0
         """Turns the periodic gait waited out because its limb had no feasible step at all."""
         self.left: dict[int, np.ndarray] = {}
-        """Holds left by re-grips, barred to their limb until a stride ahead (no cycling)."""
+        """Holds the periodic gait stepped back from, barred to their limb until a stride ahead."""
+        self.recent: deque[tuple] = deque(maxlen=RECENT)
+        """The non-periodic gait's latest stances, which it does not return to."""
+        self.known: dict[tuple, list[tuple[Step, np.ndarray]]] = {}
+        """Feasible steps of the postures searched, for the hold map of ``holds_token``."""
+        self.holds_token: int | None = None
         slope = math.radians(config.slope_deg)
         self.down = np.array([-math.sin(slope), 0.0, -math.cos(slope)])
         self.force = config.mass * config.gravity * self.down
-        self.nominal = kinematics.stand_feet(config.base_height) * [1.0, 1.0, 0.0]
 
     def base_for(self, feet: np.ndarray) -> np.ndarray | None:
         """Base whose CoM projects along gravity onto the diagonals' crossing (§3.3)."""
@@ -220,42 +243,73 @@ class ClimbPlanner:
     def plan(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> Step | None:
         """The next swing (§3.1-3.2), or None when no limb has any feasible step.
 
-        A limb that re-gripped may not return to the hold it left before some limb has
-        taken a stride ahead, so a stuck posture is worked free instead of cycling."""
+        A periodic limb that stepped back may not return to the hold it left before some limb
+        has taken a stride ahead, so a stuck posture is worked free instead of cycling."""
+        if not self.periodic:
+            return self._plan_free(feet, base, holds)
         options = self.options(feet, base, holds)
         for limb, hold in self.left.items():
             gap = np.linalg.norm(options[limb][:, :2] - hold[:2], axis=1)
             options[limb] = options[limb][gap > self.config.min_stride]
-        if self.periodic:
-            step = self._plan_periodic(feet, base, options)
-        else:
-            step = self._plan_free(feet, base, options)
-        if step is not None and step.regrip:
+        step = self._plan_periodic(feet, base, options)
+        if step.regrip:
             self.left[step.limb] = step.start
-        elif step is not None and not step.wait:
+        elif not step.wait:
             self.left.clear()
         return step
 
-    def _ahead(self, feet: np.ndarray, options: list[np.ndarray]) -> list[list[np.ndarray]]:
-        """Each limb's options ahead (stride > ``min_stride``), longest stride first."""
-        out = []
-        for limb, opts in enumerate(options):
-            stride = (opts - feet[limb]) @ GOAL
-            order = np.argsort(-stride, kind="stable")
-            out.append([opts[i] for i in order if stride[i] > self.config.min_stride])
-        return out
+    def _successors(
+        self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray, barred: set
+    ) -> list[tuple[Step, np.ndarray]]:
+        """Every feasible step from this posture, with the feet after it, whose stance is not
+        in ``barred``; a posture's steps are worked out once per hold map (the next plans'
+        look-ahead covers mostly the same postures)."""
+        key = stance_key(feet) + tuple(np.round(base, 4).tolist())
+        steps = self.known.get(key)
+        if steps is None:
+            steps = []
+            for limb, opts in enumerate(self.options(feet, base, holds)):
+                for target in opts:
+                    step = self.feasible(feet, base, limb, target)
+                    if step is not None:
+                        after = feet.copy()
+                        after[limb] = target
+                        steps.append((step, after))
+            if len(self.known) >= KNOWN_POSTURES:
+                self.known.clear()
+            self.known[key] = steps
+        return [(step, after) for step, after in steps if stance_key(after) not in barred]
 
-    def _plan_free(self, feet, base, options) -> Step | None:
-        """§3.1: the limb with most options ahead (ties: the limb furthest behind) takes its
-        longest feasible stride; an infeasible option is dropped and the limbs recounted."""
-        ahead = self._ahead(feet, options)
-        lag = -(feet @ GOAL)
-        while any(ahead):
-            limb = max(range(len(feet)), key=lambda i: (len(ahead[i]), lag[i]))
-            step = self.feasible(feet, base, limb, ahead[limb].pop(0))
-            if step is not None:
-                return step
-        return self._regrip(feet, base, options, range(len(feet)))
+    def _plan_free(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> Step | None:
+        """§3.1 by its aim: the first swing of the feasible sequence (≤ ``horizon`` swings, the
+        ``beam`` postures with the base furthest ahead kept per swing) that takes the base
+        furthest towards the goal; a first swing whose sequences end sooner ranks lower."""
+        token = hash(holds.tobytes())
+        if token != self.holds_token:
+            self.known.clear()
+            self.holds_token = token
+        self.recent.append(stance_key(feet))
+        barred = set(self.recent)
+        first = self._successors(feet, base, holds, barred)
+        if not first:
+            return None
+        value = [(0, float(step.base_end @ GOAL)) for step, _ in first]
+        level = [(i, after, step.base_end) for i, (step, after) in enumerate(first)]
+        for depth in range(1, self.config.horizon):
+            best: dict[tuple, tuple[int, np.ndarray, np.ndarray]] = {}
+            for i, posture, body in level:
+                for step, after in self._successors(posture, body, holds, barred):
+                    key = stance_key(after)
+                    if key not in best or best[key][2] @ GOAL < step.base_end @ GOAL:
+                        best[key] = (i, after, step.base_end)
+            if not best:
+                break
+            level = sorted(best.values(), key=lambda n: -(n[2] @ GOAL))[: self.config.beam]
+            for i, _, body in level:
+                value[i] = max(value[i], (depth, float(body @ GOAL)))
+        pick = max(range(len(first)), key=lambda i: (value[i], first[i][0].stride))
+        step = first[pick][0]
+        return dataclasses.replace(step, regrip=step.stride <= self.config.min_stride)
 
     def _plan_periodic(self, feet, base, options) -> Step | None:
         """[9] as ClimbLab runs it: the limb whose turn it is takes, of all its options, the
@@ -271,24 +325,6 @@ class ClimbPlanner:
                 return dataclasses.replace(step, regrip=bool(stride[i] <= self.config.min_stride))
         self.passed += 1
         return Step(limb, feet[limb].copy(), feet[limb].copy(), base.copy(), base.copy(), wait=True)
-
-    def _regrip(self, feet, base, options, limbs) -> Step | None:
-        """The way on when no option ahead is feasible: the feasible step of ``limbs`` that
-        brings a foot closest to its standing place under the base (freeing a splayed
-        posture), else the one losing least towards the goal."""
-        nominal = self.nominal + base * [1.0, 1.0, 0.0]
-        tried = []
-        for limb in limbs:
-            opts = options[limb]
-            before = np.linalg.norm(feet[limb, :2] - nominal[limb, :2])
-            gain = before - np.linalg.norm(opts[:, :2] - nominal[limb, :2], axis=1)
-            stride = (opts - feet[limb]) @ GOAL
-            tried += [(gain[i], stride[i], limb, opts[i]) for i in range(len(opts))]
-        for *_, limb, target in sorted(tried, key=lambda c: (-c[0], -c[1])):
-            step = self.feasible(feet, base, limb, target)
-            if step is not None:
-                return dataclasses.replace(step, regrip=True)
-        return None
 
 
 @dataclass
