@@ -183,6 +183,13 @@ class ControlRole:
                 driver_profile, options = sim.driver()
                 clock = sim.clock()
             joint_bus = make_joint_bus(driver_profile, args.driver, options)
+            if sim is not None and args.stepped:
+                if not hasattr(joint_bus, "sent"):
+                    raise StartupError(
+                        f"--sim --stepped: driver {args.driver!r} does not talk to the twin's "
+                        "emulated bus; leave --driver out to use the profile's own"
+                    )
+                sim.attach(joint_bus)
         except StartupError:
             if sim is not None:
                 sim.stop()

@@ -82,6 +82,10 @@ class SimHost:
             options["timeout_margin_ms"] = STEPPED_TIMEOUT_MARGIN_MS
         return msgspec.structs.replace(self.profile, bus=bus), options
 
+    def attach(self, joint_bus) -> None:
+        """Stepped mode: physics waits until the emulated bus handled all this driver sent."""
+        self.twin.driver_sent = lambda: joint_bus.sent
+
     def clock(self):
         """The loop's clock: simulated time in lock-step, or the monotonic clock."""
         from daemon.loop import MonotonicClock, SteppedClock

@@ -82,7 +82,7 @@ class QingzhuiRig:
         self.chain = MitMotorChain(ids, self.profile.bus.actuator, channel, external_model=True)
         self.chain.start()
         self.bus = MitJointBus(self.profile, [channel], interface="virtual")
-        self.coupling = MitCoupling(self.twin, self.chain, lambda: self.bus.frames_sent)
+        self.coupling = MitCoupling(self.twin, self.chain, lambda: self.bus.sent)
         self.bus.open()
         self.clock = SteppedClock(on_advance=self._advance)
         self.safety = Safety(self.profile)

@@ -57,7 +57,7 @@ class Hil:
             self.profile, port=self.twin.port, timeout_margin_ms=margin_ms
         )
         self.bus.open()
-        self.twin.bytes_sent = lambda: self.bus.port.written
+        self.twin.driver_sent = lambda: self.bus.sent
         self.safety = Safety(self.profile)
         isolated = Isolated("tripod", Tripod(gait, self.profile)) if gait else None
         self.controller = Controller(

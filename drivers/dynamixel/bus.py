@@ -56,7 +56,7 @@ class LatencyPort(sdk.PortHandler):
         self.latency_ms = latency_ms
         self.margin_ms = margin_ms
         self.written = 0
-        """Bytes written since open (a lock-step twin waits until its emulator read them all)."""
+        """Bytes written since open (``DynamixelBus.sent``)."""
 
     def getCurrentTime(self) -> float:  # noqa: N802 - SDK override
         return time.monotonic_ns() / 1e6
@@ -563,6 +563,11 @@ class DynamixelBus:
             )
             for k, name in enumerate(self.names)
         ]
+
+    @property
+    def sent(self) -> int:
+        """Bytes written to the port since open (a lock-step twin waits for them)."""
+        return self.port.written if self.port is not None else 0
 
     def close(self) -> None:
         """Close the port (idempotent); torque is left as it is — the e-stop policy decides."""

@@ -7,7 +7,7 @@ writes the joint state (position, velocity, torque as the joint's torque sensor 
 back into the motors, which the next replies carry. Each step first waits until the emulator
 has taken every frame the driver sent, so a stepped run does not depend on thread timing:
 
-    coupling = MitCoupling(twin, chain, frames_sent=lambda: driver.frames_sent)
+    coupling = MitCoupling(twin, chain, frames_sent=lambda: driver.sent)
     clock = SteppedClock(on_advance=coupling.advance)
 """
 

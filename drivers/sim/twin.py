@@ -63,7 +63,7 @@ log = logging.getLogger("climbd.sim")
 DepthCallback = Callable[[str, DepthFrame], None]
 
 SETTLE_COUNT_TIMEOUT = 5.0
-"""Wall seconds the servo emulator has to handle the driver's bytes before a step fails."""
+"""Wall seconds the emulated bus has to handle what the driver sent before a step fails."""
 
 
 @dataclass(frozen=True)
@@ -261,9 +261,10 @@ class Twin:
         self._accel = self.model.sensor_adr[sensor("imu_accel").id]
         self._steps = 0
         self._select_line: int | None = None
-        self.bytes_sent: Callable[[], int] | None = None
-        """Bytes the in-process driver wrote to the pty: a stepped run then waits until the
-        emulator handled exactly those, so a loaded machine cannot change what physics sees."""
+        self.driver_sent: Callable[[], int] | None = None
+        """What the in-process driver put on the bus (bytes on the pty, frames on CAN): a
+        stepped run then waits until the emulator handled exactly that much, so a loaded
+        machine cannot change what physics sees."""
         self._recv_line: int | None = None
         self._thread: threading.Thread | None = None
         self._camera_thread: threading.Thread | None = None
@@ -508,7 +509,9 @@ class Twin:
 
     def _settle_bus(self) -> None:
         """Wait until the emulated bus has handled everything the driver sent."""
-        if self.can_chain is not None:
+        if self.driver_sent is not None:
+            self._settle_count()
+        elif self.can_chain is not None:
             self._settle_can()
         else:
             self._settle_pty()
@@ -543,9 +546,6 @@ class Twin:
         emu = self.emulator
         if emu is None or emu._master < 0 or emu._thread is None:
             return
-        if self.bytes_sent is not None:
-            self._settle_count(emu)
-            return
         if self._select_line is None:
             source, first = inspect.getsourcelines(type(emu)._serve)
             self._select_line = first + next(
@@ -561,15 +561,21 @@ class Twin:
             idle = idle + 1 if quiet else 0
             time.sleep(0.0005)
 
-    def _settle_count(self, emu: DynamixelEmulator) -> None:
-        """Wait until the emulator handled every byte the driver wrote (``bytes_sent``)."""
-        want = self.bytes_sent()
+    def _handled(self) -> int:
+        """What the emulator has handled, in the units of ``driver_sent``."""
+        if self.can_chain is not None:
+            return sum(m.frames for m in self.can_chain.motors.values())
+        return self.emulator.bytes_handled
+
+    def _settle_count(self) -> None:
+        """Wait until the emulator handled all the driver sent (``driver_sent``)."""
+        want = self.driver_sent()
         deadline = time.monotonic() + SETTLE_COUNT_TIMEOUT
-        while emu.bytes_handled < want:
+        while self._handled() < want:
             if time.monotonic() > deadline:
                 raise RuntimeError(
-                    f"servo emulator on {emu.port} handled {emu.bytes_handled} of {want} bytes "
-                    f"in {SETTLE_COUNT_TIMEOUT:g} s"
+                    f"{self.profile.name} twin: the emulated bus handled {self._handled()} of "
+                    f"{want} sent in {SETTLE_COUNT_TIMEOUT:g} s"
                 )
             time.sleep(0.0001)
 

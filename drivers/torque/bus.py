@@ -69,7 +69,7 @@ class MitJointBus:
         self._answered = np.zeros(n, bool)
         self._expecting = False
         self._last_frames: list[bytes] | None = None
-        self.frames_sent = 0
+        self.sent = 0
         """Frames put on the buses since construction (a lock-step twin waits for them)."""
 
     @classmethod
@@ -171,7 +171,7 @@ class MitJointBus:
                 raise DriverError(
                     f"CAN send to motor {self.ids[i]} on {self.channel_of[i]}: {e}"
                 ) from e
-            self.frames_sent += 1
+            self.sent += 1
         self._expecting = True
 
     def _collect(self, timeout: float) -> None:
