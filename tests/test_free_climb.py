@@ -284,6 +284,9 @@ def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):
 def test_config_rejects_unknown_fields():
     with pytest.raises(msgspec.ValidationError, match="max_strid"):
         msgspec.convert({"max_strid": 0.1}, ClimbConfig)
+    for field in ("horizon", "beam"):
+        with pytest.raises(msgspec.ValidationError, match=field):
+            msgspec.convert({field: 0}, ClimbConfig)
 
 
 def test_control_role_publishes_stability_while_climbing(tile):

@@ -33,7 +33,7 @@ import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
 import msgspec
 import numpy as np
@@ -80,8 +80,8 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_stride: float = 0.1
     min_stride: float = 0.005
     hold_spacing: float = 0.03
-    horizon: int = 8
-    beam: int = 6
+    horizon: Annotated[int, msgspec.Meta(ge=1)] = 8
+    beam: Annotated[int, msgspec.Meta(ge=1)] = 6
 
 
 @dataclass(frozen=True)
