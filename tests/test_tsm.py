@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from plugins.gaits.tsm import tumble_stability_margin
+from plugins.gaits.tsm import tumble_stability_margin, tumble_stability_margins
 
 SQUARE = np.array([[0.1, 0.1, 0.0], [-0.1, 0.1, 0.0], [-0.1, -0.1, 0.0], [0.1, -0.1, 0.0]])
 UP = np.array([0.0, 0.0, 1.0])
@@ -41,3 +41,12 @@ def test_slope_shifts_the_downhill_margin_by_height_times_tangent():
     h = 0.06
     margin = tumble_stability_margin(np.array([0.0, 0.0, h]), SQUARE, force, 0.0, UP)
     assert margin == pytest.approx(0.1 * math.cos(slope) - h * math.sin(slope))
+
+
+def test_margins_of_many_coms_are_the_level_ground_distances():
+    """One CoM per row: each margin is its distance to the nearest edge of the square."""
+    force = np.array([0.0, 0.0, -10.0])
+    coms = np.array([[0.03, 0.0, 0.06], [0.0, -0.05, 0.06], [0.12, 0.0, 0.06]])
+    margins = tumble_stability_margins(coms, SQUARE, force, 0.0, UP)
+    np.testing.assert_allclose(margins, [0.07, 0.05, -0.02], atol=1e-12)
+    assert tumble_stability_margins(coms, SQUARE[:1], force, 9.0, UP).tolist() == [-np.inf] * 3

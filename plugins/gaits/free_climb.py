@@ -49,7 +49,7 @@ from daemon.messages import (
 )
 from daemon.plugins import GaitPlugin
 from daemon.profile import Profile
-from plugins.gaits.tsm import tumble_stability_margin
+from plugins.gaits.tsm import tumble_stability_margin, tumble_stability_margins
 
 NORMAL = np.array([0.0, 0.0, 1.0])
 GOAL = np.array([1.0, 0.0, 0.0])
@@ -218,13 +218,18 @@ class ClimbPlanner:
         if base_end is None:
             return None
         step = Step(limb, feet[limb].copy(), np.asarray(target, float), base.copy(), base_end)
-        stance = np.delete(feet, limb, axis=0)
         trial = feet.copy()
+        coms = []
         for s in SWING_SAMPLES:
             trial[limb], com = self.pose(step, s)
-            if not self.reachable(trial, com).all() or self.tsm(com, stance) < 0.0:
+            if not self.reachable(trial, com).all():
                 return None
-        return step
+            coms.append(com)
+        stance = np.delete(feet, limb, axis=0)
+        margins = tumble_stability_margins(
+            np.array(coms), stance, self.force, self.config.grip_force, NORMAL
+        )
+        return step if margins.min() >= 0.0 else None
 
     def options(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> list[np.ndarray]:
         """Per limb, the holds it may grip next: reachable from the current base, within

@@ -11,14 +11,28 @@ from __future__ import annotations
 import numpy as np
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b over the last axis (length 3): np.cross without its axis handling, which costs
+    more than the product on the few vectors here (the TSM runs for every planned step)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.stack(
+        (
+            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+        ),
+        axis=-1,
+    )
+
+
 def ordered(contacts: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Contacts sorted counter-clockwise about ``normal`` (seen from the robot's side)."""
     centre = contacts.mean(axis=0)
-    e1 = np.cross(normal, [1.0, 0.0, 0.0])
+    e1 = cross(normal, [1.0, 0.0, 0.0])
     if np.linalg.norm(e1) < 1e-6:
-        e1 = np.cross(normal, [0.0, 1.0, 0.0])
+        e1 = cross(normal, [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(normal, e1)
+    e2 = cross(normal, e1)
     rel = contacts - centre
     return contacts[np.argsort(np.arctan2(rel @ e2, rel @ e1))]
 
@@ -35,15 +49,29 @@ def tumble_stability_margin(
     ``normal`` points from the wall towards the robot; ``grip_force`` (N) is each gripper's
     holding force, resisting about every axis it is not on.
     """
+    com = np.asarray(com, float)[None]
+    return float(tumble_stability_margins(com, contacts, force, grip_force, normal)[0])
+
+
+def tumble_stability_margins(
+    coms: np.ndarray,
+    contacts: np.ndarray,
+    force: np.ndarray,
+    grip_force: float,
+    normal: np.ndarray,
+) -> np.ndarray:
+    """TSM (m) for each CoM of ``coms`` (n×3) over the same contacts, force and grips (see
+    ``tumble_stability_margin``): the support polygon's axes are worked out once."""
+    coms = np.asarray(coms, float)
     if len(contacts) < 2:
-        return -np.inf
+        return np.full(len(coms), -np.inf)
     p = ordered(np.asarray(contacts, float), np.asarray(normal, float))
-    q = np.roll(p, -1, axis=0)
+    q = np.concatenate((p[1:], p[:1]))
     axis = q - p
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    gravity = np.einsum("ij,ij->i", np.cross(force, com - p), axis)
+    gravity = np.einsum("nij,ij->ni", cross(force, coms[:, None, :] - p[None]), axis)
     rel = p[None, :, :] - p[:, None, :]
     along = np.einsum("ikj,ij->ik", rel, axis)
     distance = np.linalg.norm(rel - along[..., None] * axis[:, None, :], axis=2)
     grip = grip_force * distance.sum(axis=1)
-    return float(np.min((gravity + grip) / np.linalg.norm(force)))
+    return np.min((gravity + grip) / np.linalg.norm(force), axis=1)
