@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daemon.estimation import StateEstimator
+from daemon.estimation import StateEstimator, SupportTorques, rotation, support_forces
 from daemon.kinematics import Kinematics
 from daemon.messages import (
     BodyState,
@@ -57,6 +57,15 @@ SIT_SETTLE = 0.5
 REST_FRACTION = 0.35
 """Body height at rest (sitting, before torque off) as a fraction of the standing height."""
 
+LOAD_RAMP = 0.1
+"""Seconds over which a foot's share of the weight feed-forward fades in once it touches down
+(a step in torque would jolt the body); at lift-off it goes at once, or it would press the swing
+foot down and read as a load the estimator takes for stance."""
+
+TOUCH_SUPPORT = 10.0
+"""Support (N) a stance foot must carry by its position loop alone (force sensing: eq. 5 minus
+the feed-forward's share) before its feed-forward fades in: a late foot is not pushed down."""
+
 
 @dataclass
 class Timed:
@@ -80,6 +89,7 @@ class Controller:
         state_rate_hz: float = 100.0,
         estimator: StateEstimator | None = None,
         imu: Imu | None = None,
+        feed_forward: bool = False,
     ) -> None:
         self.profile = profile
         self.bus = bus
@@ -116,6 +126,10 @@ class Controller:
         self._ticks = 0
         self._last_health_publish = -1e9
         self.fault_reset = False
+        self.feed_forward = feed_forward and profile.bus.kind == "torque"
+        self.support: SupportTorques | None = None
+        self.load = np.zeros(len(profile.legs))
+        self.landed = np.zeros(len(profile.legs), bool)
 
     def _sit_joints(self) -> np.ndarray:
         """Joint pose with the body lowered to rest: where a torque_off robot is switched off."""
@@ -221,6 +235,7 @@ class Controller:
             self._enter(mode, q, t)
         command = self._behave(t, dt, q)
         if command is not None:
+            self._feed_forward(q, command)
             try:
                 self.bus.write(command)
             except DriverError as e:
@@ -244,6 +259,26 @@ class Controller:
         gyro = sample.gyro if sample is not None else None
         accel = sample.accel if sample is not None else None
         self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t)
+
+    def _feed_forward(self, q: np.ndarray, command: JointCommand) -> None:
+        """Torque legs with ``feed_forward``: each stance foot's share of the weight as feed-forward
+        torque (paper 004 eq. 5 inverted), so stance legs hold the body's height at the profile's
+        gains."""
+        if not self.feed_forward:
+            return
+        masses = self.estimator.config.link_masses if self.estimator is not None else []
+        if self.support is None or self.support.link_masses != masses:
+            self.support = SupportTorques(self.kinematics, self.profile.mass, masses)
+        rot = rotation(np.asarray(self.body.orientation, float))
+        if self.estimator is not None:
+            support = self.estimator.support
+        else:
+            forces = self.kinematics.foot_forces(q, self.measured.effort)
+            support = np.nan_to_num(support_forces(forces, rot))
+        own = support - self.support.shares(self.load)
+        self.landed = self.stance & (self.landed | (own > TOUCH_SUPPORT))
+        self.load = np.minimum(self.load + self.dt / LOAD_RAMP, self.landed)
+        command.effort = self.support(q, self.load, rot).tolist()
 
     def _clear_faults(self, t: float) -> None:
         """The operator's reset, while nothing moves (not STAND/ACTIVE): a bus that can bring

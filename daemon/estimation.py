@@ -222,6 +222,37 @@ class FootForces:
         return self.kin.foot_forces(q, tau)
 
 
+class SupportTorques:
+    """Gravity feed-forward: eq. 5 inverted, tau = J^T F - sum_i J_i^T m_i g, with each stance
+    foot pushing down (world frame) with its share of the robot's weight (share by ``load``).
+
+    Torque-controlled legs get it as the command's feed-forward torque, so stance legs hold the
+    body's height at low position gains; swing legs get their own links' weight only.
+    """
+
+    def __init__(self, kin: Kinematics, mass: float, link_masses: list[float]) -> None:
+        self.forces = FootForces(kin, link_masses)
+        self.link_masses = list(link_masses)
+        self.weight = mass * GRAVITY
+
+    def shares(self, load: np.ndarray) -> np.ndarray:
+        """Support (N, up) each foot's feed-forward provides: ``load`` x weight / loaded feet."""
+        load = np.asarray(load, float)
+        return load * (self.weight / max(np.count_nonzero(load), 1))
+
+    def __call__(self, q: np.ndarray, load: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """Joint torques (n_joints,) for joints ``q``, body ``rot`` and each leg's ``load``
+        (n_legs,): 1 a stance foot's full share, 0 swing, between while a foot takes its share."""
+        kin = self.forces.kin
+        push = np.outer(self.shares(load), rot.T @ np.array([0.0, 0.0, -1.0]))
+        tau = np.einsum("lij,li->lj", kin.jacobian(q), push)
+        if self.forces.centres:
+            g = rot.T @ np.array([0.0, 0.0, -GRAVITY])
+            for m, cut in zip(self.forces.masses, self.forces.centres, strict=True):
+                tau = tau - m * np.einsum("lij,i->lj", cut.jacobian(q), g)
+        return tau.reshape(-1)
+
+
 # --- the estimator -------------------------------------------------------------------------
 
 

@@ -65,10 +65,21 @@ def contact_forces(twin: Twin) -> np.ndarray:
     return out
 
 
+def flat_world():
+    """The stairs world without its flight: level ground for the flat-ground walks."""
+    from drivers.sim.worlds import load as load_world
+
+    world = load_world("stairs")
+    world.stairs = []
+    return world
+
+
 class QingzhuiRig:
     """Twin + emulated MIT motors + MitJointBus + Controller on one stepped clock."""
 
-    def __init__(self, world="stairs", gait=None, start_x: float = 0.0) -> None:
+    def __init__(
+        self, world="stairs", gait=None, start_x: float = 0.0, feed_forward: bool = False
+    ) -> None:
         from drivers.sim.worlds import load as load_world
 
         profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
@@ -88,7 +99,9 @@ class QingzhuiRig:
         self.safety = Safety(self.profile)
         self.gait = gait
         isolated = Isolated(getattr(gait, "name", "gait"), gait) if gait is not None else None
-        self.controller = Controller(self.profile, self.bus, self.safety, self.clock.now, isolated)
+        self.controller = Controller(
+            self.profile, self.bus, self.safety, self.clock.now, isolated, feed_forward=feed_forward
+        )
         self.loop = ControlLoop(self.profile.rate_hz, self.clock, self.controller.tick)
         self.hooks: list = []
         self.command: MotionCommand | None = None

@@ -6,16 +6,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from qingzhui_twin import QingzhuiRig, contact_forces, estimator_config
+from qingzhui_twin import QingzhuiRig, contact_forces, estimator_config, flat_world
 
 from daemon.estimation import (
+    GRAVITY,
     StateEstimator,
+    SupportTorques,
     exp_so3,
     log_so3,
     rotation,
     stance_pose,
     tripod_groups,
 )
+from daemon.kinematics import Kinematics
 from daemon.messages import MotionCommand
 from daemon.plugins import Isolated
 from plugins.gaits.periodic import Tripod
@@ -37,8 +40,9 @@ def _errors(truth_pos, truth_quat, est_rot, est_pos):
 
 @pytest.fixture(scope="module")
 def walk():
-    """One recorded walk: joint state as the driver read it, IMU, truth, contact forces."""
-    rig = QingzhuiRig()
+    """One recorded walk on level ground: joint state as the driver read it, IMU, truth,
+    contact forces."""
+    rig = QingzhuiRig(flat_world())
     gait = Tripod(None, rig.profile)
     rig.controller.gait = Isolated("tripod", gait)
     rig.stand()
@@ -101,6 +105,30 @@ def test_paper_groups_for_qingzhui(walk) -> None:
     group = tripod_groups(walk["profile"])
     assert {n for n, g in zip(names, group, strict=True) if g == 0} == {"mf", "rb", "lb"}  # group A
     assert {n for n, g in zip(names, group, strict=True) if g == 1} == {"mb", "rf", "lf"}  # group B
+
+
+def test_support_torques_push_each_stance_foot_down_with_its_share(walk) -> None:
+    """Feed-forward torques against virtual work by finite differences of FK: tau_j = dfoot/dq_j . F
+    with F the stance foot's share of the weight pointing down in the world (tilted body)."""
+    profile = walk["profile"]
+    kin = Kinematics(profile)
+    q = walk["q"][len(walk["q"]) // 2]
+    rot = exp_so3(np.array([0.1, -0.15, 0.4]))
+    stance = np.array([True, False, True, False, True, False])
+    tau = SupportTorques(kin, profile.mass, [])(q, stance, rot).reshape(6, 3)
+    share = rot.T @ np.array([0.0, 0.0, -profile.mass * GRAVITY / 3])
+    eps = 1e-6
+    for j in range(len(q)):
+        dq = np.zeros_like(q)
+        dq[j] = eps
+        dfoot = (kin.fk(q + dq) - kin.fk(q - dq)) / (2 * eps)
+        leg = j // 3
+        expected = dfoot[leg] @ share if stance[leg] else 0.0
+        assert tau[leg, j % 3] == pytest.approx(expected, abs=1e-5)
+    forces = kin.foot_forces(q, tau.reshape(-1)) @ rot.T
+    np.testing.assert_allclose(
+        forces[stance].sum(axis=0), [0, 0, -profile.mass * GRAVITY], atol=1e-9
+    )
 
 
 def test_stance_pose_recovers_a_random_pose_exactly() -> None:

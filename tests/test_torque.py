@@ -152,7 +152,7 @@ def test_one_khz_loop_stands_qingzhui_through_the_driver(rig, qingzhui) -> None:
     bus.open()
     clock = MonotonicClock()
     safety = Safety(qingzhui)
-    controller = Controller(qingzhui, bus, safety, clock.now)
+    controller = Controller(qingzhui, bus, safety, clock.now, feed_forward=True)
     loop = ControlLoop(qingzhui.rate_hz, clock, controller.tick)
     safety.request(Mode.STAND, clock.now())
     thread = threading.Thread(target=loop.run, kwargs={"max_ticks": 6000})
