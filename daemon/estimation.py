@@ -94,7 +94,7 @@ def quaternion(r: np.ndarray) -> list[float]:
     w = log_so3(r)
     angle = float(np.linalg.norm(w))
     axis = w / angle if angle > 1e-12 else np.zeros(3)
-    return [math.cos(angle / 2), *(math.sin(angle / 2) * axis)]
+    return [math.cos(angle / 2), *(math.sin(angle / 2) * axis).tolist()]
 
 
 def rotation(q: np.ndarray) -> np.ndarray:

@@ -137,6 +137,16 @@ def make_gait(profile, name: str | None, on_failure):
     return Isolated(name, plugin, on_failure)
 
 
+class _TwinImu:
+    """The twin's IMU behind the driver-side ``Imu`` protocol."""
+
+    def __init__(self, twin) -> None:
+        self.twin = twin
+
+    def read(self):
+        return self.twin.imu_sample()
+
+
 class ControlRole:
     """Wires profile, joint bus, safety, controller, loop and Zenoh together for one run."""
 
@@ -199,7 +209,18 @@ class ControlRole:
         gait = make_gait(
             profile, args.gait, lambda name, e: safety.hold(clock.now(), f"gait {name} failed")
         )
-        controller = Controller(profile, joint_bus, safety, clock.now, gait, publish)
+        estimator, imu = self._estimator(sim)
+        controller = Controller(
+            profile,
+            joint_bus,
+            safety,
+            clock.now,
+            gait,
+            publish,
+            estimator=estimator,
+            imu=imu,
+            feed_forward=estimator is not None,
+        )
         loop = ControlLoop(profile.rate_hz, clock, controller.tick)
         controller.loop_stats = loop.stats
         if gate is not None:
@@ -247,6 +268,24 @@ class ControlRole:
         if sim is not None:
             print(sim.summary(Path(args.snapshot)), flush=True)
         return 0
+
+    def _estimator(self, sim):
+        """Profiles with joint torque sensing (torque legs) get paper 004's state estimator, and
+        the gravity feed-forward; in the twin, calibrated from its build and fed its IMU."""
+        profile = self.profile
+        if profile.bus.kind != "torque":
+            return None, None
+        from daemon.estimation import EstimatorConfig, StateEstimator
+
+        if sim is None:
+            return StateEstimator(profile, EstimatorConfig()), None
+        twin = sim.twin
+        masses = [
+            float(twin.model.body_mass[twin.model.body(j.name).id]) for j in profile.legs[0].joints
+        ]
+        config = EstimatorConfig(foot_radius=twin.robot.foot_radius, link_masses=masses)
+        pos, quat = twin.body_pose()
+        return StateEstimator(profile, config, pos, quat), _TwinImu(twin)
 
     def _sim(self, publish):
         """The twin of a ``--sim`` run, started; a bad world is a StartupError naming it."""

@@ -19,7 +19,7 @@ from daemon.estimation import (
     tripod_groups,
 )
 from daemon.kinematics import Kinematics
-from daemon.messages import MotionCommand
+from daemon.messages import BodyState, MotionCommand, decode, encode
 from daemon.plugins import Isolated
 from plugins.gaits.periodic import Tripod
 
@@ -129,6 +129,14 @@ def test_support_torques_push_each_stance_foot_down_with_its_share(walk) -> None
     np.testing.assert_allclose(
         forces[stance].sum(axis=0), [0, 0, -profile.mass * GRAVITY], atol=1e-9
     )
+
+
+def test_body_state_goes_on_the_wire(walk) -> None:
+    """``climbd run`` publishes the estimator's BodyState: every field encodes."""
+    est = StateEstimator(walk["profile"], walk["config"])
+    est.update(walk["q"][0], walk["tau"][0])
+    body = decode(encode(est.body(1.0)), BodyState)
+    np.testing.assert_allclose(body.orientation, est.body().orientation)
 
 
 def test_stance_pose_recovers_a_random_pose_exactly() -> None:
