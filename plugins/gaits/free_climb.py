@@ -263,7 +263,7 @@ class ClimbPlanner:
             self.left.clear()
         return step
 
-    def _successors(
+    def successors(
         self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray, barred: set
     ) -> list[tuple[Step, np.ndarray]]:
         """Every feasible step from this posture, with the feet after it, whose stance is not
@@ -295,7 +295,7 @@ class ClimbPlanner:
             self.holds_token = token
         self.recent.append(stance_key(feet))
         barred = set(self.recent)
-        first = self._successors(feet, base, holds, barred)
+        first = self.successors(feet, base, holds, barred)
         if not first:
             return None
         value = [(0, float(step.base_end @ GOAL)) for step, _ in first]
@@ -303,7 +303,7 @@ class ClimbPlanner:
         for depth in range(1, self.config.horizon):
             best: dict[tuple, tuple[int, np.ndarray, np.ndarray]] = {}
             for i, posture, body in level:
-                for step, after in self._successors(posture, body, holds, barred):
+                for step, after in self.successors(posture, body, holds, barred):
                     key = stance_key(after)
                     if key not in best or best[key][2] @ GOAL < step.base_end @ GOAL:
                         best[key] = (i, after, step.base_end)
