@@ -261,18 +261,26 @@ def axis_distance(
     s = (foot - knee)[:, None, :]
     e = edge_dir[None, :, :]
     op = edge_point[None, :, :] - knee[:, None, :]
-    n = np.cross(s, e)
+    n = _cross(s, e)
     nn = np.einsum("nek,nek->ne", n, n)
     parallel = nn < 1e-12
-    t = np.einsum("nek,nek->ne", np.cross(op, e), n) / np.where(parallel, 1.0, nn)
+    t = np.einsum("nek,nek->ne", _cross(op, e), n) / np.where(parallel, 1.0, nn)
     t = np.where(parallel, 0.5, t)
     inside = (t >= 0.0) & (t <= 1.0) & ~parallel
     d_axes = np.abs(np.einsum("nek,nek->ne", n, op)) / np.sqrt(np.where(parallel, 1.0, nn))
     closest = knee[:, None, :] + np.clip(t, 0.0, 1.0)[..., None] * s
     rel = closest - edge_point[None]
     along = np.einsum("nek,nek->ne", rel, e)
-    d_end = np.linalg.norm(rel - along[..., None] * e, axis=-1)
+    off = rel - along[..., None] * e
+    d_end = np.sqrt(np.einsum("nek,nek->ne", off, off))
     return np.where(inside, d_axes, d_end), along
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product over the last axis of broadcast arrays (np.cross without its overhead)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
 
 
 def interferes(
@@ -286,7 +294,8 @@ def interferes(
     shin = (d < geometry.shin_radius + geometry.edge_radius) & within
     rel = foot[:, None, :] - model.edge_point[None]
     on = np.einsum("nek,ek->ne", rel, model.edge_dir)
-    d_foot = np.linalg.norm(rel - on[..., None] * model.edge_dir[None], axis=-1)
+    off = rel - on[..., None] * model.edge_dir[None]
+    d_foot = np.sqrt(np.einsum("nek,nek->ne", off, off))
     foot_hit = (d_foot < geometry.foot_radius + geometry.edge_radius) & (
         np.abs(on) <= model.edge_half[None] + geometry.foot_radius
     )
