@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from qingzhui_twin import QingzhuiRig
 
-from daemon.estimation import log_so3, rotation
+from daemon.estimation import StateEstimator, log_so3, quaternion, rotation
 from daemon.messages import MotionCommand, Stair, Stairs
 from daemon.plugins import Isolated
 from drivers.sim.worlds import Staircase, World, load
@@ -61,17 +61,23 @@ class RunLog:
     quat: list = field(default_factory=list)
     est_pos: list = field(default_factory=list)
     est_rot: list = field(default_factory=list)
+    plain_pos: list = field(default_factory=list)  # the estimator without IMU: the fusion's gain
+    plain_rot: list = field(default_factory=list)
     shin_hits: list = field(default_factory=list)
     foot_edge_hits: list = field(default_factory=list)
     touchdowns: list = field(default_factory=list)  # (t, leg, foot centre) while walking
     seconds: float = 0.0
 
-    def pose_errors(self) -> tuple[np.ndarray, np.ndarray]:
-        """Position (m) and rotation (deg) error of the estimate against the twin's truth."""
-        pos = np.linalg.norm(np.array(self.est_pos) - np.array(self.pos), axis=1)
+    def pose_errors(self, plain: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Position (m) and rotation (deg) error of the estimate (``plain``: the one without
+        IMU) against the twin's truth."""
+        est_pos, est_rot = (
+            (self.plain_pos, self.plain_rot) if plain else (self.est_pos, self.est_rot)
+        )
+        pos = np.linalg.norm(np.array(est_pos) - np.array(self.pos), axis=1)
         rot = [
             np.degrees(np.linalg.norm(log_so3(r @ rotation(q).T)))
-            for r, q in zip(self.est_rot, self.quat, strict=True)
+            for r, q in zip(est_rot, self.quat, strict=True)
         ]
         return pos, np.array(rot)
 
@@ -126,11 +132,17 @@ class StairRun:
             self.log.quat.append(quat)
             self.log.est_pos.append(p)
             self.log.est_rot.append(rot)
+            measured = rig.controller.measured
+            self.plain.update(measured.position, measured.effort)
+            rot, p = self.plain.pose()
+            self.log.plain_pos.append(p)
+            self.log.plain_rot.append(rot)
 
     def start(self) -> None:
         """Stand, start the estimator on the true pose, publish the stairs, go ACTIVE."""
         self.rig.stand()
-        self.rig.start_estimator()
+        est = self.rig.start_estimator()
+        self.plain = StateEstimator(self.rig.profile, est.config, est.pos, quaternion(est.rot))
         self.rig.controller.on_feature(self.stairs)
 
     def walk(self, vx: float, seconds: float) -> None:
