@@ -309,6 +309,8 @@ class Controller:
         where load deflected the joints: that would sink a loaded robot at every HOLD); else it
         starts from the measured state. Either way, no jump."""
         previous, self.mode = self.mode, mode
+        if previous == Mode.ACTIVE and self.gait is not None:
+            self.gait.call("stop")
         self.stance[:] = True
         self._stance_changed = True
         self.publish(ModeState(stamp=t, mode=mode, reason=self.safety.reason))

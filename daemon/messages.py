@@ -278,7 +278,8 @@ class GraspablePoints(Message):
 class Stability(Message):
     """Tumble Stability Margin (m, Yoneda & Hirose, with grip forces) of a climbing gait's tick:
     ``support`` marks the limbs it counts, ``grip`` the closed grippers, ``swing`` the swinging
-    limb (-1 when none)."""
+    limb (-1 when none); ``plan_late`` while the robot holds its stance because the next swing's
+    plan is not ready."""
 
     TOPIC: ClassVar[str] = "state/stability"
     RATE: ClassVar[str] = "control rate"
@@ -286,6 +287,7 @@ class Stability(Message):
     support: list[bool] = []
     grip: list[bool] = []
     swing: int = -1
+    plan_late: bool = False
 
 
 class TrussMember(msgspec.Struct, kw_only=True):

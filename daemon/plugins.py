@@ -60,9 +60,9 @@ class GaitPlugin:
     """Base of gait/behaviour plugins: foot targets in the body frame at every control tick.
 
     ``start(state)`` receives the measured BodyState and current foot positions (n×3, body
-    frame); ``step`` returns the FootTargets of this tick; ``done`` is set when a finite
-    behaviour has finished (a periodic gait never sets it). ``world`` maps feature topics
-    to their latest messages, already filtered for age by the daemon.
+    frame); ``step`` returns the FootTargets of this tick; ``stop`` ends it; ``done`` is set
+    when a finite behaviour has finished (a periodic gait never sets it). ``world`` maps
+    feature topics to their latest messages, already filtered for age by the daemon.
     """
 
     name: ClassVar[str] = ""
@@ -80,6 +80,10 @@ class GaitPlugin:
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
         raise NotImplementedError
+
+    def stop(self) -> None:
+        """Release what ``start`` acquired (e.g. a planning thread); called when the robot
+        leaves ACTIVE. A gait that acquires nothing keeps this default."""
 
     def step(
         self,
