@@ -33,7 +33,10 @@ def run(periodic: bool, seed: int, seconds: float) -> tuple[ClimbLog, float, flo
     t0 = time.perf_counter()
     climb = SlopeClimb(periodic, seed)
     start = climb.runner.base[0]
-    log = climb.run(seconds)
+    try:
+        log = climb.run(seconds)
+    finally:
+        climb.close()
     return log, float(climb.runner.base[0] - start), time.perf_counter() - t0
 
 
@@ -41,6 +44,7 @@ def search_reach(seed: int, swings: int, beam: int = 40) -> float:
     """Base travel (m) of the best sequence of ``swings`` feasible swings that a beam search
     (``beam`` postures per swing, base furthest ahead) finds on map ``seed`` from the start."""
     climb = SlopeClimb(False, seed)
+    climb.close()
     planner, holds = climb.planner, climb.holds
     start = climb.runner.base
     level = [(climb.runner.feet, start)]

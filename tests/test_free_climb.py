@@ -4,6 +4,7 @@ graspable points detected on the real cloud (the paper's §4.1 map)."""
 from __future__ import annotations
 
 import functools
+import threading
 from pathlib import Path
 
 import msgspec
@@ -35,6 +36,7 @@ from plugins.gaits.free_climb import (
     ClimbPlanner,
     ClimbRunner,
     LegReach,
+    PlanAhead,
     diagonal_crossing,
     stance_key,
     swing_lift,
@@ -93,9 +95,10 @@ def climb(tile: np.ndarray, periodic: bool, seed: int, seconds: float = SECONDS)
 def shared_climb(periodic: bool, seed: int, seconds: float):
     planner = ClimbPlanner(KIN, CFG, periodic)
     feet = start_feet()
-    runner = ClimbRunner(planner, feet, planner.base_for(feet))
+    runner = ClimbRunner(planner, feet, planner.base_for(feet), PlanAhead(planner, wait=True))
     holds = hold_map(detected_tile(), seed)
     ticks = [runner.tick(DT, holds) for _ in range(round(seconds / DT))]
+    runner.close()
     return planner, runner, holds, ticks
 
 
@@ -157,7 +160,8 @@ def test_never_stops_while_a_step_exists(tile, periodic):
         planner, runner, _, ticks = climb(tile, periodic, seed)
         assert len(runner.steps) == int(np.ceil(SECONDS / CFG.swing_period))
         waits = [s for s in runner.steps if s.wait]
-        assert len(waits) == planner.passed and (periodic or not waits)
+        ahead = planner.passed - len(waits)  # the plan made ahead for the swing after the run
+        assert ahead in (0, 1) and (periodic or not planner.passed)
         idle = sum(t.swing is None for t in ticks)
         period = round(CFG.swing_period / DT)
         assert max(0, len(waits) - 1) * period <= idle <= len(waits) * period  # last may be cut
@@ -263,6 +267,7 @@ def test_non_periodic_outclimbs_the_periodic_gait(tile):
 def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):
     for name in ("free_climb", "periodic_climb"):
         gait = instantiate("climbd.gaits", name, {}, PROFILE, f"test: {name}")
+        gait.stepped = True
         feet = KIN.stand_feet(CFG.base_height)
         gait.start(BodyState(position=[0.0, 0.0, CFG.base_height]), feet)
         holds = GraspablePoints(points=hold_map(tile, 1).tolist())
@@ -279,6 +284,8 @@ def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):
             assert s.stamp == o.stamp and s.grip == o.grip and s.tsm >= 0.0
             assert sum(s.support) == (3 if s.swing >= 0 else 4)
             assert s.swing < 0 or not s.support[s.swing]
+            assert not s.plan_late
+        gait.stop()
 
 
 def test_config_rejects_unknown_fields():
@@ -296,7 +303,12 @@ def test_control_role_publishes_stability_while_climbing(tile):
     bus.open()
     safety = Safety(PROFILE)
     published: list = []
-    gait = Isolated("free_climb", instantiate("climbd.gaits", "free_climb", {}, PROFILE, "t"))
+    plugin = instantiate("climbd.gaits", "free_climb", {}, PROFILE, "t")
+    plugin.stepped = True
+    stops: list[int] = []
+    stop = plugin.stop
+    plugin.stop = lambda: (stops.append(1), stop())
+    gait = Isolated("free_climb", plugin)
     controller = Controller(PROFILE, bus, safety, clock.now, gait, published.append)
     loop = ControlLoop(PROFILE.rate_hz, clock, controller.tick)
     assert safety.request(Mode.STAND, clock.now())
@@ -310,3 +322,96 @@ def test_control_role_publishes_stability_while_climbing(tile):
     assert len(stability) >= 0.5 * PROFILE.rate_hz - 2
     assert all(s.tsm >= 0.0 and len(s.grip) == 4 for s in stability)
     assert any(s.swing >= 0 for s in stability)
+    stopped = len(stops)
+    safety.hold(clock.now(), "test: leave ACTIVE")
+    loop.run(max_ticks=loop.ticks + 2)
+    assert safety.mode == Mode.HOLD and len(stops) == stopped + 1  # the worker is stopped
+
+
+class GatedPlans:
+    """Wraps a planner: records the threads that plan and run the feasibility checks, and
+    holds each plan until the test opens its gate (a plan that takes as long as we like)."""
+
+    def __init__(self, planner: ClimbPlanner) -> None:
+        self.gates: list[threading.Event] = []
+        self.threads: set[threading.Thread] = set()
+        self.checks: set[int] = set()
+        plan, feasible = planner.plan, planner.feasible
+
+        def gated_plan(*args):
+            self.threads.add(threading.current_thread())
+            gate = threading.Event()
+            self.gates.append(gate)
+            assert gate.wait(timeout=60), "test never opened the plan's gate"
+            return plan(*args)
+
+        def recorded_feasible(*args):
+            self.checks.add(threading.get_ident())
+            return feasible(*args)
+
+        planner.plan, planner.feasible = gated_plan, recorded_feasible
+
+    def wait_started(self, n: int) -> None:
+        """Wait (in the test, not in a tick) until the worker has begun plan number ``n``."""
+        for _ in range(6000):
+            if len(self.gates) >= n:
+                return
+            threading.Event().wait(0.01)
+        raise AssertionError(f"plan {n} never started")
+
+
+def test_planning_runs_off_the_tick_and_stance_holds_while_a_plan_is_late(tile):
+    """The planner runs on the gait's worker thread, never in the tick that calls ``step``;
+    while a plan is not ready the robot holds its stance with all four grippers and the
+    Stability says ``plan_late``; the next swing is planned while the current one executes."""
+    gait = instantiate("climbd.gaits", "free_climb", {}, PROFILE, "test")
+    feet = KIN.stand_feet(CFG.base_height)
+    gait.start(BodyState(position=[0.0, 0.0, CFG.base_height]), feet)
+    gated = GatedPlans(gait.planner)
+    world = {GraspablePoints.TOPIC: GraspablePoints(points=hold_map(tile, 1).tolist())}
+    t = 0.0
+
+    def tick() -> tuple[FootTargets, Stability]:
+        nonlocal t
+        t += DT
+        out = gait.step(t, DT, BodyState(), world, None)
+        (stability,) = gait.telemetry()
+        return out, stability
+
+    def holding(out: FootTargets, stability: Stability, stance: np.ndarray) -> None:
+        assert out.grip == [True] * 4 and out.stance == [True] * 4
+        assert stability.plan_late and stability.swing == -1 and stability.tsm >= 0.0
+        np.testing.assert_allclose(out.positions, stance, atol=1e-12)
+
+    for _ in range(5):  # the first plan is held at its gate: every tick holds the start stance
+        holding(*tick(), feet)
+    gated.wait_started(1)
+    holding(*tick(), feet)
+    gated.gates[0].set()
+    gait.runner.ahead.wait = True  # take the plan as soon as it is done
+    out, stability = tick()
+    assert stability.swing >= 0 and not stability.plan_late
+    assert out.grip.count(False) == 1
+    gait.runner.ahead.wait = False
+    swing = stability.swing
+    for _ in range(round(CFG.swing_period / DT) - 1):  # the swing runs while plan 2 is held
+        out, stability = tick()
+        assert stability.swing == swing and not stability.plan_late
+    assert out.grip == [True] * 4  # touchdown: the swing limb grips
+    landed = np.asarray(out.positions)
+    gated.wait_started(2)  # requested at swing start, computing (held) during the swing
+    for _ in range(10):  # the swing is over, its successor not ready: stance held
+        holding(*tick(), landed)
+    gated.gates[1].set()
+    gait.runner.ahead.wait = True
+    out, stability = tick()
+    assert stability.swing >= 0 and not stability.plan_late
+    gated.wait_started(3)
+    gait.stop()  # does not wait for the plan under way
+    gated.gates[2].set()
+    main = threading.main_thread()
+    assert main not in gated.threads and len(gated.threads) == 1
+    assert gated.checks and main.ident not in gated.checks  # no feasibility check in a tick
+    (worker,) = gated.threads
+    worker.join(timeout=60)
+    assert not worker.is_alive()  # stop ended the worker

@@ -4,7 +4,9 @@ The planner (plugins/gaits/free_climb.py) plans in the wall frame over the map's
 control tick its feet and base become joint goals through the daemon's IK (the body keeps the
 wall's orientation) and its grips become the twin's grippers, which hold only on hold geoms
 and slip above 9 N. A swing starts only once the twin reports every gripper holding. What is
-logged is the twin's truth: base position, the TSM of the grippers that hold, slips.
+logged is the twin's truth: base position, the TSM of the grippers that hold, slips. The next
+swing is planned on the planner's worker thread while the twin executes the current one, and
+awaited in simulated time where it is needed (deterministic runs); ``close`` stops the worker.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from drivers.sim.model import GRIP_FORCE
 from drivers.sim.twin import Twin
 from drivers.sim.worlds import hold_map_holds, hold_map_tile, wall_pose
 from drivers.sim.worlds import load as load_world
-from plugins.gaits.free_climb import NORMAL, ClimbConfig, ClimbPlanner, ClimbRunner
+from plugins.gaits.free_climb import NORMAL, ClimbConfig, ClimbPlanner, ClimbRunner, PlanAhead
 from plugins.gaits.tsm import tumble_stability_margin
 
 HUBROBO = Path(__file__).resolve().parents[2] / "robots" / "hubrobo.toml"
@@ -77,7 +79,7 @@ class SlopeClimb:
         self.holds = holds
         self.planner = ClimbPlanner(self.kin, self.config, periodic)
         base = self.planner.base_for(feet)
-        self.runner = ClimbRunner(self.planner, feet, base)
+        self.runner = ClimbRunner(self.planner, feet, base, PlanAhead(self.planner, wait=True))
         self._place(base, q0)
         self.force = self.mass * (self.rotation.T @ model.opt.gravity)
 
@@ -97,6 +99,10 @@ class SlopeClimb:
         twin.advance_to(0.3)
         if not twin.holding().all():
             raise RuntimeError(f"twin climb: start grips not engaged: {twin.holding()}")
+
+    def close(self) -> None:
+        """Stop the planner's worker thread."""
+        self.runner.close()
 
     def to_world(self, p: np.ndarray) -> np.ndarray:
         """World position of a planner-frame point."""

@@ -25,6 +25,12 @@ looking ``horizon`` swings ahead over feasible steps (a beam of ``beam`` posture
 and takes the first swing of the best sequence; among equals, the longer stride. It never
 returns to one of its recent stances, so it cannot undo a step and redo it; a step back is
 taken only when it leads further.
+
+Planning takes tens to hundreds of milliseconds, so it runs off the control tick: a worker
+thread (PlanAhead) plans the next swing from the posture the current swing ends in while it
+executes. A swing that ends before its successor's plan is ready leaves the robot holding its
+stance (all four grippers) and the tick says so (``late``); in simulated time (tests, twin,
+bench) the runner waits for the plan where it needs it, so runs stay deterministic.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Annotated, ClassVar
 
@@ -332,22 +339,68 @@ class ClimbPlanner:
         return Step(limb, feet[limb].copy(), feet[limb].copy(), base.copy(), base.copy(), wait=True)
 
 
+class PlanAhead:
+    """The planner on one worker thread, so planning never runs in the control tick; in
+    ``wait`` mode (simulated time) ``take`` waits for the plan, keeping runs deterministic."""
+
+    def __init__(self, planner: ClimbPlanner, wait: bool = False) -> None:
+        self.planner = planner
+        self.wait = wait
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="climb-plan")
+        self._pending: Future | None = None
+
+    @property
+    def requested(self) -> bool:
+        """A plan has been requested and not yet taken."""
+        return self._pending is not None
+
+    def request(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> None:
+        """Start planning the swing from posture (``feet``, ``base``) over ``holds`` on the
+        worker; the inputs are copied and frozen, so the plan depends on nothing else."""
+        frozen = []
+        for a in (feet, base, holds):
+            a = np.array(a, float)
+            a.flags.writeable = False
+            frozen.append(a)
+        self._pending = self._worker.submit(self.planner.plan, *frozen)
+
+    def take(self) -> tuple[bool, Step | None]:
+        """(True, step) once the requested plan is done, else (False, None) without waiting
+        (``wait`` mode: waits for it); a planner error is raised here, in the caller."""
+        pending = self._pending
+        if pending is None or not (self.wait or pending.done()):
+            return False, None
+        self._pending = None
+        return True, pending.result()
+
+    def close(self) -> None:
+        """Stop the worker: a queued plan is dropped, one under way ends on its own."""
+        self._pending = None
+        self._worker.shutdown(wait=False, cancel_futures=True)
+
+
 @dataclass
 class Tick:
-    """Wall-frame state of one control tick: feet, base, swinging limb, grips, TSM (m)."""
+    """Wall-frame state of one control tick: feet, base, swinging limb, grips, TSM (m);
+    ``late`` when the robot holds its stance because the next swing's plan is not ready."""
 
     feet: np.ndarray
     base: np.ndarray
     swing: int | None
     grip: list[bool]
     tsm: float
+    late: bool = False
 
 
 class ClimbRunner:
-    """Executes planned swings tick by tick: release, swing, grip; replans after each swing."""
+    """Executes planned swings tick by tick: release, swing, grip. The next swing is planned
+    by ``ahead`` from the posture the current swing ends in, while the swing executes."""
 
-    def __init__(self, planner: ClimbPlanner, feet: np.ndarray, base: np.ndarray) -> None:
+    def __init__(
+        self, planner: ClimbPlanner, feet: np.ndarray, base: np.ndarray, ahead: PlanAhead
+    ) -> None:
         self.planner = planner
+        self.ahead = ahead
         self.feet = np.array(feet, float)
         self.base = np.array(base, float)
         self.step: Step | None = None
@@ -355,22 +408,26 @@ class ClimbRunner:
         self.steps: list[Step] = []
 
     def tick(self, dt: float, holds: np.ndarray) -> Tick:
-        """Advance by ``dt`` (s); a swing starts only when the three other grippers hold."""
+        """Advance by ``dt`` (s); a swing starts only when the three other grippers hold and
+        its plan is ready; until then the four grippers hold (a ``late`` tick)."""
         if self.step is None:
-            self.step = self.planner.plan(self.feet, self.base, holds)
-            self.phase = 0.0
-            if self.step is not None:
-                self.steps.append(self.step)
+            if not self.ahead.requested:
+                self.ahead.request(self.feet, self.base, holds)
+            ready, step = self.ahead.take()
+            if not ready:
+                return self._still(late=True)
+            self.step, self.phase = step, 0.0
+            if step is not None:
+                self.steps.append(step)
+                self.ahead.request(*self._after(step), holds)
         step = self.step
         if step is None:
-            margin = self.planner.tsm(self.base, self.feet)
-            return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin)
+            return self._still()
         self.phase = min(1.0, self.phase + dt / self.planner.config.swing_period)
         if step.wait:
             if self.phase >= 1.0:
                 self.step = None
-            margin = self.planner.tsm(self.base, self.feet)
-            return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin)
+            return self._still()
         foot, base = self.planner.pose(step, self.phase)
         feet = self.feet.copy()
         feet[step.limb] = foot
@@ -383,6 +440,24 @@ class ClimbRunner:
             self.step = None
         return Tick(feet, base, step.limb, grip, margin)
 
+    def _after(self, step: Step) -> tuple[np.ndarray, np.ndarray]:
+        """Feet and base once ``step`` is done: exactly what ``tick`` reaches at phase 1."""
+        if step.wait:
+            return self.feet, self.base
+        foot, base = self.planner.pose(step, 1.0)
+        feet = self.feet.copy()
+        feet[step.limb] = foot
+        return feet, base
+
+    def _still(self, late: bool = False) -> Tick:
+        """A tick holding the current stance with all four grippers."""
+        margin = self.planner.tsm(self.base, self.feet)
+        return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin, late)
+
+    def close(self) -> None:
+        """Stop the planning worker."""
+        self.ahead.close()
+
 
 class FreeClimb(GaitPlugin):
     """Non-periodic free-climbing gait (paper 001) as a gait plugin over GraspablePoints."""
@@ -393,19 +468,31 @@ class FreeClimb(GaitPlugin):
 
     def __init__(self, config: ClimbConfig | None = None, profile: object = None) -> None:
         super().__init__(config, profile)
-        self.planner = ClimbPlanner(Kinematics(profile), self.config, self.periodic)
+        self.kinematics = Kinematics(profile)
+        self.planner: ClimbPlanner | None = None
         self.runner: ClimbRunner | None = None
         self.holds = np.zeros((0, 3))
         self.last: Tick | None = None
         self.stamp = 0.0
+        self.stepped = False
+        """Simulated time (tests, twin): a tick waits for a plan it needs instead of holding."""
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
-        """Take the measured feet (body frame) as gripping; the wall frame starts at the base."""
+        """Take the measured feet (body frame) as gripping; the wall frame starts at the base.
+        Starts the planning worker (a fresh planner: a stopped one may still be finishing)."""
+        self.stop()
         base = np.array([0.0, 0.0, self.config.base_height])
         wall_feet = np.asarray(feet, float) + base
         wall_feet[:, 2] = 0.0
         self.origin = np.asarray(body.position, float) - base
-        self.runner = ClimbRunner(self.planner, wall_feet, base)
+        self.planner = ClimbPlanner(self.kinematics, self.config, self.periodic)
+        ahead = PlanAhead(self.planner, wait=self.stepped)
+        self.runner = ClimbRunner(self.planner, wall_feet, base, ahead)
+
+    def stop(self) -> None:
+        """Stop the planning worker (the robot left ACTIVE or the daemon stops)."""
+        if self.runner is not None:
+            self.runner.close()
 
     def step(
         self,
@@ -443,6 +530,7 @@ class FreeClimb(GaitPlugin):
                 support=[leg != tick.swing for leg in range(len(tick.grip))],
                 grip=list(tick.grip),
                 swing=-1 if tick.swing is None else tick.swing,
+                plan_late=tick.late,
             )
         ]
 
