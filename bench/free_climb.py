@@ -7,7 +7,9 @@ for ``--seconds`` of simulated time; the periodic gait ([9]) is the baseline and
 gives the non-periodic / periodic ratio of the base's travel up the slope (twin truth), the
 least TSM of the grippers that held (twin truth), slips, grips that never engaged, and the
 planner's own (kinematic) travel beside the twin's, and how far a beam search that knows when
-the run ends gets on the same map (kinematic: what a better limb choice could reach). Figure
+the run ends gets on the same map (kinematic: what a better limb choice could reach), and the
+CPU time of the non-periodic plans (worker thread) beside that of the runner's ticks (control
+thread, which no longer plans). Figure
 (paper Figs. 7 and 8): base x and TSM over time for both gaits, every seed. Goal: ratio ≥ 2
 on the mean over ≥ 5 seeds, TSM never below 0, no slips.
 
@@ -28,16 +30,42 @@ from plugins.gaits.free_climb import GOAL, ClimbConfig, stance_key
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def run(periodic: bool, seed: int, seconds: float) -> tuple[ClimbLog, float, float]:
-    """One climb: the twin's log, the planner's own travel (m) and the wall time (s)."""
+class ThreadCpu:
+    """CPU time (s) of each call of the functions it wraps, on the thread that runs the call
+    (a tick's own work, not the worker's planning it may wait for)."""
+
+    def __init__(self) -> None:
+        self.samples: list[float] = []
+
+    def wrap(self, function):
+        """``function`` timed by ``time.thread_time``."""
+
+        def timed(*args):
+            t0 = time.thread_time()
+            try:
+                return function(*args)
+            finally:
+                self.samples.append(time.thread_time() - t0)
+
+        return timed
+
+
+def run(
+    periodic: bool, seed: int, seconds: float
+) -> tuple[ClimbLog, float, float, ThreadCpu, ThreadCpu]:
+    """One climb: the twin's log, the planner's own travel (m), the wall time (s) and the CPU
+    time of the runner's ticks (control thread) and of the plans (worker thread)."""
     t0 = time.perf_counter()
     climb = SlopeClimb(periodic, seed)
+    ticks, plans = ThreadCpu(), ThreadCpu()
+    climb.runner.tick = ticks.wrap(climb.runner.tick)
+    climb.planner.plan = plans.wrap(climb.planner.plan)
     start = climb.runner.base[0]
     try:
         log = climb.run(seconds)
     finally:
         climb.close()
-    return log, float(climb.runner.base[0] - start), time.perf_counter() - t0
+    return log, float(climb.runner.base[0] - start), time.perf_counter() - t0, ticks, plans
 
 
 def search_reach(seed: int, swings: int, beam: int = 40) -> float:
@@ -101,14 +129,17 @@ def main() -> None:
     print(
         "| seed | non-periodic (m) | periodic (m) | ratio | planned np / p (m)"
         " | least TSM np / p (m) | slips np / p | missed grips np / p | periodic waits"
-        " | wall s np / p | search (m) |"
+        " | wall s np / p | search (m) | np plan CPU median / max (ms) | np tick CPU max (ms) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    worst_plan = worst_tick = 0.0
     for seed in range(args.seeds):
-        (free, free_plan, free_wall), (per, per_plan, per_wall) = (
+        (free, free_plan, free_wall, ticks, plans), (per, per_plan, per_wall, _, _) = (
             run(False, seed, args.seconds),
             run(True, seed, args.seconds),
         )
+        plan_ms, tick_ms = 1e3 * np.asarray(plans.samples), 1e3 * max(ticks.samples)
+        worst_plan, worst_tick = max(worst_plan, plan_ms.max()), max(worst_tick, tick_ms)
         logs[False].append(free)
         logs[True].append(per)
         ratio = free.distance / per.distance if per.distance > 0 else float("inf")
@@ -118,7 +149,8 @@ def main() -> None:
             f"| {seed} | {free.distance:.3f} | {per.distance:.3f} | {ratio:.2f} "
             f"| {free_plan:.3f} / {per_plan:.3f} | {min(free.tsm):.3f} / {min(per.tsm):.3f} "
             f"| {free.slips} / {per.slips} | {free.missed} / {per.missed} | {per.waits} "
-            f"| {free_wall:.0f} / {per_wall:.0f} | {reach:.3f} |",
+            f"| {free_wall:.0f} / {per_wall:.0f} | {reach:.3f} "
+            f"| {np.median(plan_ms):.0f} / {plan_ms.max():.0f} | {tick_ms:.1f} |",
             flush=True,
         )
     free_mean = np.mean([log.distance for log in logs[False]])
@@ -127,7 +159,11 @@ def main() -> None:
     slips = sum(log.slips for gait in logs.values() for log in gait)
     print(
         f"| mean | {free_mean:.3f} | {per_mean:.3f} | {free_mean / per_mean:.2f} | | {least:.3f} "
-        f"| {slips} total | | | | |"
+        f"| {slips} total | | | | | | |"
+    )
+    print(
+        f"\nplanning off the tick: worst plan {worst_plan:.0f} ms CPU on the worker, worst tick "
+        f"{worst_tick:.1f} ms CPU on the control thread ({worst_plan / worst_tick:.0f}x less)"
     )
     reach, per_plan = np.mean(reaches, axis=0)
     print(
