@@ -252,7 +252,7 @@ def test_non_periodic_outclimbs_the_periodic_gait(tile):
     The paper reports about 2× (0.17 m vs 0.08 m). With the periodic baseline as [9] runs in
     ClimbLab (its limb's furthest feasible option, a step back if need be, else a wait) and
     the non-periodic gait choosing by the base's progress over 8 swings, we reach 1.6× on
-    these maps (0.151 m vs 0.093 m): asserted at 1.5×, short of the paper's 2× (see
+    these maps (0.152 m vs 0.095 m): asserted at 1.5×, short of the paper's 2× (see
     BENCHMARKS.md, bench/free_climb.py, for the twin's figures).
     """
     free = [climb(tile, False, s)[3][-1].base[0] for s in SEEDS]
