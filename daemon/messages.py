@@ -40,7 +40,7 @@ class Mode(str, enum.Enum):
 
 
 class EstopPolicy(str, enum.Enum):
-    """What e-stop does to the joints: torque off, hold the commanded pose, or hold and keep grip."""
+    """What e-stop does to the joints: torque off, hold the commanded pose, or hold with grip."""
 
     TORQUE_OFF = "torque_off"
     HOLD = "hold"
