@@ -17,13 +17,14 @@ from joist_scenes import JoistSpec
 from joist_world import body_state, joist_distance, knees, perceive, world_feet
 
 from daemon import profile as profiles
+from daemon.kinematics import Kinematics
 from daemon.loop import SteppedClock
 from daemon.messages import Joists
 from daemon.motion import MotionPipeline
 from daemon.plugins import PluginError, instantiate
 from daemon.profile import stock_profiles
 from drivers.base import FakeJointBus
-from plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig, Phase
+from plugins.gaits.joist_climb import InPlaceTurn, JoistClimb, JoistClimbConfig, Phase
 from plugins.gaits.joist_crossing import support_margin
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
@@ -123,6 +124,43 @@ def test_oblique_joist_is_squared_up_to_before_crossing():
     assert math.degrees(yaw) == pytest.approx(45.0, abs=3.0)
     assert "walk" in r.poses and r.unreachable == 0
     assert r.clearance >= r.behaviour.config.leg_radius
+
+
+def test_in_place_turn_keeps_standing_feet_on_the_ground_and_ends_at_home():
+    """The fine turn: body yaws on six feet, then one leg at a time steps home while five
+    stand; no standing foot moves on the ground and the body ends turned by the angle."""
+    home = Kinematics(WIDOWX).stand_feet()
+    angle = math.radians(-4.0)
+    turn = InPlaceTurn(home, angle, 0.05, 0.1, 0.5, 0.3, 0.03)
+    ts = np.arange(0.0, turn.duration + DT, DT)
+    prev_ground, prev_stance = None, None
+    for t in ts:
+        feet, stance = turn.sample(t)
+        assert (~stance).sum() <= 1, "five feet stand while one swings"
+        psi = turn.turned(t)
+        c, s = math.cos(psi), math.sin(psi)
+        ground = feet[:, :2] @ np.array([[c, s], [-s, c]])
+        if prev_ground is not None:
+            still = stance & prev_stance
+            assert np.allclose(ground[still], prev_ground[still], atol=1e-9)
+        prev_ground, prev_stance = ground, stance
+    feet, stance = turn.sample(turn.duration)
+    assert stance.all() and np.allclose(feet, home, atol=1e-12)
+    assert turn.turned(turn.duration) == pytest.approx(angle, abs=1e-12)
+
+
+def test_a_small_yaw_is_squared_in_place_leg_by_leg_before_crossing():
+    """Under the 3 deg alignment tolerance but over the 1 deg the crossing needs: squared by
+    the fine turn (not the tripod), then crossed with the legs clear."""
+    joist = JoistSpec(1.0, math.radians(2.0), 0.10)
+    r = run([joist], goal=1.6, seconds=240.0)
+    modes = [e.split(":")[0] for _, e in r.events]
+    assert modes == ["approach", "settle", "square", "settle", "cross", "walk", "done"]
+    assert math.degrees(r.poses["cross"][2]) == pytest.approx(2.0, abs=0.05)
+    assert r.unreachable == 0
+    assert r.clearance >= r.behaviour.config.leg_radius
+    assert r.min_support >= -1e-3
+    assert r.final_stance.all()
 
 
 def test_high_joist_is_sidestepped_until_clear_then_passed():

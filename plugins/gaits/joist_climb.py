@@ -2,7 +2,9 @@
 
 The robot walks forward with the tripod gait until the nearest joist across its path is
 closer than ``approach_distance`` (0.55 m). Under ``climb_max_height`` (14 cm) it turns square
-to the joist (when oblique), walks up to it, stops, and crosses it with the free gait of
+to the joist when oblique (the tripod's turn, closed on the measured yaw), walks up to it,
+stops, re-measures, squares up to within ``square_tolerance_deg`` with small turns in place
+(leg by leg, five feet standing), and crosses it with the free gait of
 plugins/gaits/joist_crossing.py: body raised to the climb height, legs stepped one at a time
 over the joist (front, then middle, then back, as in Figure 8) while five feet stand, the
 body moved on six. Joists parallel to it in view (an attic row, 16 in apart, closer than the
@@ -13,7 +15,8 @@ on; a joist for which the planner finds no safe motion (legs clear of it, feet r
 over its support) is gone round the same way. The crossing is planned standing still, in the
 tick that ends the settle (about 0.2–2 s of computation). The joist is tracked on the ground
 by dead reckoning of the behaviour's own motion from the moment it is chosen, so it stays
-known once it is under the body and out of view.
+known once it is under the body and out of view; at each settle the measured pose takes over
+and the tracked joist keeps its place relative to the body.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from plugins.gaits.joist_crossing import (
     CrossingPlan,
 )
 from plugins.gaits.periodic import HOME_TOLERANCE, Tripod, TripodConfig, layout_offsets
+from plugins.gaits.swing import lift, progress
 
 
 class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -51,6 +55,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     turn_rate: float = 0.3
     align_tolerance_deg: float = 3.0
     square_tolerance_deg: float = 1.0
+    fine_turn_max_deg: float = 6.0
     side_direction: int = 1
     side_margin: float = 0.10
     crossing_start: float = 0.10
@@ -100,6 +105,7 @@ class Phase(str, enum.Enum):
     WALK = "walk"
     SIDESTEP = "sidestep"
     ALIGN = "align"
+    SQUARE = "square"
     APPROACH = "approach"
     SETTLE = "settle"
     CROSS = "cross"
@@ -112,6 +118,60 @@ class TrackedJoist(msgspec.Struct, kw_only=True):
     point: list[float]
     normal: list[float]
     height: float
+
+
+class InPlaceTurn:
+    """A small turn in place as a free gait: the body yaws by ``angle`` (rad, left positive) on
+    six feet, then each leg steps back home while five stand, and all hold still. The tripod's
+    turn over- and undershoots by degrees (feet slip, its stop filter); this lands within a
+    fraction of one, which a crossing of an oblique joist needs."""
+
+    def __init__(
+        self,
+        feet: np.ndarray,
+        angle: float,
+        body_speed: float,
+        foot_speed: float,
+        swing_time: float,
+        shift_time: float,
+        step_height: float,
+    ) -> None:
+        """Plan from the feet at home (body frame, n×3); speeds in m/s at the farthest foot."""
+        self.home = np.asarray(feet, float)
+        self.swung = self._rotated(-angle)
+        self.angle = angle
+        self.step_height = step_height
+        arc = float(np.hypot(*self.home[:, :2].T).max()) * abs(angle)
+        self.body_time = max(shift_time, arc / body_speed)
+        self.swing = max(swing_time, (arc + 2.0 * step_height) / foot_speed)
+        self.hold = shift_time
+        self.duration = self.body_time + len(self.home) * self.swing + self.hold
+
+    def _rotated(self, yaw: float) -> np.ndarray:
+        """The home feet turned by ``yaw`` (rad) about the body's z axis."""
+        feet = self.home.copy()
+        feet[:, :2] = self.home[:, :2] @ _rot(yaw).T
+        return feet
+
+    def turned(self, t: float) -> float:
+        """How far (rad) the body has turned ``t`` s into the turn."""
+        return self.angle * float(progress(min(t / self.body_time, 1.0)))
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Feet (body frame, n×3) and stance flags ``t`` s into the turn."""
+        stance = np.ones(len(self.home), bool)
+        if t < self.body_time:
+            return self._rotated(-self.turned(t)), stance
+        leg, rest = divmod(t - self.body_time, self.swing)
+        leg = int(leg)
+        feet = self.swung.copy()
+        feet[:leg] = self.home[:leg]
+        if leg < len(self.home):
+            tau = rest / self.swing
+            feet[leg] = self.swung[leg] + float(progress(tau)) * (self.home[leg] - self.swung[leg])
+            feet[leg, 2] += self.step_height * float(lift(tau))
+            stance[leg] = False
+        return feet, stance
 
 
 def _rot(yaw: float) -> np.ndarray:
@@ -160,6 +220,9 @@ class JoistClimb(GaitPlugin):
         self._turn_left = 0.0
         self._squarings = 0
         self._clear_since: float | None = None
+        self.turn: InPlaceTurn | None = None
+        self._align_from: tuple[float, float, float] | None = None
+        self._square_from = 0.0
 
     # --- frames and perception ------------------------------------------------------------
 
@@ -273,14 +336,7 @@ class JoistClimb(GaitPlugin):
         if self.mode == Phase.SIDESTEP:
             return self._step_sidestep(t, dt, body, world)
         if self.mode == Phase.ALIGN:
-            yaw_rate = c.turn_rate if self._turn_left > 0 else -c.turn_rate
-            before = self.pose[2]
-            out = self._walk(t, dt, body, 0.0, 0.0, yaw_rate)
-            self._turn_left -= self.pose[2] - before
-            braking = abs(self.tripod.yaw_rate) * self._ramp()
-            if abs(self._turn_left) <= braking + math.radians(c.align_tolerance_deg) / 4:
-                self._switch(t, Phase.APPROACH, "square to the joist")
-            return out
+            return self._step_align(t, dt, body)
         if self.mode == Phase.APPROACH:
             self._refresh(world)
             distance, _ = self.ahead(self.target)
@@ -297,19 +353,72 @@ class JoistClimb(GaitPlugin):
             out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
             if self._settled():
                 # From here on the measured pose is the frame: the joist is tracked in it.
-                self.pose = self._measured(body)
+                self._rebase(self._measured(body))
                 self._refresh(world)
                 _, yaw = self.ahead(self.target)
                 if abs(yaw) > math.radians(c.square_tolerance_deg) and self._squarings < SQUARINGS:
                     self._squarings += 1
-                    self._turn_left = yaw
-                    self._switch(t, Phase.ALIGN, f"{math.degrees(yaw):.1f} deg left to square")
+                    self._square(t, yaw)
                 else:
                     self._begin_crossing(t, world)
             return out
+        if self.mode == Phase.SQUARE:
+            return self._step_square(t, body)
         if self.mode == Phase.CROSS:
             return self._step_cross(t, dt, body, world)
         return self._walk(t, dt, body, 0.0, 0.0, 0.0)
+
+    def _step_align(self, t: float, dt: float, body: BodyState) -> FootTargets:
+        """A tick of the tripod's turn by ``_turn_left``, closed on the measured yaw: over a
+        large turn the tripod's own (commanded) yaw is off by degrees (feet slip)."""
+        c = self.config
+        yaw = self._measured(body)[2]
+        if self._align_from is None:
+            self._align_from = (yaw, float(self.pose[2]), self._turn_left)
+        yaw0, pose0, goal = self._align_from
+        turned = math.remainder(yaw - yaw0, math.tau)
+        left = goal - turned
+        before = self.pose[2]
+        out = self._walk(t, dt, body, 0.0, 0.0, c.turn_rate if left > 0 else -c.turn_rate)
+        # The measured turn so far, and this tick's commanded turn it does not show yet.
+        self.pose[2] = pose0 + turned + (self.pose[2] - before)
+        braking = abs(self.tripod.yaw_rate) * self._ramp()
+        if abs(left) <= braking + math.radians(c.align_tolerance_deg) / 4:
+            self._align_from = None
+            self._switch(t, Phase.APPROACH, "square to the joist")
+        return out
+
+    def _square(self, t: float, yaw: float) -> None:
+        """Turn ``yaw`` (rad) left to square up: in place, leg by leg, when it is small; else
+        with the tripod, then approach again."""
+        c = self.config
+        why = f"{math.degrees(yaw):.1f} deg left to square"
+        if abs(yaw) > math.radians(c.fine_turn_max_deg):
+            self._turn_left = yaw
+            self._switch(t, Phase.ALIGN, why)
+            return
+        self.turn = InPlaceTurn(
+            self.tripod.feet,
+            yaw,
+            c.body_speed,
+            c.foot_speed,
+            c.swing_time,
+            c.shift_time,
+            c.step_height,
+        )
+        self._square_from = float(self.pose[2])
+        self._switch(t, Phase.SQUARE, why)
+
+    def _step_square(self, t: float, body: BodyState) -> FootTargets:
+        """A tick of the in-place turn; at its end the tripod stands and the settle re-measures."""
+        turn = self.turn
+        elapsed = t - self._t_mode
+        feet, stance = turn.sample(elapsed)
+        self.pose[2] = self._square_from + turn.turned(elapsed)
+        if elapsed >= turn.duration:
+            self.tripod.start(body, feet)
+            self._switch(t, Phase.SETTLE, "turned in place")
+        return FootTargets(stamp=t, positions=feet.tolist(), stance=stance.tolist())
 
     def _ramp(self) -> float:
         """How far (s × speed) the tripod's critically damped command filter runs on a stop."""
@@ -437,6 +546,17 @@ class JoistClimb(GaitPlugin):
         now = _planar(body)
         xy = _rot(-p0[2]) @ (now[:2] - p0[:2])
         return np.array([xy[0], xy[1], now[2] - p0[2]])
+
+    def _rebase(self, pose: np.ndarray) -> None:
+        """Make ``pose`` the behaviour's pose; the tracked joists keep their place relative to
+        the body (dead reckoning drifts by degrees in yaw over a walk, the body-relative view
+        it tracked them with does not)."""
+        turn = _rot(pose[2] - self.pose[2])
+        tracked = {id(j): j for j in (self.target, *self.row, *self.impassable) if j is not None}
+        for joist in tracked.values():
+            joist.point = (pose[:2] + turn @ (np.array(joist.point) - self.pose[:2])).tolist()
+            joist.normal = (turn @ np.array(joist.normal)).tolist()
+        self.pose = pose
 
     def _drifted(self, body: BodyState) -> bool:
         """Whether the measured body has drifted from the planned one (feet slip, servo lag):
