@@ -41,8 +41,8 @@ CONTROL_STREAMS: tuple[type[Message], ...] = (JointState, JointCommand, MotionCo
 """Streams sent REAL_TIME, express, congestion DROP: a stale sample is worth nothing."""
 
 ONE_SHOT_COMMANDS: tuple[type[Message], ...] = (EStop, SessionClaim, ModeRequest)
-"""Sent REAL_TIME, reliable, congestion BLOCK: each must arrive, and in order with the control
-streams of the same priority (a heartbeat never overtakes the claim it belongs to)."""
+"""Sent REAL_TIME, reliable, congestion BLOCK: each must arrive, and none waits behind
+lower-priority traffic."""
 
 
 @dataclass

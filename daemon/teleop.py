@@ -163,15 +163,15 @@ class TeleopClient:
         self._pubs[MotionCommand].put(MotionCommand(stamp=now, session=self.session, **self.motion))
 
     def claim(self, override: bool = False) -> None:
-        """Claim the session; heartbeats follow at once (same priority as the claim, so in
-        order behind it)."""
+        """Claim the session; heartbeats follow one period later: the claim and the heartbeats
+        leave on different publishers, and one sent at once could reach the robot first."""
         with self._lock:
             now = time.monotonic()
             self._pubs[SessionClaim].put(
                 SessionClaim(stamp=now, session=self.session, client=self.client, override=override)
             )
             self.claimed = True
-            self._next_beat = now
+            self._next_beat = now + self.heartbeat_period
 
     def release(self) -> None:
         with self._lock:
