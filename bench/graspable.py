@@ -18,12 +18,12 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import Delaunay
 
 from daemon.cloudio import read_cloud
+from drivers.sim.worlds import DATA
 from plugins.perception.graspable import (
     GraspableConfig,
     GraspableDetector,
@@ -35,14 +35,7 @@ from plugins.perception.graspable import (
     terrain_matrix,
 )
 
-CLOUD = (
-    Path(__file__).resolve().parent.parent
-    / "drivers"
-    / "sim"
-    / "worlds"
-    / "data"
-    / "leaning_bouldering_holds.pcd"
-)
+CLOUD = DATA / "leaning_bouldering_holds.pcd"
 
 
 def full_resolution(terrain: np.ndarray, step: int) -> np.ndarray:

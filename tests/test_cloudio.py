@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -11,8 +9,8 @@ from hypothesis import strategies as st
 
 from daemon import lzf
 from daemon.cloudio import CloudFileError, read_cloud, write_cloud
+from drivers.sim.worlds import DATA
 
-DATA = Path(__file__).resolve().parent.parent / "drivers" / "sim" / "worlds" / "data"
 ENCODINGS = [
     ("cloud.pcd", "ascii"),
     ("cloud.pcd", "binary"),

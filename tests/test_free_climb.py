@@ -28,6 +28,7 @@ from daemon.plugins import Isolated, instantiate
 from daemon.profile import load
 from daemon.safety import Safety
 from drivers.base import FakeJointBus
+from drivers.sim.worlds import DATA
 from plugins.gaits.free_climb import (
     GOAL,
     PERIODIC_ORDER,
@@ -45,14 +46,7 @@ from plugins.gaits.hold_map import tile_map
 from plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
 
 ROOT = Path(__file__).resolve().parent.parent
-CLOUD = (
-    Path(__file__).resolve().parent.parent
-    / "drivers"
-    / "sim"
-    / "worlds"
-    / "data"
-    / "leaning_bouldering_holds.pcd"
-)
+CLOUD = DATA / "leaning_bouldering_holds.pcd"
 PROFILE = load(ROOT / "robots" / "hubrobo.toml")
 KIN = Kinematics(PROFILE)
 CFG = ClimbConfig()

@@ -6,7 +6,6 @@ from __future__ import annotations
 import functools
 import json
 import math
-from pathlib import Path
 
 import msgspec
 import numpy as np
@@ -19,6 +18,7 @@ from daemon.cli import main as climbd
 from daemon.cloudio import read_cloud
 from daemon.messages import BodyState, GraspablePoints
 from daemon.plugins import PluginError, instantiate
+from drivers.sim.worlds import DATA
 from plugins.perception.graspable import (
     Correlator,
     GraspableConfig,
@@ -33,7 +33,6 @@ from plugins.perception.graspable import (
 )
 from plugins.perception.gripper_mask import GripperGeometry, gripper_mask
 
-DATA = Path(__file__).resolve().parent.parent / "drivers" / "sim" / "worlds" / "data"
 CLOUDS = ["leaning_bouldering_holds.pcd", "vertical_bouldering_holds.pcd"]
 REACH = 0.044  # mask half-size at 1 mm: palm-joint circle 14 + finger 15 + spine 15 mm
 

@@ -25,6 +25,8 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 HERE = Path(__file__).resolve().parent
+DATA = HERE / "data"
+"""Real point clouds shipped with the twin (ClimbLab's hold clouds, BSD-3, license beside them)."""
 INCH = 0.0254
 
 
