@@ -194,8 +194,10 @@ class Smoother:
 
         Ruckig's step-1 solver can fail on near-degenerate states (a ~1e-8 rad move with
         ~1e-5 rad/s and ~0.1 rad/s^2 left, at high jerk limits); from rest those joints plan
-        fine. Zeroing changes velocity and acceleration by < 5 % of what one tick at the limits
-        may change them.
+        fine. A joint at rounding-level motion whose target also moves at rounding level (a
+        stance joint of a streamed gait) gets a target at rest as well: ruckig fails from rest
+        to such a moving target too. Zeroing changes velocity and acceleration by < 5 % of what
+        one tick at the limits may change them.
         """
         self.fallbacks += 1
         inp = self._inp
@@ -206,4 +208,9 @@ class Smoother:
             return self._update()
         inp.current_velocity = np.where(tiny, 0.0, v).tolist()
         inp.current_acceleration = np.where(tiny, 0.0, a).tolist()
+        tv = np.array(inp.target_velocity)
+        ta = np.array(inp.target_acceleration)
+        still = tiny & (np.abs(tv) < self._snap_velocity) & (np.abs(ta) < self._snap_acceleration)
+        inp.target_velocity = np.where(still, 0.0, tv).tolist()
+        inp.target_acceleration = np.where(still, 0.0, ta).tolist()
         return self._update()

@@ -174,6 +174,22 @@ def test_solver_failure_on_a_degenerate_state_is_retried_from_rest() -> None:
     np.testing.assert_allclose(q, target, atol=1e-12)
 
 
+def test_rounding_level_state_towards_a_slowly_moving_target_is_planned() -> None:
+    """Ruckig 0.19 fails from this state (Qingzhui's stance abduction at a tripod change in the
+    twin) to a target 9e-9 rad away moving at 4e-5 rad/s, and from rest to it as well: the
+    retry also brings that rounding-level target to rest, the command stays continuous."""
+    smoother = Smoother(PROFILES["qingzhui"], 0.001)
+    q0 = np.full(18, -0.0010132821721019506)
+    smoother.reset(q0, np.full(18, 3.546546689152542e-05), np.full(18, -0.0317917099154543))
+    target = np.full(18, -0.0010132909854105217)
+    q = smoother.step(target, np.full(18, 4.0562992707554243e-05), np.full(18, -0.0257492492673))
+    assert smoother.fallbacks == 1
+    assert np.all(np.abs(q - q0) < 1e-7)
+    for _ in range(5):
+        q = smoother.step(target)
+    np.testing.assert_allclose(q, target, atol=1e-12)
+
+
 def test_rounding_level_steps_of_a_streamed_target_are_planned() -> None:
     """Ruckig 0.19 fails on 1e-7..4e-7 rad steps of a target streamed at 1 kHz with its finite-
     difference velocity and acceleration (the pipeline's stream; hypothesis found it). The
