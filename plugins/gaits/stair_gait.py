@@ -13,9 +13,13 @@ rest at both ends). The plan frame is anchored on the estimated body pose at sta
 first targets equal the measured feet; the measured-vs-planned height and tilt fade out over
 the first half cycle. While a foot swings over the stairs it is placed from the estimated body
 pose instead (faded in as it rises and out as it descends), so the body's sag under load does
-not bring it down onto an edge. The operator's ``vx`` sets the direction (forward or backward)
-and caps the step (``|vx|`` × cycle time); without a command, or when no step is feasible, the
-feet stay down. Without stairs the terrain is level at the feet.
+not bring it down onto an edge. At each half cycle's start the footholds are moved by the
+estimated body's horizontal lead over the planned one (faded in while the swing rises): feet
+roll on their spheres and slip, so the body drifts from the plan by about a centimetre a
+step, which would otherwise accumulate into the footholds the planner keeps clear of edges.
+The operator's ``vx`` sets the direction (forward or backward) and caps the step (``|vx|`` ×
+cycle time); without a command, or when no step is feasible, the feet stay down.
+Without stairs the terrain is level at the feet.
 """
 
 from __future__ import annotations
@@ -117,6 +121,8 @@ class StairGait(GaitPlugin):
         self.lift_off = self.feet[:0]
         self.next_group = 0
         self.offset = None
+        self.planned = None
+        self.drift = np.zeros(3)
         self.plans.clear()
         self.footholds.clear()
         self.done = False
@@ -147,11 +153,16 @@ class StairGait(GaitPlugin):
 
     # --- half cycles ----------------------------------------------------------------------
 
-    def _begin(self, t: float, command: MotionCommand | None) -> None:
-        """Start a half cycle: finish the last swing, plan this step and the next."""
+    def _begin(self, t: float, body: BodyState, command: MotionCommand | None) -> None:
+        """Start a half cycle: finish the last swing, move the footholds by the body's drift,
+        plan this step and the next."""
         if self.step_plan is not None and self.step_plan.length > 0.0:
             self.feet[self.step_plan.group] = self.step_plan.landing
             self.footholds.append(self.step_plan.landing.copy())
+        self.drift = np.zeros(3)
+        if self.estimated and self.planned is not None:
+            self.drift[:2] = np.asarray(body.position[:2], float) - self.planned[:2]
+            self.feet += self.drift
         if self.step_plan is not None:
             self.body_s = self.body_end
         vx = float(command.vx) if command is not None and math.isfinite(command.vx) else 0.0
@@ -183,19 +194,21 @@ class StairGait(GaitPlugin):
         """Foot targets (body frame) of this tick."""
         self._update_model(world)
         if self.t0 is None or t - self.t0 >= self.half - 1e-9:
-            self._begin(t, command)
+            self._begin(t, body, command)
         tau = min(max((t - self.t0) / self.half, 0.0), 1.0)
         s = hermite(tau, self.body_s, self.body_end, self.speed0, self.speed1, self.half)
         offset = None
         if self.offset is not None and len(self.plans) == 1:
             offset = (1.0 - float(progress(tau))) * self.offset
         pos, rot = self.model.body_frames(np.array([s]), self.geometry, offset)
-        feet = self.feet.copy()
+        self.planned = pos[0]
+        lag = (1.0 - float(progress(min(tau / UP, 1.0)))) * self.drift
+        feet = self.feet - lag
         stance = np.ones(6, bool)
         plan = self.step_plan
         targets = (feet - pos[0]) @ rot[0]
         if plan.length > 0.0:
-            swing = swing_point(tau, self.lift_off, plan.landing, self.top)
+            swing = swing_point(tau, self.lift_off, plan.landing, self.top) - lag
             targets[plan.group] = (swing - pos[0]) @ rot[0]
             stance[plan.group] = False
             w = float(
