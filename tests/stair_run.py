@@ -66,7 +66,14 @@ class RunLog:
     shin_hits: list = field(default_factory=list)
     foot_edge_hits: list = field(default_factory=list)
     touchdowns: list = field(default_factory=list)  # (t, leg, foot centre) while walking
+    tracking: list = field(default_factory=list)  # (phase, foot error, joint-level error) (m)
     seconds: float = 0.0
+
+    def swing_tracking(self, lo: float, hi: float) -> tuple[float, float]:
+        """Largest swing-foot error (m) at swing phases in [lo, hi]: the twin's foot against its
+        planned place, and the commanded against the measured joints' foot (body frame)."""
+        rows = np.array([r for r in self.tracking if lo <= r[0] <= hi]).reshape(-1, 3)
+        return (float(rows[:, 1].max()), float(rows[:, 2].max())) if len(rows) else (0.0, 0.0)
 
     def pose_errors(self, plain: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Position (m) and rotation (deg) error of the estimate (``plain``: the one without
@@ -85,10 +92,12 @@ class RunLog:
 class StairRun:
     """The rig with the stair gait, recording the checks at every tick."""
 
-    def __init__(self, world: World, start_x: float = 0.0, **config) -> None:
+    def __init__(
+        self, world: World, start_x: float = 0.0, feed_forward: bool = False, **config
+    ) -> None:
         self.world = world
         self.stairs = world_stairs(world)
-        rig = QingzhuiRig(world, start_x=start_x)
+        rig = QingzhuiRig(world, start_x=start_x, feed_forward=feed_forward)
         cfg = StairGaitConfig(foot_radius=rig.twin.robot.foot_radius, **config)
         self.gait = StairGait(cfg, rig.profile)
         rig.controller.gait = Isolated("stairs", self.gait)
@@ -124,6 +133,15 @@ class StairRun:
         for leg in np.flatnonzero(touching & ~self._down & self.walking):
             self.log.touchdowns.append((t, int(leg), feet[leg].copy()))
         self._down = touching
+        swing = self.gait.swing if self.walking else None
+        if swing is not None:
+            tau, legs, planned = swing
+            kin, c = rig.controller.kinematics, rig.controller
+            error = np.linalg.norm(feet[legs] - planned, axis=1).max()
+            joints = kin.fk(np.asarray(c.command.position)) - kin.fk(
+                np.asarray(c.measured.position)
+            )
+            self.log.tracking.append((tau, error, np.linalg.norm(joints[legs], axis=1).max()))
         est = rig.controller.estimator
         if est is not None:
             pos, quat = twin.body_pose()

@@ -98,6 +98,8 @@ class StairGait(GaitPlugin):
         self.half = 0.5 * c.cycle_time
         self.plans: list[StepPlan] = []
         self.footholds: list[np.ndarray] = []
+        # this tick's swing phase, swinging legs and their planned feet (odometry frame)
+        self.swing: tuple[float, np.ndarray, np.ndarray] | None = None
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
         """Anchor the plan on the estimated pose; the first targets equal the measured feet."""
@@ -207,8 +209,10 @@ class StairGait(GaitPlugin):
         stance = np.ones(6, bool)
         plan = self.step_plan
         targets = (feet - pos[0]) @ rot[0]
+        self.swing = None
         if plan.length > 0.0:
             swing = swing_point(tau, self.lift_off, plan.landing, self.top) - lag
+            self.swing = (tau, plan.group, swing)
             targets[plan.group] = (swing - pos[0]) @ rot[0]
             stance[plan.group] = False
             w = float(
