@@ -11,7 +11,9 @@ from the published packet formats for ordinary cycles and for health cycles (eve
 same way: median of its ordinary cycles and median of its health cycles, each weighted by how
 often it runs. Per round trip, a real host also pays a turnaround the wire does not show; the
 floor of that here is the round trip of a pty between two processes, measured in the same run
-(``pty RTT``), and ``limit + floor`` adds it once per round trip of the cycle.
+(``pty RTT``), and ``limit + floor`` adds it once per round trip of the cycle. ``host CPU``
+is the driver's cycle against servos that answer at once (replies cached in memory): the CPU
+a cycle spends in the driver and the SDK, which no wire or transport hides.
 
 Baseline, same run, same emulator: what the SDK examples do — read present position and write
 goal position one servo at a time. Both processes run SCHED_FIFO (emulator above the driver,
@@ -38,7 +40,9 @@ import numpy as np
 
 from daemon.messages import JointCommand
 from daemon.profile import load
-from drivers.dynamixel.bus import MISPARSE, DynamixelBus
+from drivers.dynamixel.bus import MISPARSE, DynamixelBus, LatencyPort
+from drivers.sim.dynamixel import ServoChain
+from drivers.sim.dynamixel.wire import Framer
 
 ROOT = Path(__file__).resolve().parent.parent
 DRIVER_PRIORITY, EMULATOR_PRIORITY = 40, 50
@@ -140,6 +144,58 @@ def profile_file(tmp: Path, base: str, protocol: int, model: str, baud: int) -> 
     return path
 
 
+class InstantPort(LatencyPort):
+    """A port whose servos answer at once, from a cache of the emulator's replies to each
+    distinct instruction: what the host's CPU costs per transaction, with no transport or wire."""
+
+    def __init__(self, chain: ServoChain) -> None:
+        super().__init__("instant", latency_ms=1.0)
+        self.chain = chain
+        self.framer = Framer(chain.protocol)
+        self.replies: dict[bytes, bytes] = {}
+        self.inbox = b""
+
+    def writePort(self, packet: list[int]) -> int:  # noqa: N802 - SDK override
+        data = bytes(packet)
+        reply = self.replies.get(data)
+        if reply is None:
+            answers = (r.data for i in self.framer.feed(data) for r in self.chain.handle(i))
+            reply = self.replies[data] = b"".join(answers)
+        self.inbox += reply
+        return len(data)
+
+    def readPort(self, length: int) -> bytes:  # noqa: N802 - SDK override
+        data, self.inbox = self.inbox[:length], self.inbox[length:]
+        return data
+
+    def clearPort(self) -> None:  # noqa: N802 - SDK override
+        self.inbox = b""
+
+
+def host_cpu_s(profile, cycles: int = 200) -> tuple[float, float]:
+    """Median host CPU of one driver cycle (read + write) and of one stock-SDK READ of the
+    per-cycle block, both against instantly answering servos."""
+    port = InstantPort(ServoChain.from_profile(profile))
+    bus = DynamixelBus.from_profile(profile, port="instant", fast_sync_read=True)
+    bus.port = port
+    command = JointCommand(position=np.zeros(len(bus.ids)).tolist())
+    cycle = np.empty(cycles)
+    for k in range(cycles):
+        t0 = time.perf_counter()
+        bus.read()
+        bus.write(command)
+        cycle[k] = time.perf_counter() - t0
+    if bus.lost.any():
+        raise SystemExit("instant port: servos did not answer")
+    ph, state = sdk.PacketHandler(float(profile.bus.protocol)), bus.model.state
+    one = np.empty(cycles)
+    for k in range(cycles):
+        t0 = time.perf_counter()
+        ph.readTxRx(port, bus.ids[0], state.address, state.size)
+        one[k] = time.perf_counter() - t0
+    return float(np.median(cycle)), float(np.median(one))
+
+
 def run_driver(profile, port: str, cycles: int) -> tuple[np.ndarray, np.ndarray]:
     """Seconds of each read() + write() cycle, and which cycles were health cycles."""
     bus = DynamixelBus.from_profile(profile, port=port)
@@ -205,9 +261,10 @@ def main() -> int:
     print(
         "| model | servos | baud | bytes/cycle | round trips | bus limit µs (Hz) "
         "| limit + pty floor µs | driver µs (Hz) | % of bus limit | % of limit + floor "
-        "| naive SDK µs | speed-up |"
+        "| naive SDK µs | speed-up | host CPU µs |"
     )
-    print("|" + "---|" * 12)
+    print("|" + "---|" * 13)
+    notes = []
     with tempfile.TemporaryDirectory() as tmp:
         for base, protocol, model, baud in cases:
             path = profile_file(Path(tmp), base, protocol, model, baud)
@@ -225,14 +282,24 @@ def main() -> int:
                 emu.close()
             d = weighted(np.median(times[~health]), np.median(times[health]), every)
             b = np.median(naive)
+            cpu, sdk_read = host_cpu_s(profile)
             print(
                 f"| {model} P{protocol}.0 | {n} | {baud / 1e6:g} M "
                 f"| {weighted(ordinary_b, health_b, every):.0f} | {trips} "
                 f"| {limit * 1e6:.0f} ({1 / limit:.0f}) | {floor * 1e6:.0f} "
                 f"| {d * 1e6:.0f} ({1 / d:.0f}) | {100 * limit / d:.0f} % "
-                f"| {100 * floor / d:.0f} % | {b * 1e6:.0f} | {b / d:.1f}× |",
+                f"| {100 * floor / d:.0f} % | {b * 1e6:.0f} | {b / d:.1f}× | {cpu * 1e6:.0f} |",
                 flush=True,
             )
+            if protocol == 1:
+                allowed = (limit / 0.9 - limit) / trips
+                notes.append(
+                    f"P1.0, {n} servos: the 90 % goal allows {allowed * 1e6:.0f} µs of host and "
+                    f"transport per transaction; the pty round trip alone is {rtt * 1e6:.0f} µs, "
+                    f"the stock SDK's CPU for one READ {sdk_read * 1e6:.0f} µs, the driver's CPU "
+                    f"per transaction (cycle CPU / round trips) {cpu / trips * 1e6:.0f} µs"
+                )
+    print("\n" + "\n".join(notes))
     return 0
 
 

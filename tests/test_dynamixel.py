@@ -255,3 +255,23 @@ def test_bad_commands_are_refused(rig):
     q[3] = math.nan
     with pytest.raises(DriverError, match=bus.names[3]):
         bus.write(JointCommand(position=q))
+
+
+def test_compiled_crc_equals_the_sdks_over_random_packets():
+    """The Protocol 2.0 handler's compiled CRC-16 gives the SDK's own result on any packet,
+    prefix length and starting value, and the driver's handler is that class on 2.0 only."""
+    import dynamixel_sdk as sdk
+
+    from drivers.dynamixel.packet import FastCrcProtocol2PacketHandler, packet_handler
+
+    stock, fast = sdk.PacketHandler(2.0), FastCrcProtocol2PacketHandler()
+    rng = np.random.default_rng(3)
+    for _ in range(500):
+        packet = rng.integers(0, 256, int(rng.integers(0, 400))).tolist()
+        size = int(rng.integers(0, len(packet) + 1))
+        start = int(rng.integers(0, 1 << 16)) if rng.random() < 0.5 else 0
+        assert fast.updateCRC(start, packet, size) == stock.updateCRC(start, packet, size)
+    # the check value of CRC-16/BUYPASS over "123456789" (CRC catalogue)
+    assert fast.updateCRC(0, list(b"123456789"), 9) == 0xFEE8
+    assert isinstance(packet_handler(2), FastCrcProtocol2PacketHandler)
+    assert isinstance(packet_handler(1), sdk.Protocol1PacketHandler)

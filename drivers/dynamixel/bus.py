@@ -28,6 +28,7 @@ from daemon.messages import JointCommand, JointHealth, JointState
 from daemon.profile import Profile
 from drivers.base import DriverError
 from drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
+from drivers.dynamixel.packet import packet_handler
 from drivers.dynamixel.units import JointMap, little_endian
 
 log = logging.getLogger(__name__)
@@ -170,7 +171,7 @@ class DynamixelBus:
         self.torque_on = False
         self.reads = 0
         self.port: LatencyPort | None = None
-        self.ph = sdk.PacketHandler(float(self.model.protocol))
+        self.ph = packet_handler(self.model.protocol)
         self._groups: dict[int, sdk.GroupSyncRead] = {}
         self._group_ids: tuple[int, ...] = ()
         self._error_group: sdk.GroupSyncRead | None = None

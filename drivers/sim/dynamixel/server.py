@@ -1,9 +1,11 @@
 """Serve a ServoChain on a pseudo-terminal with modelled wire timing.
 
 An instruction of n bytes starts on the wire when it arrives or when the bus frees up, ends
-n × 10 / baud later; each reply follows after its servo's return delay and its own
-bytes × 10 / baud, and is written to the pty when its last byte would have arrived. The host
-opens ``.port`` with dynamixel_sdk exactly as it opens /dev/ttyUSB0.
+n × 10 / baud later and is acted on then (as a servo acts on a packet once it is all in; the
+emulator stays free meanwhile to note when the next one arrives); each reply follows after
+its servo's return delay and its own bytes × 10 / baud, and is written to the pty when its
+last byte would have arrived. The host opens ``.port`` with dynamixel_sdk exactly as it opens
+/dev/ttyUSB0.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import tty
 from collections import deque
 
 from drivers.sim.dynamixel.chain import ServoChain
-from drivers.sim.dynamixel.wire import Framer
+from drivers.sim.dynamixel.wire import Framer, Instruction
 
 log = logging.getLogger(__name__)
 
@@ -113,12 +115,22 @@ class DynamixelEmulator:
         if self.realtime_motor:
             chain.clock = time.monotonic
         framer = Framer(chain.protocol)
+        inbox: deque[tuple[float, Instruction]] = deque()  # (arrival, instruction)
         pending: deque[tuple[float, bytes]] = deque()
         bus_free = last_rx = time.monotonic()
+        received = 0
         master, wake = self._master, self._wake_r
+
+        def acted_on() -> float:
+            """When the first instruction of the inbox has fully arrived on the wire."""
+            arrival, instr = inbox[0]
+            return max(arrival, bus_free) + chain.wire_time(instr.size)
+
         while not self._stop.is_set():
             now = time.monotonic()
-            timeout = max(0.0, pending[0][0] - now - self.spin) if pending else 0.1
+            due = [pending[0][0] - self.spin] if pending else []
+            due += [acted_on()] if inbox else []
+            timeout = max(0.0, min(due) - now) if due else 0.1
             try:
                 ready, _, _ = select.select([master, wake], [], [], timeout)
             except (OSError, ValueError):
@@ -137,13 +149,16 @@ class DynamixelEmulator:
                 if framer.buffer and now - last_rx > self.inter_byte_timeout:
                     framer.reset()
                 last_rx = now
-                for instr in framer.feed(data):
-                    t = max(now, bus_free) + chain.wire_time(instr.size)
-                    for reply in chain.handle(instr):
-                        t += reply.delay + chain.wire_time(len(reply.data))
-                        pending.append((t, reply.data))
-                    bus_free = t
-                self.bytes_handled += len(data)
+                inbox.extend((now, instr) for instr in framer.feed(data))
+                received += len(data)
+            while inbox and (t := acted_on()) <= time.monotonic():
+                instr = inbox.popleft()[1]
+                for reply in chain.handle(instr):
+                    t += reply.delay + chain.wire_time(len(reply.data))
+                    pending.append((t, reply.data))
+                bus_free = t
+            if not inbox:
+                self.bytes_handled = received
             while pending:
                 due, data = pending[0]
                 now = time.monotonic()
