@@ -2,8 +2,10 @@
 bench/stairs.py: the stair gait at 1 kHz through the torque-leg driver on the rig of
 tests/qingzhui_twin.py, with collision, foothold and estimate checks from the twin's truth.
 
-The stair model is the world's own geometry as a ``Stairs`` message (what perception reports,
-without its noise; tests/test_stairs.py measures perception separately).
+The stair model is the world's own geometry as a ``Stairs`` message in the odometry frame (what
+perception reports, without its noise: the camera sees the stairs from the true pose and places
+them with the estimated one, so the estimate's drift moves them with the body; tests/test_stairs.py
+measures perception separately).
 """
 
 from __future__ import annotations
@@ -50,6 +52,21 @@ def world_stairs(world: World) -> Stairs:
         depth = st.tread if k < st.count - 1 else st.landing
         edge = [[x, st.width / 2, top], [x, -st.width / 2, top]]
         steps.append(Stair(height=top, rise=st.rise, depth=depth, edge=edge))
+    return Stairs(steps=steps)
+
+
+def odometry_stairs(stairs: Stairs, true_pose: tuple, estimate: tuple) -> Stairs:
+    """``stairs`` (world frame) as seen from the true body pose (position, quaternion) and placed
+    with the estimated one (rotation, position)."""
+    pos, quat = true_pose
+    est_rot, est_pos = estimate
+    rot = est_rot @ rotation(quat).T
+    steps = []
+    for st in stairs.steps:
+        edge = (np.asarray(st.edge, float) - pos) @ rot.T + est_pos
+        steps.append(
+            Stair(height=float(edge[:, 2].mean()), rise=st.rise, depth=st.depth, edge=edge.tolist())
+        )
     return Stairs(steps=steps)
 
 
@@ -174,7 +191,10 @@ class StairRun:
         step = 1.0
         done = 0.0
         while done < seconds - 1e-9:
-            rig.controller.on_feature(self.stairs)
+            seen = odometry_stairs(
+                self.stairs, rig.twin.body_pose(), rig.controller.estimator.pose()
+            )
+            rig.controller.on_feature(seen)
             rig.run(min(step, seconds - done))
             done += step
         self.log.seconds += seconds
