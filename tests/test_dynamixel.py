@@ -167,6 +167,24 @@ def test_servo_lost_mid_run_and_readmitted(rig):
     assert not any(h.lost for h in bus.health())
 
 
+def test_every_servo_lost_then_back(rig):
+    """With every servo silent the loop goes on (writes send nothing, no error); all come back."""
+    profile, chain, _, bus = rig
+    for joint in profile.joints:
+        chain.silence(joint.id)
+    for _ in range(bus.lost_after):
+        bus.read()
+    assert all(h.lost for h in bus.health())
+    sent = bus.sent
+    bus.write(JointCommand(position=np.zeros(len(profile.joints)).tolist()))
+    assert bus.sent == sent
+    for joint in profile.joints:
+        chain.silence(joint.id, on=False)
+    for _ in range(bus.health_every):
+        bus.read()
+    assert not any(h.lost for h in bus.health())
+
+
 def test_overheat_derates_then_stops(rig):
     profile, chain, _, bus = rig
     s = profile.safety

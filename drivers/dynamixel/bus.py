@@ -29,7 +29,7 @@ from daemon.profile import Profile
 from drivers.base import DriverError
 from drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
 from drivers.dynamixel.packet import packet_handler
-from drivers.dynamixel.units import JointMap, little_endian
+from drivers.dynamixel.units import JointMap, little_endian, little_endian_bytes
 
 log = logging.getLogger(__name__)
 
@@ -293,9 +293,13 @@ class DynamixelBus:
 
     def _sync_write(self, item: Item, values: np.ndarray, only: np.ndarray | None = None) -> None:
         group = sdk.GroupSyncWrite(self.port, self.ph, item.address, item.size)
+        raw = little_endian_bytes(values, item.size)
+        chosen = [True] * len(self.ids) if only is None else only.tolist()
+        if not any(chosen):  # every servo lost: nothing to send (an empty sync write is refused)
+            return
         for k, ident in enumerate(self.ids):
-            if only is None or only[k]:
-                group.addParam(ident, list(int(values[k]).to_bytes(item.size, "little")))
+            if chosen[k]:
+                group.addParam(ident, list(raw[k * item.size : (k + 1) * item.size]))
         result = group.txPacket()
         if result != sdk.COMM_SUCCESS:
             raise DriverError(

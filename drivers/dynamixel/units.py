@@ -59,4 +59,10 @@ def little_endian(blocks: np.ndarray, offset: int, size: int) -> np.ndarray:
     return field.view(_UNSIGNED[size])[:, 0].astype(np.int64)
 
 
+def little_endian_bytes(values: np.ndarray, size: int) -> bytes:
+    """``values`` as unsigned little-endian fields of ``size`` bytes, one after another (the
+    parameters of a sync write)."""
+    return np.asarray(values).astype(_UNSIGNED[size]).tobytes()
+
+
 _UNSIGNED = {1: np.dtype("u1"), 2: np.dtype("<u2"), 4: np.dtype("<u4")}
