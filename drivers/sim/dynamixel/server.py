@@ -43,7 +43,8 @@ class DynamixelEmulator:
 
     ``realtime_motor`` steps the built-in motor model of each servo an instruction addresses
     up to wall-clock time (turn it off when a physics twin drives them). ``spin`` (s) busy-waits
-    the last stretch before a reply instead of sleeping, for benchmark-grade timing.
+    the last stretch before a reply (and before acting on an instruction) instead of sleeping,
+    for benchmark-grade timing.
     ``vanish()`` makes the port disappear under the host, as an unplugged USB adapter does.
 
     In the host's process, a client that busy-polls the port (dynamixel_sdk's stock
@@ -129,7 +130,7 @@ class DynamixelEmulator:
         while not self._stop.is_set():
             now = time.monotonic()
             due = [pending[0][0] - self.spin] if pending else []
-            due += [acted_on()] if inbox else []
+            due += [acted_on() - self.spin] if inbox else []
             timeout = max(0.0, min(due) - now) if due else 0.1
             try:
                 ready, _, _ = select.select([master, wake], [], [], timeout)
@@ -151,7 +152,9 @@ class DynamixelEmulator:
                 last_rx = now
                 inbox.extend((now, instr) for instr in framer.feed(data))
                 received += len(data)
-            while inbox and (t := acted_on()) <= time.monotonic():
+            while inbox and (t := acted_on()) - time.monotonic() <= self.spin:
+                while time.monotonic() < t:
+                    pass
                 instr = inbox.popleft()[1]
                 for reply in chain.handle(instr):
                     t += reply.delay + chain.wire_time(len(reply.data))
