@@ -14,7 +14,7 @@
   130 × 300 mm stairs and backward down again (about 50 s simulated, minutes of wall time);
   swing feet's tracking at apex and touch-down, and pass/fail per criterion of issue 11.
 
-    .venv/bin/python bench/stairs.py [--repeat 20] [--full]
+    .venv/bin/python bench/stairs.py [--repeat 20] [--full [--rise 0.13 --tread 0.30]]
 """
 
 from __future__ import annotations
@@ -112,9 +112,9 @@ def extraction(repeat: int) -> None:
     print(f"| {ours * 1e3:.1f} ms | {theirs * 1e3:.1f} ms | {theirs / ours:.2f} | {verdict} |\n")
 
 
-def full_run() -> None:
+def full_run(rise: float, tread: float) -> None:
     t0 = time.perf_counter()
-    run = StairRun(stair_world(), feed_forward=True)
+    run = StairRun(stair_world(rise, tread), feed_forward=True)
     run.rig.bus.kp, run.rig.bus.kd = 300.0, 4.0
     run.start()
     run.walk(0.15, 24.0)
@@ -135,7 +135,8 @@ def full_run() -> None:
         ("estimate within 2 deg", rot_err.max() < 2.0),
     ]
     print(
-        f"## full stair run ({run.log.seconds:.0f} s simulated, "
+        f"## full stair run, 3 x {rise * 1e3:.0f} x {tread * 1e3:.0f} mm "
+        f"({run.log.seconds:.0f} s simulated, "
         f"{time.perf_counter() - t0:.0f} s wall)"
     )
     print(
@@ -161,11 +162,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=20)
     parser.add_argument("--full", action="store_true", help="also the whole stair run in the twin")
+    parser.add_argument("--rise", type=float, default=0.13, help="the full run's rise (m)")
+    parser.add_argument("--tread", type=float, default=0.30, help="the full run's tread (m)")
     args = parser.parse_args()
     parameters(args.repeat)
     extraction(max(3, args.repeat // 4))
     if args.full:
-        full_run()
+        full_run(args.rise, args.tread)
     return 0
 
 
