@@ -5,8 +5,8 @@ contact on a stair edge (the twin's contacts), every touch-down in its tread's m
 geometry), swing feet tracking their planned paths, and the estimate within 2 cm / 2° of the
 twin's pose on the approach.
 
-The configuration ``climbd run`` uses for a torque profile: the gravity feed-forward on, here with
-kp 300 N·m/rad and kd 4 N·m·s/rad on the motors (the profile's kp 60 lets the swing legs lag).
+The configuration ``climbd run`` uses for the Qingzhui profile: the gravity feed-forward on and the
+profile's gains on the motors (kp 300 N·m/rad, kd 4 N·m·s/rad; at kp 60 the swing legs lag).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from stair_run import StairRun, stair_world
 
 from daemon.messages import Mode
 
-KP, KD = 300.0, 4.0
 APPROACH, CLIMB = 3.0, 5.0
 """Seconds of walking: to the first riser (the estimate's check), then onto the second tread."""
 
@@ -24,7 +23,6 @@ APPROACH, CLIMB = 3.0, 5.0
 @pytest.fixture(scope="module")
 def climb():
     run = StairRun(stair_world(), feed_forward=True)
-    run.rig.bus.kp, run.rig.bus.kd = KP, KD
     run.start()
     run.walk(0.15, APPROACH)
     run.approach = [e.copy() for e in run.log.pose_errors()]

@@ -36,7 +36,7 @@ def test_two_stepped_runs_give_identical_joint_logs() -> None:
 
 def test_gravity_feed_forward_holds_the_body_height_at_the_profile_gains() -> None:
     """Standing within 5 mm of the stand height, and walking on three legs at it in the median
-    (kp 60: without feed-forward it stood 3.6 cm low). At a tripod change the landing tripod
+    (without it, at kp 60, it stood 3.6 cm low). At a tripod change the landing tripod
     takes its share only once it touches, so the body still dips up to ~3 cm there."""
     rig = QingzhuiRig(flat_world(), feed_forward=True)
     rig.controller.gait = Isolated("tripod", Tripod(None, rig.profile))
