@@ -1,9 +1,9 @@
 """The Zenoh bus: typed publish/subscribe of wire messages, handed over to asyncio safely.
 
 Zenoh callbacks run on Zenoh's own threads. There we only decode (cheap, and it lets garbage
-be dropped at once) and hand the message to the asyncio loop with ``call_soon_threadsafe``;
-we never block and never call Zenoh from a callback. An undecodable or wrong-schema payload
-is dropped, counted, and logged once per sender.
+be dropped at once) and queue the message for the asyncio loop, waking it with
+``call_soon_threadsafe`` once per batch; we never block and never call Zenoh from a callback.
+An undecodable or wrong-schema payload is dropped, counted, and logged once per sender.
 """
 
 from __future__ import annotations
@@ -181,17 +181,18 @@ class Bus:
     ):
         """Subscribe to ``message`` of ``robot`` (``*`` for all robots).
 
-        ``latest_only`` keeps a ring buffer of one: if asyncio has not yet run the previous
-        delivery, the newer message replaces it rather than queueing behind it.
+        Samples wait in a per-subscription queue that one asyncio wake-up drains whole, so a
+        burst costs one ``call_soon_threadsafe``, not one per sample. ``latest_only`` keeps a
+        queue of one: a newer message replaces one asyncio has not yet taken.
         """
         k = key(robot or self.robot, message)
         pending: list[Message] = []
 
         def deliver() -> None:
             with self._lock:
-                msg = pending.pop() if pending else None
+                batch = pending.copy()
                 pending.clear()
-            if msg is not None:
+            for msg in batch:
                 callback(msg)
 
         def on_sample(sample: zenoh.Sample) -> None:
@@ -202,14 +203,15 @@ class Bus:
                 return
             if self.loop is None:
                 callback(msg)
-            elif latest_only:
-                with self._lock:
-                    schedule = not pending
+                return
+            with self._lock:
+                schedule = not pending
+                if latest_only:
                     pending[:] = [msg]
-                if schedule:
-                    self._call_soon(deliver)
-            else:
-                self._call_soon(callback, msg)
+                else:
+                    pending.append(msg)
+            if schedule:
+                self._call_soon(deliver)
 
         sub = self.session.declare_subscriber(k, on_sample)
         self._declared.append(sub)
