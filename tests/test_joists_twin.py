@@ -2,7 +2,7 @@
 
 One frame per case from the twin's depth camera (WidowX profile mount) through the plugin's
 ``process(frame, body)`` (the frame path the daemon uses): yaw ≤ 2°, height ≤ 1 cm, distance
-≤ 5 cm.
+≤ 5 cm; also at Table 2's steepest yaws (70°; 75° is a known gap, see FAR_EDGE).
 """
 
 from __future__ import annotations
@@ -22,8 +22,21 @@ from plugins.perception.joist_perception import JoistPerception
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 
 
+FAR_EDGE = (
+    "at 75 deg the near face is seen edge-on and the distance is read ~12 cm long, off a line "
+    "between the near and far top edges (width / cos 75 deg = 15 cm apart); yaw and height hold"
+)
+
+
 @pytest.mark.parametrize(
-    ("height", "yaw_deg"), [(h, y) for h in (0.10, 0.18) for y in (60, 45, 30)]
+    ("height", "yaw_deg"),
+    [
+        pytest.param(
+            h, y, marks=[pytest.mark.xfail(strict=True, reason=FAR_EDGE)] if y == 75 else []
+        )
+        for h in (0.10, 0.18)
+        for y in (75, 70, 60, 45, 30)
+    ],
 )
 def test_table_1_in_the_twin(height: float, yaw_deg: float):
     row = JoistRow(height=height, distance=1.0, width=0.04, length=1.8, yaw_deg=yaw_deg)
