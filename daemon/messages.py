@@ -110,9 +110,11 @@ class MotionStats(msgspec.Struct, kw_only=True):
 class Health(Message):
     """Whole-robot health: mode, joints, loop timing, plugins, bus decode errors, refusals.
 
-    ``unauthorised_commands`` counts command puts from peers without credentials (read-only
-    telemetry gate); ``features`` gives the age (s) of each feature topic the role last received;
-    ``session`` names the client holding the control session ("" when none).
+    ``refused_commands`` counts claims, mode and motion commands refused for their session (a
+    stray heartbeat is not a command); ``unauthorised_commands`` counts command puts from peers
+    without credentials (read-only telemetry gate); ``features`` gives the age (s) of each
+    feature topic the role last received; ``session`` names the client holding the control
+    session ("" when none).
     """
 
     TOPIC: ClassVar[str] = "state/health"

@@ -149,9 +149,10 @@ class Safety:
                 self.session = None
 
     def heartbeat(self, session: str, now: float) -> bool:
+        """Renew the session's heartbeat. Another session's is ignored, not counted as refused:
+        heartbeats are express and overtake a claim or release sent just before or after them."""
         with self._lock:
             if self.session is None or self.session.session != session:
-                self.refused += 1
                 return False
             self.session.last_heartbeat = now
             return True

@@ -80,6 +80,21 @@ def test_lost_heartbeat_holds_within_the_window(safety: Safety) -> None:
     assert safety.session is None, "an expired session must be claimed again"
 
 
+def test_foreign_heartbeats_keep_nothing_alive_and_are_not_refused_commands(
+    safety: Safety,
+) -> None:
+    window = safety.profile.safety.heartbeat_window
+    safety.claim("s1", "alice", 0.0)
+    safety.request(Mode.STAND, 0.0, session="s1")
+    safety.request(Mode.ACTIVE, 0.0, session="s1")
+    for k in range(1, 10):
+        assert not safety.heartbeat("intruder", 0.1 * k)
+    safety.check_heartbeat(window + 0.01)
+    assert safety.mode == Mode.HOLD, "another session's heartbeats must not keep s1 alive"
+    assert not safety.heartbeat("s1", window + 0.02), "a late beat of the expired session"
+    assert safety.refused == 0, "heartbeats overtake claims and releases; they command nothing"
+
+
 def test_expired_session_can_be_claimed_by_another(safety: Safety) -> None:
     safety.claim("s1", "alice", 0.0)
     assert safety.claim("s2", "bob", 1.0)[0]
