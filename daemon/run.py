@@ -257,6 +257,7 @@ class ControlRole:
         await self._safe_stop(controller, safety, loop, clock)
         loop.stop()
         await aio.run_in_executor(None, thread.join, 2.0)
+        gc.unfreeze()  # frozen objects are never freed: ruckig's would be reported as leaks
         sdnotify.notify("STOPPING=1")
         joint_bus.close()
         if sim is not None:

@@ -100,6 +100,7 @@ def test_duration_ends_by_itself_with_a_report(endpoint: str) -> None:
     assert res.returncode == 0, res.stderr
     assert "stand complete" in res.stderr
     assert "climbd: stopped in HOLD" in res.stdout and "ticks at 100 Hz" in res.stdout
+    assert "leaked" not in res.stderr, "every object is freed at exit (no nanobind leak report)"
 
 
 def test_status_and_estop_from_other_processes(endpoint: str) -> None:

@@ -22,6 +22,7 @@ and the tracked joist keeps its place relative to the body.
 from __future__ import annotations
 
 import enum
+import logging
 import math
 from typing import ClassVar
 
@@ -40,6 +41,8 @@ from plugins.gaits.joist_crossing import (
 )
 from plugins.gaits.periodic import HOME_TOLERANCE, Tripod, TripodConfig, layout_offsets
 from plugins.gaits.swing import lift, progress
+
+log = logging.getLogger("climbd.gait.joist_climb")
 
 
 class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -312,7 +315,12 @@ class JoistClimb(GaitPlugin):
     def _switch(self, t: float, mode: Phase, why: str) -> None:
         self.mode = mode
         self._t_mode = t
-        self.events.append((t, f"{mode.value}: {why}"))
+        self._event(t, f"{mode.value}: {why}")
+
+    def _event(self, t: float, what: str) -> None:
+        """Keep ``what`` in ``events`` and log it: the journal says what the behaviour decided."""
+        self.events.append((t, what))
+        log.info("%.2f s %s", t, what)
 
     def _settled(self) -> bool:
         tri = self.tripod
@@ -577,14 +585,14 @@ class JoistClimb(GaitPlugin):
         try:
             plan = self._plan(local, float(body[2]))
         except CrossingError as e:
-            self.events.append((t, f"cross: no new plan from here ({e}); on as planned"))
+            self._event(t, f"cross: no new plan from here ({e}); on as planned")
             return
         self.travelled += float(body[0])
         self.plan = plan
         self._plan_origin = self.pose.copy()
         self._t_mode = t
         self._phase = 0
-        self.events.append((t, f"cross: replanned ({len(self.row)} joists in the row)"))
+        self._event(t, f"cross: replanned ({len(self.row)} joists in the row)")
 
     def _step_cross(
         self, t: float, dt: float, body: BodyState, world: dict[str, Message]
