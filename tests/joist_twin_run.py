@@ -3,7 +3,11 @@ guard to the twin's servos, with the gait fed either the world's truth or joist 
 
 ``run_scenario`` walks the WidowX until it has travelled ``goal`` m and reports what a user
 relies on: decisions, where the body ended, its tilt, which feet are down, and every contact
-of the body box or a leg link (not a foot) with a joist along the way.
+of the body box or a leg link (not a foot) with a joist along the way. By default the gait's
+joint goals are set in the twin in-process (fast); with ``driver=True`` the gait runs as the
+daemon runs it: a gait plugin under the Controller and the safety supervisor, on the body
+its leg odometry estimates, writing through dynamixel_sdk to the twin's servo emulator on its
+pty, lock-step by count (``Twin.driver_sent``), as ``climbd run --sim --stepped`` does.
 """
 
 from __future__ import annotations
@@ -17,9 +21,15 @@ from joist_scenes import JoistSpec
 from joist_world import perceive
 
 from daemon import profile as profiles
-from daemon.messages import BodyState, Joists
+from daemon.control import Controller
+from daemon.loop import ControlLoop, SteppedClock
+from daemon.messages import BodyState, Joists, Mode
 from daemon.motion import MotionPipeline
+from daemon.plugins import Isolated
 from daemon.profile import stock_profiles
+from daemon.safety import Safety
+from daemon.sim_host import STEPPED_TIMEOUT_MARGIN_MS
+from drivers.dynamixel.bus import DynamixelBus
 from drivers.sim.twin import Twin
 from drivers.sim.worlds import JoistRow, World
 from plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig
@@ -46,6 +56,8 @@ class Outcome:
     base_hits: int = 0
     unreachable_ticks: int = 0
     seconds: float = 0.0
+    held: str = ""
+    """Why the safety supervisor left ACTIVE (driver path only; empty when it never did)."""
 
 
 def specs(row: JoistRow) -> list[JoistSpec]:
@@ -83,50 +95,33 @@ def _contacts(twin: Twin, geoms: tuple[np.ndarray, np.ndarray, int]) -> tuple[se
 
 
 def run_scenario(
-    rows: list[JoistRow], goal: float, seconds: float, perception=None, **config
+    rows: list[JoistRow],
+    goal: float,
+    seconds: float,
+    perception=None,
+    driver: bool = False,
+    **config,
 ) -> Outcome:
     """Run joist_climb in the twin until it has walked ``goal`` m (or ``seconds`` elapse).
 
     With ``perception`` (a JoistPerception) the joists come from the twin's ray-cast depth
     through ``process(frame, body)``; without, from the world's truth (joist_world.perceive
-    at the twin's true body pose), for tests of the gait only.
+    at the twin's true body pose), for tests of the gait only. ``driver`` runs the daemon's
+    path: Controller, Safety and the Dynamixel driver on the twin's pty.
     """
     twin = Twin(
-        WIDOWX, World(name="joists", joists=rows), stepped=True, bus=False, timestep=TIMESTEP
+        WIDOWX,
+        World(name="joists", joists=rows),
+        stepped=True,
+        bus=driver,
+        timestep=TIMESTEP,
     )
     twin.start()
-    truth = [s for row in rows for s in specs(row)]
+    scene = _Scene(twin, [s for row in rows for s in specs(row)], perception)
+    behaviour = JoistClimb(JoistClimbConfig(goal_distance=goal, **config), WIDOWX)
     try:
-        pipeline = MotionPipeline(WIDOWX, DT)
-        kin = pipeline.kinematics
-        twin.command(kin.stand_joints())
-        twin.advance_to(1.0)
-        pipeline.start(twin.joint_positions())
-        behaviour = JoistClimb(JoistClimbConfig(goal_distance=goal, **config), WIDOWX)
-        behaviour.start(BodyState(), kin.fk(twin.joint_positions()))
-        world: dict = {}
-        geoms = _geoms(twin)
-        hits: set[int] = set()
-        base_hits = 0
-        t = 1.0
-        for k in range(int(seconds / DT)):
-            pos, quat = twin.body_pose()
-            body = BodyState(position=[float(v) for v in pos], orientation=[float(v) for v in quat])
-            if k % PERCEPTION_PERIOD == 0:
-                if perception is not None:
-                    world = {Joists.TOPIC: perception.process(twin.depth_frame("front"), body)}
-                else:
-                    pose = np.array([pos[0], pos[1], _yaw(quat)])
-                    world = {Joists.TOPIC: perceive(truth, pose, t)}
-            targets = behaviour.step(t, DT, body, world, None)
-            twin.command(np.array(pipeline.feet_step(targets).position))
-            t += DT
-            twin.advance_to(t)
-            links, base = _contacts(twin, geoms)
-            hits |= links
-            base_hits += int(base)
-            if behaviour.done:
-                break
+        run = _through_driver if driver else _in_process
+        unreachable, held = run(twin, scene, behaviour, seconds)
         pos, quat = twin.body_pose()
         up = 1.0 - 2.0 * (quat[1] ** 2 + quat[2] ** 2)
         return Outcome(
@@ -136,10 +131,99 @@ def run_scenario(
             tilt_deg=math.degrees(math.acos(min(1.0, up))),
             feet_down=twin.foot_contacts(),
             feet=twin.foot_positions(),
-            link_hits={mujoco.mj_id2name(twin.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in hits},
-            base_hits=base_hits,
-            unreachable_ticks=pipeline.unreachable_ticks,
-            seconds=t,
+            link_hits={
+                mujoco.mj_id2name(twin.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in scene.hits
+            },
+            base_hits=scene.base_hits,
+            unreachable_ticks=unreachable,
+            seconds=twin.time,
+            held=held,
         )
     finally:
         twin.stop()
+
+
+class _Scene:
+    """What the gait is told of the joists, and every contact of a link with one."""
+
+    def __init__(self, twin: Twin, truth: list[JoistSpec], perception) -> None:
+        self.twin = twin
+        self.truth = truth
+        self.perception = perception
+        self.geoms = _geoms(twin)
+        self.hits: set[int] = set()
+        self.base_hits = 0
+
+    def joists(self, t: float) -> Joists:
+        """The joists seen from the twin's true body pose now."""
+        pos, quat = self.twin.body_pose()
+        if self.perception is not None:
+            body = BodyState(position=[float(v) for v in pos], orientation=[float(v) for v in quat])
+            return self.perception.process(self.twin.depth_frame("front"), body)
+        return perceive(self.truth, np.array([pos[0], pos[1], _yaw(quat)]), t)
+
+    def advance(self, t: float) -> None:
+        """Simulate to ``t`` and note the contacts there."""
+        self.twin.advance_to(t)
+        links, base = _contacts(self.twin, self.geoms)
+        self.hits |= links
+        self.base_hits += int(base)
+
+
+def _in_process(
+    twin: Twin, scene: _Scene, behaviour: JoistClimb, seconds: float
+) -> tuple[int, str]:
+    """The gait's joint goals set in the twin in-process, on the twin's true body pose."""
+    pipeline = MotionPipeline(WIDOWX, DT)
+    kin = pipeline.kinematics
+    twin.command(kin.stand_joints())
+    twin.advance_to(1.0)
+    pipeline.start(twin.joint_positions())
+    behaviour.start(BodyState(), kin.fk(twin.joint_positions()))
+    world: dict = {}
+    t = 1.0
+    for k in range(int(seconds / DT)):
+        pos, quat = twin.body_pose()
+        body = BodyState(position=[float(v) for v in pos], orientation=[float(v) for v in quat])
+        if k % PERCEPTION_PERIOD == 0:
+            world = {Joists.TOPIC: scene.joists(t)}
+        targets = behaviour.step(t, DT, body, world, None)
+        twin.command(np.array(pipeline.feet_step(targets).position))
+        t += DT
+        scene.advance(t)
+        if behaviour.done:
+            break
+    return pipeline.unreachable_ticks, ""
+
+
+def _through_driver(
+    twin: Twin, scene: _Scene, behaviour: JoistClimb, seconds: float
+) -> tuple[int, str]:
+    """The daemon's path: stand, then ACTIVE as ``climbd run --activate``; the joists reach the
+    controller as features at 10 Hz; physics waits for the emulator to handle each write."""
+    bus = DynamixelBus.from_profile(
+        WIDOWX, port=twin.port, timeout_margin_ms=STEPPED_TIMEOUT_MARGIN_MS
+    )
+    bus.open()
+    try:
+        twin.driver_sent = lambda: bus.sent
+        clock = SteppedClock(on_advance=lambda t0, t1: scene.advance(t1))
+        safety = Safety(WIDOWX)
+        controller = Controller(
+            WIDOWX, bus, safety, clock.now, Isolated("joist_climb", behaviour), lambda m: None
+        )
+        loop = ControlLoop(WIDOWX.rate_hz, clock, controller.tick)
+        assert safety.request(Mode.STAND, clock.now(), reason="start-up")
+        while safety.mode == Mode.STAND and clock.now() < 1.0 + 3 * WIDOWX.safety.stand_time:
+            loop.run(max_ticks=loop.ticks + PERCEPTION_PERIOD)
+        assert safety.mode == Mode.HOLD, safety.reason
+        controller.on_feature(scene.joists(clock.now()))
+        assert safety.request(Mode.ACTIVE, clock.now(), reason="autonomy")
+        end = clock.now() + seconds
+        while clock.now() < end and safety.mode == Mode.ACTIVE and not behaviour.done:
+            controller.on_feature(scene.joists(clock.now()))
+            loop.run(max_ticks=loop.ticks + PERCEPTION_PERIOD)
+        held = "" if safety.mode == Mode.ACTIVE or behaviour.done else safety.reason
+        return controller.motion.unreachable_ticks, held
+    finally:
+        bus.close()
