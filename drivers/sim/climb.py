@@ -3,7 +3,9 @@
 The planner (plugins/gaits/free_climb.py) plans in the wall frame over the map's holds; each
 control tick its feet and base become joint goals through the daemon's IK (the body keeps the
 wall's orientation) and its grips become the twin's grippers, which hold only on hold geoms
-and slip above 9 N. A swing starts only once the twin reports every gripper holding. What is
+and slip above 9 N. The swing foot aims at its hold from where the body is (as a hold seen
+from the body would be), so the stance legs' sag does not shorten every landing and add up.
+A swing starts only once the twin reports every gripper holding. What is
 logged is the twin's truth: base position, the TSM of the grippers that hold, slips. The next
 swing is planned on the planner's worker thread while the twin executes the current one, and
 awaited in simulated time where it is needed (deterministic runs); ``close`` stops the worker.
@@ -133,7 +135,10 @@ class SlopeClimb:
                     log.missed += 1
                 waited = 0.0
                 tick = runner.tick(dt, self.holds)
-                q, _ = self.kin.ik(tick.feet - tick.base)
+                legs = tick.feet - tick.base
+                if tick.swing is not None:
+                    legs[tick.swing] = tick.feet[tick.swing] - self.to_wall(twin.data.qpos[:3])
+                q, _ = self.kin.ik(legs)
                 twin.command(q)
                 twin.grip[:] = tick.grip
             twin.advance_to(twin.time + dt)
