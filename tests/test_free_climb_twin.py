@@ -1,5 +1,5 @@
 """Paper 001's free climbing in the twin: the hold-map slope, grippers that hold only on its
-holds up to 9 N, and both gaits on one map (the full 45 s × 5 seeds run is bench/free_climb.py)."""
+holds up to 9 N, and both gaits on one map (the full 45 s × 8 seeds run is bench/free_climb.py)."""
 
 from __future__ import annotations
 
