@@ -52,3 +52,58 @@ def test_too_few_stance_feet_keep_the_last_pose(robots) -> None:
     odo.update(q, np.ones(6, bool), 0.0)
     body = odo.update(q, np.array([1, 1, 0, 0, 0, 0], bool), 0.01)
     assert np.allclose(body.position, 0.0, atol=1e-12)
+
+
+def test_a_lagging_foot_is_registered_where_it_lands(robots) -> None:
+    """Free gait, one leg at a time, the body moving: each swing foot lags its plan by 80 ms, so
+    the gait flags it in stance while it is still 2.5 cm up and behind its landing place (as
+    the AX-18A emulator's legs do crossing a joist). Registered there, it drags the pose by
+    millimetres per step; registered once it rests, the body path comes back within 1 mm."""
+    kin = Kinematics(profiles.load(robots / "widowx.toml"))
+    stand = kin.stand_feet()
+    odo = LegOdometry(kin)
+    world = stand.copy()
+    dt, swing, lag, stride, height = 0.01, 0.4, 0.08, 0.04, 0.05
+    start = world.copy()
+    worst = 0.0
+    for k in range(int(6 * 2 * swing / dt) + 1):
+        t = k * dt
+        pos = np.array([stride * t / (12 * swing), 0.0, 0.0])  # as fast as the feet go
+        leg, into = divmod(t, 2 * swing)  # each leg swings, then all six stand for as long
+        leg = int(leg) % 6
+        stance = np.ones(6, bool)
+        if into < swing:
+            stance[leg] = False
+        if into < swing + lag:
+            s = min(1.0, max(0.0, (into - lag) / swing))  # the foot follows its plan late
+            world[leg] = start[leg] + [stride * s, 0.0, height * math.sin(math.pi * s)]
+        else:
+            start[leg] = world[leg]
+        q, ok = kin.ik(world - pos)
+        assert ok.all()
+        body = odo.update(q, stance, t)
+        worst = max(worst, float(np.linalg.norm(np.array(body.position) - pos)))
+    assert worst < 1e-3, f"body estimate off by {worst * 1000:.1f} mm"
+
+
+def test_a_slipping_foot_is_left_out_and_registered_again(robots) -> None:
+    """Six feet down, the body shifting forward; one foot slides 8 mm (a slip), later another.
+    Fitted with them, the pose would move by a sixth of each slip; the slipping foot is left
+    out of the fit and registered again where it stopped, so the body path stays within 1 mm."""
+    kin = Kinematics(profiles.load(robots / "widowx.toml"))
+    world = kin.stand_feet()
+    odo = LegOdometry(kin)
+    stance = np.ones(6, bool)
+    worst = 0.0
+    for k in range(201):
+        t = k * 0.01
+        pos = np.array([0.015 * t, 0.002 * t, 0.0])
+        if 50 <= k < 60:
+            world[0, 0] += 0.0008  # rf slides forward
+        if 120 <= k < 130:
+            world[4, 1] -= 0.0008  # lm slides sideways
+        q, ok = kin.ik(world - pos)
+        assert ok.all()
+        body = odo.update(q, stance, t)
+        worst = max(worst, float(np.linalg.norm(np.array(body.position) - pos)))
+    assert worst < 1e-3, f"body estimate off by {worst * 1000:.1f} mm"
