@@ -187,6 +187,44 @@ def test_a_joist_the_legs_cannot_cross_safely_is_gone_round_instead():
     assert r.behaviour.pose[0] > joist.distance + 0.3
 
 
+def offset(pose: np.ndarray, by: np.ndarray) -> np.ndarray:
+    """``pose`` (x, y, yaw) seen in a frame turned by ``by[2]`` and moved by ``by[:2]``."""
+    c, s = math.cos(by[2]), math.sin(by[2])
+    x, y = pose[:2]
+    return np.array([c * x - s * y + by[0], s * x + c * y + by[1], pose[2] + by[2]])
+
+
+def crossing_poses(joist: JoistSpec, odometry_bias: np.ndarray) -> tuple[list, np.ndarray]:
+    """Events and final pose of a crossing whose odometry is off by ``odometry_bias`` (x, y m,
+    yaw rad; a rigid offset that appears when the crossing begins, as a slip would leave it)."""
+    b = JoistClimb(JoistClimbConfig(goal_distance=1.6), WIDOWX)
+    b.start(body_state(b.pose), b.kin.stand_feet())
+    world: dict = {}
+    bias = np.zeros(3)
+    for k in range(int(240 / DT)):
+        t = k * DT
+        if k % 10 == 0:
+            world = {Joists.TOPIC: perceive([joist], b.pose, t)}
+        if b.mode == Phase.CROSS:
+            bias = odometry_bias
+        b.step(t, DT, body_state(offset(b.pose, bias), t), world, None)
+        if b.done:
+            break
+    return [e for _, e in b.events], b.pose.copy()
+
+
+def test_odometry_drift_in_a_crossing_is_undone_by_the_joist_in_view():
+    """Dead reckoning drifts over a crossing (feet slip, servos lag: 2-5 cm and degrees through
+    the twin's driver path). The joist being crossed is the landmark: while it is in view its
+    distance and yaw fix the pose, so an odometry 3 cm and 2 deg off changes no decision and no
+    step; blind to it, the crossing would replan on the false drift."""
+    joist = JoistSpec(1.0, 0.0, 0.10)
+    events, pose = crossing_poses(joist, np.zeros(3))
+    drifted, drifted_pose = crossing_poses(joist, np.array([0.03, -0.02, math.radians(2.0)]))
+    assert drifted == events
+    assert np.allclose(drifted_pose, pose, atol=1e-6)
+
+
 def test_crossing_runs_through_ik_ruckig_and_the_guard_without_an_unreachable_tick():
     joist = JoistSpec(0.7, 0.0, 0.06)
     b = JoistClimb(JoistClimbConfig(goal_distance=1.1), WIDOWX)

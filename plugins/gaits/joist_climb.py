@@ -77,6 +77,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     foot_speed: float = 0.1
     swing_time: float = 0.5
     shift_time: float = 0.3
+    touchdown_time: float = 0.2
     exit_distance: float = 0.06
     replan_drift: float = 0.006
     replan_yaw_deg: float = 0.5
@@ -92,6 +93,8 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
         for name in ("approach_distance", "climb_max_height", "walk_speed", "side_speed"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"joist_climb: {name} must be > 0, got {getattr(self, name)}")
+        if not self.touchdown_time >= 0:
+            raise ValueError(f"joist_climb: touchdown_time must be >= 0, got {self.touchdown_time}")
 
 
 BACK_OFF = 0.03
@@ -289,15 +292,21 @@ class JoistClimb(GaitPlugin):
             for j in self.impassable
         )
 
+    def _sighting(self, joist: TrackedJoist, world: dict[str, Message]) -> Joist | None:
+        """The detection of the latest message that is ``joist`` (within 10 cm and 10°)."""
+        distance, yaw = self.ahead(joist)
+        for j in self._relevant(world):
+            if abs(j.distance - distance) < 0.1 and abs(j.yaw - yaw) < math.radians(10.0):
+                return j
+        return None
+
     def _refresh(self, world: dict[str, Message]) -> None:
         """Replace the tracked joist by a fresh detection of the same joist, when there is one."""
         if self.target is None:
             return
-        distance, yaw = self.ahead(self.target)
-        for j in self._relevant(world):
-            if abs(j.distance - distance) < 0.1 and abs(j.yaw - yaw) < math.radians(10.0):
-                self.target = self.track(j)
-                return
+        seen = self._sighting(self.target, world)
+        if seen is not None:
+            self.target = self.track(seen)
 
     # --- the tick -------------------------------------------------------------------------
 
@@ -524,6 +533,7 @@ class JoistClimb(GaitPlugin):
             foot_speed=c.foot_speed,
             swing_time=c.swing_time,
             shift_time=c.shift_time,
+            touchdown_time=c.touchdown_time,
             exit_distance=c.exit_distance,
         )
         feet = np.asarray(feet, float)
@@ -566,11 +576,31 @@ class JoistClimb(GaitPlugin):
             joist.normal = (turn @ np.array(joist.normal)).tolist()
         self.pose = pose
 
-    def _drifted(self, body: BodyState) -> bool:
-        """Whether the measured body has drifted from the planned one (feet slip, servo lag):
-        then the pose becomes the measured one and the rest of the crossing is replanned."""
-        c = self.config
+    def _localised(self, body: BodyState, world: dict[str, Message]) -> np.ndarray:
+        """The measured pose, its heading and its distance across the row fixed by a joist of
+        the row in view: dead reckoning drifts by centimetres and degrees over a crossing (feet
+        slip, servos lag), the joist being crossed is a landmark that does not. Later odometry
+        counts on from the fixed pose."""
         measured = self._measured(body)
+        for joist in self.row:
+            seen = self._sighting(joist, world)
+            if seen is None:
+                continue
+            n, point = np.array(joist.normal), np.array(joist.point)
+            gap = seen.distance * math.cos(seen.yaw)
+            xy = measured[:2] + n * (float(n @ (point - measured[:2])) - gap)
+            pose = np.array([xy[0], xy[1], math.atan2(n[1], n[0]) - seen.yaw])
+            now = _planar(body)
+            turn = now[2] - pose[2]
+            self._odometry0 = np.array([*(now[:2] - _rot(turn) @ pose[:2]), turn])
+            return pose
+        return measured
+
+    def _drifted(self, body: BodyState, world: dict[str, Message]) -> bool:
+        """Whether the body has drifted from the planned pose (feet slip, servo lag): then the
+        pose becomes the measured one and the rest of the crossing is replanned."""
+        c = self.config
+        measured = self._localised(body, world)
         turn = math.remainder(measured[2] - self.pose[2], math.tau)
         off = np.hypot(*(measured[:2] - self.pose[:2]))
         if off <= c.replan_drift and abs(turn) <= math.radians(c.replan_yaw_deg):
@@ -605,7 +635,7 @@ class JoistClimb(GaitPlugin):
         phase = plan.phase(elapsed)
         if phase != self._phase:
             self._phase = phase
-            if stance.all() and (self._grow_row(world) or self._drifted(body)):
+            if stance.all() and (self._grow_row(world) or self._drifted(body, world)):
                 self._replan(t, b, feet)
         local = feet.copy()
         local[:, 0] -= b[0]

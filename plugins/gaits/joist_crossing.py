@@ -74,6 +74,7 @@ class CrossingParams:
     foot_speed: float
     swing_time: float
     shift_time: float
+    touchdown_time: float
     exit_distance: float
 
 
@@ -429,6 +430,10 @@ class CrossingPlan:
             duration = max(p.swing_time, length / p.foot_speed)
             moves.append(Move(duration, body, body, feet.copy(), {leg: path}))
             feet[leg] = path[-1]
+            if p.touchdown_time > 0.0:
+                # all six still while a foot late on its servos comes down: lifting the next
+                # one then would rock the body on a foot that is not yet carrying it
+                moves.append(Move(p.touchdown_time, body, body, feet.copy()))
 
         raised = np.array([body[0], body[1], climb])
         if abs(climb - body[2]) > 1e-6:
