@@ -77,7 +77,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     foot_speed: float = 0.1
     swing_time: float = 0.5
     shift_time: float = 0.3
-    touchdown_time: float = 0.2
+    touchdown_time: float = 0.4
     exit_distance: float = 0.06
     replan_drift: float = 0.006
     replan_yaw_deg: float = 0.5
