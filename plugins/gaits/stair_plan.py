@@ -41,6 +41,10 @@ import numpy as np
 from daemon.kinematics import Kinematics
 from daemon.messages import Stairs
 
+WINDOW_SPAN = 1.5
+"""The body's terrain fit spans this much more than the feet (paper 004's body follows the
+flight's slope): over the feet's span alone, 150 mm rises pitch the body up so early that the
+rear feet, still a tread below, leave the legs' reach (a walk up 150 × 320 mm stalls at 1.38 m)."""
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
@@ -54,7 +58,7 @@ class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     the step height's range and grid (the swing apex above the highest tread under the foot's
     path); ``resolution``: the step length's grid. ``body_height``: above the feet's centres
     (default: the profile's stand). ``max_pitch``: body pitch bound; ``window``: half-width of
-    the terrain fit the body follows (default: the feet's stand span along x)."""
+    the terrain fit the body follows (default: ``WINDOW_SPAN`` × the feet's stand span along x)."""
 
     body_height: Positive | None = None
     area: NonNegative = 0.05
@@ -345,9 +349,15 @@ def leg_checks(
 ) -> np.ndarray:
     """Whether each configuration is usable: the row's leg (``kin`` batched) reaches the global
     foot centre ``feet`` from the body pose (``pos``, ``rot``) within its joint limits and
-    ``reach`` of ``home`` (body frame, x y), and neither shin nor foot meets an edge."""
-    body = np.einsum("nji,nj->ni", rot, feet - pos)
-    near = np.hypot(*(body[:, :2] - home).T) <= geometry.reach
+    ``reach`` of ``home`` (x y in the body's heading frame: horizontal, as the support polygon
+    is; the body's pitch on a flight would otherwise count the foot's depth below it as reach),
+    and neither shin nor foot meets an edge."""
+    rel = feet - pos
+    body = np.einsum("nji,nj->ni", rot, rel)
+    heading = rot[:, :2, 0] / np.hypot(rot[:, 0, 0], rot[:, 1, 0])[:, None]
+    ahead = heading[:, 0] * rel[:, 0] + heading[:, 1] * rel[:, 1]
+    left = heading[:, 0] * rel[:, 1] - heading[:, 1] * rel[:, 0]
+    near = np.hypot(ahead - home[:, 0], left - home[:, 1]) <= geometry.reach
     theta, ok = kin.ik_leg(kin.to_leg(body))
     q = theta.reshape(-1) * kin.direction + kin.zero_offset
     inside = (np.abs(q - kin._mid) <= kin._half_range).reshape(-1, 3).all(1)
@@ -383,7 +393,8 @@ class StepPlanner:
         stand = kin.profile.stand
         height = geometry.body_height if geometry.body_height is not None else stand.body_height
         home = kin.stand_feet(height)
-        window = geometry.window if geometry.window is not None else float(np.abs(home[:, 0]).max())
+        span = float(np.abs(home[:, 0]).max())
+        window = geometry.window if geometry.window is not None else WINDOW_SPAN * span
         self.kin = kin
         self.geometry = msgspec.structs.replace(geometry, body_height=height, window=window)
         self.home = home[:, :2]
@@ -437,6 +448,11 @@ class StepPlanner:
             model, feet, s_feet, lat, body_s, group, direction, n
         )
         pair &= lift_ok[:, None]
+        if pair[1:].any():
+            # the second step's swing from where the first leaves the body (L1 / 2 on)
+            shifts = np.flatnonzero(pair.any(1))
+            lifts = self._heights(model, feet, s_feet, lat, body_s, other, direction, n, shifts)[2]
+            pair[shifts] &= lifts
         sections = lengths[pair.any(1)]
         if not pair.any():
             stay = feet[group].copy()
@@ -475,11 +491,12 @@ class StepPlanner:
             dev = dev + (off - quarter) ** 2
         return l1 + l2 - 1.0 * np.sqrt(dev / len(self.home))
 
-    def _heights(self, model, feet, s_feet, lat, body_s, group, direction, n):
+    def _heights(self, model, feet, s_feet, lat, body_s, group, direction, n, shifts=None):
         """Step height per step length (the lowest in every swinging foot's feasible section of
         step height: the apex above the highest tread under its path, reachable and free of
         interference over lift-off, mid-crossing and touch-down), apex heights, and whether
-        one exists."""
+        one exists. With ``shifts`` (indices of a first step's length), whether one exists for
+        the step that starts after the body moved half of each, (len(shifts), n)."""
         g = self.geometry
         lengths = np.arange(n) * g.resolution
         s0 = s_feet[group][:, None] + 0.0 * lengths
@@ -494,11 +511,31 @@ class StepPlanner:
         hi = np.tile(np.arange(k), 3 * n * len(group))
         s_apex = s_feet[legs] + direction * 0.5 * lengths[li] * end
         z_apex = top[np.repeat(np.arange(len(group)), 3 * n * k), li] + steps[hi]
+        apex = model.to_global(s_apex, lat[legs], z_apex)
+        if shifts is not None:
+            return (
+                None,
+                None,
+                self._lift_after(model, legs, apex, li * end, body_s, direction, shifts, n, k),
+            )
         # the body at a quarter of the step per half of the swing's crossing
         pos, rot = model.body_frames(body_s + direction * 0.25 * np.arange(2 * n) * g.resolution, g)
         pos, rot = pos[li * end], rot[li * end]
-        apex = model.to_global(s_apex, lat[legs], z_apex)
         ok = leg_checks(batched(self.kin, legs), self.home[legs], apex, pos, rot, model, g)
         ok = ok.reshape(len(group), 3, n, k).all(1).all(0)  # (n, k): every foot, three points
         first = np.argmax(ok, axis=1)
         return steps[first], top + steps[first], ok.any(1)
+
+    def _lift_after(self, model, legs, apex, quarter, body_s, direction, shifts, n, k):
+        """Whether each swing of ``_heights``' grid (legs, apex points, body ``quarter`` steps
+        on) has a feasible step height once the body moved half of each first step ``shifts``;
+        (len(shifts), n)."""
+        g = self.geometry
+        count = len(shifts)
+        at = (2 * np.asarray(shifts)[:, None] + quarter[None, :]).ravel()
+        pos, rot = model.body_frames(body_s + direction * 0.25 * g.resolution * at, g)
+        rows = np.tile(legs, count)
+        ok = leg_checks(
+            batched(self.kin, rows), self.home[rows], np.tile(apex, (count, 1)), pos, rot, model, g
+        )
+        return ok.reshape(count, -1, 3, n, k).all(2).all(1).any(-1)
