@@ -41,6 +41,8 @@ import numpy as np
 from daemon.kinematics import Kinematics
 from daemon.messages import Stairs
 
+CANDIDATES = 4
+"""Step pairs whose second swing the plan checks at a time, best first."""
 WINDOW_SPAN = 1.5
 """The body's terrain fit spans this much more than the feet (paper 004's body follows the
 flight's slope): over the feet's span alone, 150 mm rises pitch the body up so early that the
@@ -448,18 +450,13 @@ class StepPlanner:
             model, feet, s_feet, lat, body_s, group, direction, n
         )
         pair &= lift_ok[:, None]
-        if pair[1:].any():
-            # the second step's swing from where the first leaves the body (L1 / 2 on)
-            shifts = np.flatnonzero(pair.any(1))
-            lifts = self._heights(model, feet, s_feet, lat, body_s, other, direction, n, shifts)[2]
-            pair[shifts] &= lifts
         sections = lengths[pair.any(1)]
-        if not pair.any():
+        score = self._score(s_feet, body_s, group, other, direction, lengths)
+        choice = self._choose(model, feet, s_feet, lat, body_s, other, direction, pair, score)
+        if choice is None:
             stay = feet[group].copy()
             return StepPlan(group, 0.0, g.min_step_height, 0.0, stay, stay[:, 2], sections, True)
-        score = self._score(s_feet, body_s, group, other, direction, lengths)
-        score = np.where(pair, score, -np.inf)
-        l1, l2 = np.unravel_index(int(np.argmax(score)), score.shape)
+        l1, l2 = choice
         s_land = s_feet[group] + direction * lengths[l1]
         z_land = model.height(group, s_land) + g.foot_radius
         landing = feet[group].copy() if l1 == 0 else model.to_global(s_land, lat[group], z_land)
@@ -473,6 +470,46 @@ class StepPlanner:
             sections,
             False,
         )
+
+    def _choose(self, model, feet, s_feet, lat, body_s, other, direction, pair, score):
+        """The best-scoring feasible pair (L1, L2) whose second step also has a feasible swing
+        (a step height from where the first step leaves the body): without that check, walks
+        dead-locked with both tripods' swings beyond their joint limits. Candidates are checked
+        best first, ``CANDIDATES`` at a time (the first batch nearly always holds the choice)."""
+        flat = np.where(pair, score, -np.inf).ravel()
+        order = np.argsort(-flat, kind="stable")[: int(pair.sum())]
+        for start in range(0, len(order), CANDIDATES):
+            l1, l2 = np.unravel_index(order[start : start + CANDIDATES], pair.shape)
+            ok = self._second_swing(model, feet, s_feet, lat, body_s, other, direction, l1, l2)
+            if ok.any():
+                first = int(np.argmax(ok))
+                return int(l1[first]), int(l2[first])
+        return None
+
+    def _second_swing(self, model, feet, s_feet, lat, body_s, group, direction, l1, l2):
+        """Whether ``group``'s step of index ``l2`` after the other's of index ``l1`` has a step
+        height feasible for its three feet at lift-off, mid-crossing and touch-down, the body
+        having moved half the first step (c,); a step of length 0 does not swing."""
+        g = self.geometry
+        lengths = np.arange(max(l1.max(), l2.max()) + 1) * g.resolution
+        steps = np.arange(g.min_step_height, g.max_step_height + 1e-9, g.height_resolution)
+        c, k = len(l1), len(steps)
+        # rows (candidate, leg, end, height)
+        cand = np.repeat(np.arange(c), 3 * 3 * k)
+        leg = np.tile(np.repeat(np.arange(3), 3 * k), c)
+        end = np.tile(np.repeat([0, 1, 2], k), 3 * c)
+        hi = np.tile(np.arange(k), 9 * c)
+        legs = group[leg]
+        step = lengths[l2[cand]]
+        s0 = s_feet[legs]
+        top = model.swept_top(legs, s0, s0 + direction * step) + g.foot_radius
+        top = np.maximum(top, feet[legs, 2])
+        s_apex = s0 + direction * 0.5 * step * end
+        apex = model.to_global(s_apex, lat[legs], top + steps[hi])
+        at = body_s + direction * (0.5 * lengths[l1[cand]] + 0.25 * step * end)
+        pos, rot = model.body_frames(at, g)
+        ok = leg_checks(batched(self.kin, legs), self.home[legs], apex, pos, rot, model, g)
+        return ok.reshape(c, 3, 3, k).all(2).all(1).any(-1) | (l2 == 0)
 
     def _score(self, s_feet, body_s, group, other, direction, lengths) -> np.ndarray:
         """Progress of the two steps less the stance's spread off centre after them: a tripod
@@ -491,12 +528,11 @@ class StepPlanner:
             dev = dev + (off - quarter) ** 2
         return l1 + l2 - 1.0 * np.sqrt(dev / len(self.home))
 
-    def _heights(self, model, feet, s_feet, lat, body_s, group, direction, n, shifts=None):
+    def _heights(self, model, feet, s_feet, lat, body_s, group, direction, n):
         """Step height per step length (the lowest in every swinging foot's feasible section of
         step height: the apex above the highest tread under its path, reachable and free of
         interference over lift-off, mid-crossing and touch-down), apex heights, and whether
-        one exists. With ``shifts`` (indices of a first step's length), whether one exists for
-        the step that starts after the body moved half of each, (len(shifts), n)."""
+        one exists."""
         g = self.geometry
         lengths = np.arange(n) * g.resolution
         s0 = s_feet[group][:, None] + 0.0 * lengths
@@ -512,12 +548,6 @@ class StepPlanner:
         s_apex = s_feet[legs] + direction * 0.5 * lengths[li] * end
         z_apex = top[np.repeat(np.arange(len(group)), 3 * n * k), li] + steps[hi]
         apex = model.to_global(s_apex, lat[legs], z_apex)
-        if shifts is not None:
-            return (
-                None,
-                None,
-                self._lift_after(model, legs, apex, li * end, body_s, direction, shifts, n, k),
-            )
         # the body at a quarter of the step per half of the swing's crossing
         pos, rot = model.body_frames(body_s + direction * 0.25 * np.arange(2 * n) * g.resolution, g)
         pos, rot = pos[li * end], rot[li * end]
@@ -525,17 +555,3 @@ class StepPlanner:
         ok = ok.reshape(len(group), 3, n, k).all(1).all(0)  # (n, k): every foot, three points
         first = np.argmax(ok, axis=1)
         return steps[first], top + steps[first], ok.any(1)
-
-    def _lift_after(self, model, legs, apex, quarter, body_s, direction, shifts, n, k):
-        """Whether each swing of ``_heights``' grid (legs, apex points, body ``quarter`` steps
-        on) has a feasible step height once the body moved half of each first step ``shifts``;
-        (len(shifts), n)."""
-        g = self.geometry
-        count = len(shifts)
-        at = (2 * np.asarray(shifts)[:, None] + quarter[None, :]).ravel()
-        pos, rot = model.body_frames(body_s + direction * 0.25 * g.resolution * at, g)
-        rows = np.tile(legs, count)
-        ok = leg_checks(
-            batched(self.kin, rows), self.home[rows], np.tile(apex, (count, 1)), pos, rot, model, g
-        )
-        return ok.reshape(count, -1, 3, n, k).all(2).all(1).any(-1)
