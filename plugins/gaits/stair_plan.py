@@ -364,8 +364,10 @@ def leg_checks(
     q = theta.reshape(-1) * kin.direction + kin.zero_offset
     inside = (np.abs(q - kin._mid) <= kin._half_range).reshape(-1, 3).all(1)
     good = near & ok & inside
-    knee = pos + np.einsum("nij,nj->ni", rot, knees(kin, np.nan_to_num(theta)))
-    return good & ~interferes(knee, feet, model, geometry)
+    rows = np.flatnonzero(good)  # interference only where the leg reaches at all
+    knee = pos[rows] + np.einsum("nij,nj->ni", rot[rows], knees(kin, theta)[rows])
+    good[rows] = ~interferes(knee, feet[rows], model, geometry)
+    return good
 
 
 # --- the plan --------------------------------------------------------------------------------
