@@ -144,7 +144,8 @@ def full_run(rise: float, tread: float) -> None:
         f"end x={end[0]:.2f} z={end[2]:.2f}"
     )
     print(
-        f"shin contacts {len(run.log.shin_hits)} ticks, foot-edge contacts "
+        f"shin contacts {len(run.log.shin_hits)} ticks (shank end cap inside the foot sphere: "
+        f"{len(run.log.cap_hits)} ticks, counted as the foot's), foot-edge contacts "
         f"{len(run.log.foot_edge_hits)} ticks, smallest touch-down margin {margins.min():.3f} m, "
         f"estimate error max {pos_err.max() * 100:.1f} cm / {rot_err.max():.1f} deg"
     )

@@ -82,6 +82,7 @@ class RunLog:
     plain_rot: list = field(default_factory=list)
     shin_hits: list = field(default_factory=list)
     foot_edge_hits: list = field(default_factory=list)
+    cap_hits: list = field(default_factory=list)  # (t, leg): shank end cap inside the foot sphere
     touchdowns: list = field(default_factory=list)  # (t, leg, foot centre) while walking
     tracking: list = field(default_factory=list)  # (phase, foot error, joint-level error) (m)
     seconds: float = 0.0
@@ -134,19 +135,26 @@ class StairRun:
         twin, rig = self.rig.twin, self.rig
         d = twin.data
         touching = np.zeros(6, bool)
+        feet = twin.foot_positions()
         for i in range(d.ncon):
             c = d.contact[i]
             pair = {int(c.geom1), int(c.geom2)}
             if not pair & self.world_geoms:
                 continue
-            if pair & self.shin_geoms and pair & self.stair_geoms:
-                self.log.shin_hits.append((t, sorted(self.names[g] for g in pair)))
             leg = next((self.foot_geoms[g] for g in pair if g in self.foot_geoms), None)
+            if pair & self.shin_geoms and pair & self.stair_geoms:
+                # the shank capsule ends at the foot's centre: its end cap lies inside the foot
+                # sphere and meets the tread under a foot pressed into it; that is the foot's
+                gap = np.linalg.norm(feet - c.pos, axis=1)
+                if gap.min() >= twin.robot.foot_radius:
+                    self.log.shin_hits.append((t, sorted(self.names[g] for g in pair)))
+                    continue
+                self.log.cap_hits.append((t, int(np.argmin(gap))))
+                leg = int(np.argmin(gap))
             if leg is not None:
                 touching[leg] = True
                 if abs(c.frame[2]) < EDGE_NORMAL:
                     self.log.foot_edge_hits.append((t, leg))
-        feet = twin.foot_positions()
         for leg in np.flatnonzero(touching & ~self._down & self.walking):
             self.log.touchdowns.append((t, int(leg), feet[leg].copy()))
         self._down = touching
