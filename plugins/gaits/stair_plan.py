@@ -20,12 +20,14 @@ knee above the hip-foot line, "b": below), so both types get their own interfere
 Feasible sections. A tripod's next step has one step length ``L`` (foot travel) and one step
 height ``h`` (swing apex above lift-off). For each foot, ``L`` is feasible when its landing lies
 in the middle area of a tread (``area`` from both ends, 5 cm by default, widened where the shin
-interferes), the leg reaches it within its joint limits and ``reach`` of its stand position, and
+interferes), the leg reaches it within its joint limits and ``reach`` of its stand position
+(horizontally), and
 no shin or foot interference occurs at touch-down or at the end of its stance; ``h`` is feasible
 from ``min_step_height`` above the highest tread the swing passes up to where the apex is still
 reachable without interference. The tripod's sections are the intersections over its three feet;
-the step after (the other tripod's) is planned at the same time, and the pair with the longest
-joint progress (then the most even) is chosen. The body advances half a step per swing.
+the step after (the other tripod's) is planned at the same time, its swing included (a feasible
+step height from where the first step leaves the body), and the pair with the longest joint
+progress (then the most even) is chosen. The body advances half a step per swing.
 """
 
 from __future__ import annotations
