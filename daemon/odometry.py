@@ -88,10 +88,10 @@ class LegOdometry:
         registered = ~np.isnan(self.anchor[:, 0])
         self._fit(feet, registered)
         seen = self._global(feet)
+        dt = t - self._last[0] if self._last is not None else 0.0
         still = np.zeros_like(stance)
-        if self._last is not None and t > self._last[0]:
-            speed = np.linalg.norm(seen - self._seen, axis=1) / (t - self._last[0])
-            still = stance & (speed < TOUCHDOWN_SPEED)
+        if dt > 0.0:
+            still = stance & (np.linalg.norm(seen - self._seen, axis=1) / dt < TOUCHDOWN_SPEED)
         self._still_since[~still] = np.nan
         self._still_since[still & np.isnan(self._still_since)] = t
         landed = (stance & ~registered) & (
@@ -102,9 +102,7 @@ class LegOdometry:
             self._fit(feet, registered | landed)
             seen = self._global(feet)
         self._seen = seen
-        velocity = np.zeros(3)
-        if self._last is not None and t > self._last[0]:
-            velocity = (self.origin - self._last[1]) / (t - self._last[0])
+        velocity = (self.origin - self._last[1]) / dt if dt > 0.0 else np.zeros(3)
         self._last = (t, self.origin.copy())
         return BodyState(
             stamp=t,
