@@ -49,6 +49,8 @@ WINDOW_SPAN = 1.5
 """The body's terrain fit spans this much more than the feet (paper 004's body follows the
 flight's slope): over the feet's span alone, 150 mm rises pitch the body up so early that the
 rear feet, still a tread below, leave the legs' reach (a walk up 150 × 320 mm stalls at 1.38 m)."""
+ROW_LAYOUTS = 64
+"""Row layouts (legs per configuration) whose batched kinematics a planner keeps."""
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
@@ -264,31 +266,26 @@ def axis_distance(
     the position of the closest point along each edge from its centre (n, E).
 
     d = |(s × e) · OP| / |s × e| where the common perpendicular meets the shin; past the shin's
-    ends, the distance from the nearer end to the edge line.
+    ends, the distance from the nearer end to the edge line. Computed per coordinate over
+    (n, E) arrays: the plan calls this on thousands of configurations.
     """
-    s = (foot - knee)[:, None, :]
-    e = edge_dir[None, :, :]
-    op = edge_point[None, :, :] - knee[:, None, :]
-    n = _cross(s, e)
-    nn = np.einsum("nek,nek->ne", n, n)
+    sx, sy, sz = (foot - knee).T[:, :, None]
+    ex, ey, ez = edge_dir.T[:, None, :]
+    ox, oy, oz = edge_point.T[:, None, :] - knee.T[:, :, None]
+    nx, ny, nz = sy * ez - sz * ey, sz * ex - sx * ez, sx * ey - sy * ex
+    nn = nx * nx + ny * ny + nz * nz
     parallel = nn < 1e-12
-    t = np.einsum("nek,nek->ne", _cross(op, e), n) / np.where(parallel, 1.0, nn)
-    t = np.where(parallel, 0.5, t)
+    safe = np.where(parallel, 1.0, nn)
+    cx, cy, cz = oy * ez - oz * ey, oz * ex - ox * ez, ox * ey - oy * ex
+    t = np.where(parallel, 0.5, (cx * nx + cy * ny + cz * nz) / safe)
     inside = (t >= 0.0) & (t <= 1.0) & ~parallel
-    d_axes = np.abs(np.einsum("nek,nek->ne", n, op)) / np.sqrt(np.where(parallel, 1.0, nn))
-    closest = knee[:, None, :] + np.clip(t, 0.0, 1.0)[..., None] * s
-    rel = closest - edge_point[None]
-    along = np.einsum("nek,nek->ne", rel, e)
-    off = rel - along[..., None] * e
-    d_end = np.sqrt(np.einsum("nek,nek->ne", off, off))
+    d_axes = np.abs(nx * ox + ny * oy + nz * oz) / np.sqrt(safe)
+    t = np.clip(t, 0.0, 1.0)
+    rx, ry, rz = t * sx - ox, t * sy - oy, t * sz - oz  # closest shin point from the edge centre
+    along = rx * ex + ry * ey + rz * ez
+    fx, fy, fz = rx - along * ex, ry - along * ey, rz - along * ez
+    d_end = np.sqrt(fx * fx + fy * fy + fz * fz)
     return np.where(inside, d_axes, d_end), along
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product over the last axis of broadcast arrays (np.cross without its overhead)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
 
 
 def interferes(
@@ -300,10 +297,11 @@ def interferes(
     d, along = axis_distance(knee, foot, model.edge_point, model.edge_dir)
     within = np.abs(along) <= model.edge_half[None] + geometry.shin_radius
     shin = (d < geometry.shin_radius + geometry.edge_radius) & within
-    rel = foot[:, None, :] - model.edge_point[None]
-    on = np.einsum("nek,ek->ne", rel, model.edge_dir)
-    off = rel - on[..., None] * model.edge_dir[None]
-    d_foot = np.sqrt(np.einsum("nek,nek->ne", off, off))
+    ex, ey, ez = model.edge_dir.T[:, None, :]
+    rx, ry, rz = foot.T[:, :, None] - model.edge_point.T[:, None, :]
+    on = rx * ex + ry * ey + rz * ez
+    fx, fy, fz = rx - on * ex, ry - on * ey, rz - on * ez
+    d_foot = np.sqrt(fx * fx + fy * fy + fz * fz)
     foot_hit = (d_foot < geometry.foot_radius + geometry.edge_radius) & (
         np.abs(on) <= model.edge_half[None] + geometry.foot_radius
     )
@@ -405,6 +403,18 @@ class StepPlanner:
         self.geometry = msgspec.structs.replace(geometry, body_height=height, window=window)
         self.home = home[:, :2]
         self.home_s = self.home[:, 0]
+        self._rows: dict[bytes, Kinematics] = {}
+
+    def _batched(self, legs: np.ndarray) -> Kinematics:
+        """``batched`` kinematics of the rows ``legs``, kept: a plan's row layouts repeat from
+        one half cycle to the next (they depend on the tripod, the step grid and the batch)."""
+        key = legs.tobytes()
+        kin = self._rows.get(key)
+        if kin is None:
+            if len(self._rows) >= ROW_LAYOUTS:
+                self._rows.clear()
+            kin = self._rows[key] = batched(self.kin, legs)
+        return kin
 
     def plan(
         self,
@@ -426,22 +436,29 @@ class StepPlanner:
         lengths = np.arange(n) * g.resolution
         s_feet, lat = model.to_plane(feet)
         lanes = np.arange(self.kin.n_legs)
-        # T[leg, m, j]: the leg's foot moved by lengths[m], the body by (m + j) half-steps
-        legs = np.repeat(lanes, n * n)
-        m = np.tile(np.repeat(np.arange(n), n), len(lanes))
-        j = np.tile(np.arange(n), n * len(lanes))
+        middle = model.margin(lanes[:, None], s_feet[:, None] + direction * lengths)
+        middle = middle >= g.area + g.landing_margin
+        heights, apex, lift_ok = self._heights(
+            model, feet, s_feet, lat, body_s, group, direction, middle[group].all(0)
+        )
+        # T[leg, m, j]: the leg's foot moved by lengths[m], the body by (m + j) half-steps;
+        # checked only where it can matter: the swinging tripod's steps that land in middle
+        # areas with a feasible swing, the other's that land in middle areas, and its hold
+        need = np.zeros((len(lanes), n), bool)
+        need[group] = lift_ok
+        need[other] = middle[other].all(0)
+        need[other, 0] = True
+        rows = np.flatnonzero(np.repeat(need.ravel(), n))
+        legs, m, j = rows // (n * n), rows // n % n, rows % n
         s_foot = s_feet[legs] + direction * lengths[m]
         z_foot = model.height(legs, s_foot) + g.foot_radius
-        moved = m > 0
-        z_foot = np.where(moved, z_foot, feet[legs, 2])
+        z_foot = np.where(m > 0, z_foot, feet[legs, 2])
         pos, rot = model.body_frames(body_s + direction * 0.5 * g.resolution * np.arange(2 * n), g)
         pos, rot = pos[m + j], rot[m + j]
         foot = model.to_global(s_foot, lat[legs], z_foot)
-        ok = leg_checks(batched(self.kin, legs), self.home[legs], foot, pos, rot, model, g).reshape(
-            len(lanes), n, n
-        )
-        middle = model.margin(lanes[:, None], s_feet[:, None] + direction * lengths)
-        middle = middle >= g.area + g.landing_margin
+        ok = np.zeros(len(lanes) * n * n, bool)
+        ok[rows] = leg_checks(self._batched(legs), self.home[legs], foot, pos, rot, model, g)
+        ok = ok.reshape(len(lanes), n, n)
         # swinging tripod: lands in a middle area, fine at touch-down and at its stance's end
         touch = (ok[group][:, :, 0] & middle[group]).all(0)
         stance_end = ok[group].all(0)
@@ -450,9 +467,6 @@ class StepPlanner:
         hold = ok[other][:, 0, :].all(0)
         land = (ok[other].transpose(0, 2, 1) & middle[other][:, None, :]).all(0)
         pair = touch[:, None] & stance_end & hold[:, None] & land  # pair[L1, L2]
-        heights, apex, lift_ok = self._heights(
-            model, feet, s_feet, lat, body_s, group, direction, n
-        )
         pair &= lift_ok[:, None]
         sections = lengths[pair.any(1)]
         score = self._score(s_feet, body_s, group, other, direction, lengths)
@@ -512,7 +526,7 @@ class StepPlanner:
         apex = model.to_global(s_apex, lat[legs], top + steps[hi])
         at = body_s + direction * (0.5 * lengths[l1[cand]] + 0.25 * step * end)
         pos, rot = model.body_frames(at, g)
-        ok = leg_checks(batched(self.kin, legs), self.home[legs], apex, pos, rot, model, g)
+        ok = leg_checks(self._batched(legs), self.home[legs], apex, pos, rot, model, g)
         return ok.reshape(c, 3, 3, k).all(2).all(1).any(-1) | (l2 == 0)
 
     def _score(self, s_feet, body_s, group, other, direction, lengths) -> np.ndarray:
@@ -532,30 +546,34 @@ class StepPlanner:
             dev = dev + (off - quarter) ** 2
         return l1 + l2 - 1.0 * np.sqrt(dev / len(self.home))
 
-    def _heights(self, model, feet, s_feet, lat, body_s, group, direction, n):
+    def _heights(self, model, feet, s_feet, lat, body_s, group, direction, wanted):
         """Step height per step length (the lowest in every swinging foot's feasible section of
         step height: the apex above the highest tread under its path, reachable and free of
         interference over lift-off, mid-crossing and touch-down), apex heights, and whether
-        one exists."""
+        one exists; computed for the ``wanted`` step lengths (n,) only (others: none)."""
         g = self.geometry
+        n = len(wanted)
         lengths = np.arange(n) * g.resolution
         s0 = s_feet[group][:, None] + 0.0 * lengths
         s1 = s_feet[group][:, None] + direction * lengths
         top = model.swept_top(group[:, None], s0, s1) + g.foot_radius  # (3, n)
         top = np.maximum(top, feet[group, 2][:, None])
         steps = np.arange(g.min_step_height, g.max_step_height + 1e-9, g.height_resolution)
-        k = len(steps)
-        legs = np.repeat(group, 3 * n * k)
-        end = np.tile(np.repeat([0, 1, 2], n * k), len(group))
-        li = np.tile(np.repeat(np.arange(n), k), 3 * len(group))
-        hi = np.tile(np.arange(k), 3 * n * len(group))
+        k, idx = len(steps), np.flatnonzero(wanted)
+        w = len(idx)
+        legs = np.repeat(group, 3 * w * k)
+        end = np.tile(np.repeat([0, 1, 2], w * k), len(group))
+        li = idx[np.tile(np.repeat(np.arange(w), k), 3 * len(group))]
+        hi = np.tile(np.arange(k), 3 * w * len(group))
         s_apex = s_feet[legs] + direction * 0.5 * lengths[li] * end
-        z_apex = top[np.repeat(np.arange(len(group)), 3 * n * k), li] + steps[hi]
+        z_apex = top[np.repeat(np.arange(len(group)), 3 * w * k), li] + steps[hi]
         apex = model.to_global(s_apex, lat[legs], z_apex)
         # the body at a quarter of the step per half of the swing's crossing
         pos, rot = model.body_frames(body_s + direction * 0.25 * np.arange(2 * n) * g.resolution, g)
         pos, rot = pos[li * end], rot[li * end]
-        ok = leg_checks(batched(self.kin, legs), self.home[legs], apex, pos, rot, model, g)
-        ok = ok.reshape(len(group), 3, n, k).all(1).all(0)  # (n, k): every foot, three points
+        ok = np.zeros((n, k), bool)
+        if w:
+            checked = leg_checks(self._batched(legs), self.home[legs], apex, pos, rot, model, g)
+            ok[idx] = checked.reshape(len(group), 3, w, k).all(1).all(0)  # every foot, 3 points
         first = np.argmax(ok, axis=1)
         return steps[first], top + steps[first], ok.any(1)
