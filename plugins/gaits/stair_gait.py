@@ -57,9 +57,15 @@ class StairGaitConfig(StairGeometry, kw_only=True):
     one swing of each tripod), the longest ``step_length`` (m) and the tripods by leg name
     (``groups``; empty: the layout rule). ``landing_margin`` defaults to 1 cm here: in the twin
     (kp 300, feed-forward) feet land up to 4 mm off their planned place beside the estimate's
-    frame, and a foothold planned at exactly 5 cm landed 4.7 cm from the riser."""
+    frame, and a foothold planned at exactly 5 cm landed 4.7 cm from the riser. ``roll_margin``
+    1 cm: in stance the sphere feet roll 1.5-1.8 cm along the walking direction (150 × 300 mm,
+    descending: landed 6.4 cm from the drop edge, lifted off 4.95 cm from it). ``shin_margin``
+    1 cm: the shins' clearance lost to that roll and the body's lead (180 × 280 mm: planned
+    3.2 cm from the riser's edge axis at lift-off, 1.9 cm in the twin: a contact)."""
 
     landing_margin: NonNegative = 0.01
+    roll_margin: NonNegative = 0.01
+    shin_margin: NonNegative = 0.01
     cycle_time: Positive = 2.0
     step_length: Positive = 0.30
     groups: list[list[str]] = []

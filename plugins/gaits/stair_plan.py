@@ -57,8 +57,12 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
 class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """What the plan needs (SI). ``area``: near and far areas of a tread (paper 004: 5 cm);
-    ``landing_margin``: planned footholds keep this much more, for the feet's tracking error.
-    ``shin_radius``, ``edge_radius``: the interference cylinders (eq. 12); ``foot_radius``:
+    ``landing_margin``: planned footholds keep this much more, for the feet's tracking error;
+    ``roll_margin``: and this much more from their tread's far end (along the walking
+    direction): a sphere foot rolls that way while the body passes over it.
+    ``shin_radius``, ``edge_radius``: the interference cylinders (eq. 12); ``shin_margin``:
+    planned shins keep this much more from the edge cylinders, for the same error;
+    ``foot_radius``:
     feet are placed by their centres. ``reach``: farthest a stance foot may be from its stand
     position (body frame, x y). ``min_step_height``/``max_step_height``/``height_resolution``:
     the step height's range and grid (the swing apex above the highest tread under the foot's
@@ -69,8 +73,10 @@ class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     body_height: Positive | None = None
     area: NonNegative = 0.05
     landing_margin: NonNegative = 0.0
+    roll_margin: NonNegative = 0.0
     shin_radius: Positive = 0.02
     edge_radius: NonNegative = 0.01
+    shin_margin: NonNegative = 0.0
     foot_radius: NonNegative = 0.025
     reach: Positive = 0.2
     min_step_height: Positive = 0.05
@@ -291,12 +297,13 @@ def axis_distance(
 def interferes(
     knee: np.ndarray, foot: np.ndarray, model: StairModel, geometry: StairGeometry
 ) -> np.ndarray:
-    """Eq. 12 per configuration: the shin cylinder or the foot sphere meets an edge cylinder."""
+    """Eq. 12 per configuration: the shin cylinder (widened by ``shin_margin``) or the foot
+    sphere meets an edge cylinder."""
     if len(model.edge_point) == 0:
         return np.zeros(len(knee), bool)
     d, along = axis_distance(knee, foot, model.edge_point, model.edge_dir)
     within = np.abs(along) <= model.edge_half[None] + geometry.shin_radius
-    shin = (d < geometry.shin_radius + geometry.edge_radius) & within
+    shin = (d < geometry.shin_radius + geometry.edge_radius + geometry.shin_margin) & within
     ex, ey, ez = model.edge_dir.T[:, None, :]
     rx, ry, rz = foot.T[:, :, None] - model.edge_point.T[:, None, :]
     on = rx * ex + ry * ey + rz * ez
@@ -436,8 +443,10 @@ class StepPlanner:
         lengths = np.arange(n) * g.resolution
         s_feet, lat = model.to_plane(feet)
         lanes = np.arange(self.kin.n_legs)
-        middle = model.margin(lanes[:, None], s_feet[:, None] + direction * lengths)
-        middle = middle >= g.area + g.landing_margin
+        # the far area widened by roll_margin: the margin at a point roll/2 further along
+        half_roll = 0.5 * g.roll_margin
+        middle = model.margin(lanes[:, None], s_feet[:, None] + direction * (lengths + half_roll))
+        middle = middle >= g.area + g.landing_margin + half_roll
         heights, apex, lift_ok = self._heights(
             model, feet, s_feet, lat, body_s, group, direction, middle[group].all(0)
         )
