@@ -6,8 +6,10 @@ and 0.02 m, grippers holding only on holds and slipping above 9 N. Each seed run
 for ``--seconds`` of simulated time; the periodic gait ([9]) is the baseline and the table
 gives the non-periodic / periodic ratio of the base's travel up the slope (twin truth), the
 least TSM of the grippers that held (twin truth), slips, grips that never engaged, and the
-planner's own (kinematic) travel beside the twin's, and how far a beam search that knows when
-the run ends gets on the same map (kinematic: what a better limb choice could reach), and the
+planner's own (kinematic) travel beside the twin's, the base's mean advance per swing beside
+the room the three stance legs leave it (how far up the slope it could go with them in reach
+and TSM >= 0), how far a beam search (beam 400) that knows when the run ends gets on the same
+map (kinematic: the most a better choice of swings could reach), and the
 CPU time of the non-periodic plans (worker thread) beside that of the runner's ticks (control
 thread, which no longer plans). Figure
 (paper Figs. 7 and 8): base x and TSM over time for both gaits, every seed. Goal: ratio ≥ 2
