@@ -86,6 +86,12 @@ def test_interference_is_eq_12_sum_of_radii() -> None:
         mid = edge + gap * normal
         knee, foot = mid + 0.2 * direction, mid - 0.2 * direction
         assert interferes(knee[None], foot[None], model, g)[0] == hit
+    # shin_margin widens the shin: 3.9 cm from the edge axis interferes with 1 cm, 4.1 does not
+    wide = msgspec.structs.replace(g, shin_margin=0.01)
+    for gap, hit in ((0.039, True), (0.041, False)):
+        mid = edge + gap * normal
+        knee, foot = mid + 0.2 * direction, mid - 0.2 * direction
+        assert interferes(knee[None], foot[None], model, wide)[0] == hit
 
 
 # --- the plan ---------------------------------------------------------------------------------
@@ -111,11 +117,11 @@ def shin_clear(kin, planner, model, feet, body_s, legs) -> bool:
     return True
 
 
-def walk(knee: str, rise: float, tread: float, direction: float, steps: int = 40):
+def walk(knee: str, rise: float, tread: float, direction: float, steps: int = 40, **geometry):
     """Plan a walk up (direction +1) or, starting on the landing, backward down (-1)."""
     profile = qingzhui(knee)
     kin = Kinematics(profile)
-    planner = StepPlanner(kin, StairGeometry(foot_radius=0.025))
+    planner = StepPlanner(kin, StairGeometry(foot_radius=0.025, **geometry))
     g = planner.geometry
     stairs = flight(rise, tread)
     top = 0.8 + 2 * tread + 0.6 if direction < 0 else 0.0
@@ -192,6 +198,26 @@ def test_planned_descent_backward():
     assert (m >= AREA - 1e-9).all(), m.min()
     assert clear
     assert body < 0.8, f"the body came down to the floor ({body:.2f} m)"
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_roll_margin_keeps_footholds_off_the_far_end(direction):
+    """The sphere feet roll along the walking direction in stance: with ``roll_margin`` every
+    planned foothold keeps that much more from its tread's far end (the riser ahead going up,
+    the drop edge behind going down backward) than the near end's 5 cm + landing margin."""
+    body, footholds, stairs, clear = walk(
+        "a", 0.13, 0.30, direction, landing_margin=0.01, roll_margin=0.02
+    )
+    assert clear and (body > 0.8 + 2 * 0.30 if direction > 0 else body < 0.8)
+    model = StairModel(stairs, np.zeros(3), 0.0, footholds[:, 1], 0.0)
+    s = model.to_plane(footholds)[0]
+    lanes = np.arange(len(footholds))
+    seg = model.segment(lanes, s)
+    bounds = np.pad(model.bounds, ((0, 0), (1, 1)), constant_values=(-np.inf, np.inf))
+    lo, hi = bounds[lanes, seg], bounds[lanes, seg + 1]
+    far, near = (hi - s, s - lo) if direction > 0 else (s - lo, hi - s)
+    assert far.min() >= AREA + 0.01 + 0.02 - 1e-9, far.min()
+    assert near.min() >= AREA + 0.01 - 1e-9, near.min()
 
 
 def footless_stretch(knee: str, rise: float, tread: float, leg: int = 0) -> float:
