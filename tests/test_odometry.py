@@ -107,3 +107,57 @@ def test_a_slipping_foot_is_left_out_and_registered_again(robots) -> None:
         body = odo.update(q, stance, t)
         worst = max(worst, float(np.linalg.norm(np.array(body.position) - pos)))
     assert worst < 1e-3, f"body estimate off by {worst * 1000:.1f} mm"
+
+
+def _slipping_turn(odo: LegOdometry, kin: Kinematics, imu: bool) -> tuple[float, float]:
+    """Stand 3 s, then walk a tripod 40 s turning at 0.02 rad/s and pitching ±1.7°, while the
+    stance feet twist on the ground at 0.05°/s (the slow slip measured crossing a joist). The
+    IMU reads the true rates plus a 0.3°/s gyro bias. Worst (yaw, tilt) error (rad) walking."""
+    stand = kin.stand_feet()
+    tripod = np.array([0, 1, 0, 1, 0, 1], bool)
+    world = stand.copy()
+    dt, rest, slip, turn, bias = 0.02, 3.0, math.radians(0.05), 0.02, np.array([0, 0, 0.005])
+    worst_yaw = worst_tilt = 0.0
+    for k in range(int((rest + 40.0) / dt) + 1):
+        t = k * dt
+        walk = max(0.0, t - rest)
+        yaw, pitch, pitch_rate = turn * walk, 0.03 * math.sin(walk), 0.03 * math.cos(walk)
+        rot = rot_z(yaw) @ rotation(np.array([math.cos(pitch / 2), 0, math.sin(pitch / 2), 0]))
+        pos = np.array([0.03 * walk, 0.0, 0.0])
+        stance = np.ones(6, bool) if t < rest else (tripod if walk % 1.0 < 0.5 else ~tripod)
+        if t >= rest:
+            twist = rot_z(slip * dt)
+            world[stance] = pos + (world[stance] - pos) @ twist.T
+        q, ok = kin.ik((world - pos) @ rot)
+        assert ok.all()
+        if imu:
+            omega_world = np.array([0, 0, turn if t >= rest else 0.0])
+            omega_world = omega_world + rot_z(yaw) @ [0, pitch_rate if t >= rest else 0.0, 0]
+            gyro = rot.T @ omega_world + bias
+            body = odo.update(q, stance, t, gyro, rot.T @ [0, 0, 9.81])
+        else:
+            body = odo.update(q, stance, t)
+        world[~stance] = (pos + stand @ rot.T)[~stance]
+        if t >= rest:
+            err = rotation(np.array(body.orientation)).T @ rot
+            worst_yaw = max(worst_yaw, abs(math.atan2(err[1, 0], err[0, 0])))
+            worst_tilt = max(worst_tilt, math.acos(min(1.0, err[2, 2])))
+    return worst_yaw, worst_tilt
+
+
+def test_the_gyro_bounds_the_heading_of_slipping_legs(robots) -> None:
+    """Leg odometry alone turns with the slipping feet (2° in 40 s); fused with the gyro, whose
+    bias it learns while the robot stands, the heading error stays within what the complementary
+    filter lets in of that slow drift, r·(t - τ·(1 - exp(-t/τ))), and the tilt follows gravity."""
+    from daemon.odometry import BIAS_TIME, HEADING_TIME
+
+    kin = Kinematics(profiles.load(robots / "widowx.toml"))
+    legs_yaw, _ = _slipping_turn(LegOdometry(kin), kin, imu=False)
+    fused_yaw, fused_tilt = _slipping_turn(LegOdometry(kin), kin, imu=True)
+    r, t, tau = math.radians(0.05), 40.0, HEADING_TIME
+    leak = r * (t - tau * (1.0 - math.exp(-t / tau)))
+    left_bias = 0.005 * math.exp(-(3.0 - 0.5) / BIAS_TIME) * t  # half a second to first rest
+    bound = leak + left_bias + math.radians(0.1)
+    assert legs_yaw > 3 * bound, f"legs alone {math.degrees(legs_yaw):.2f}°: no drift to bound"
+    assert fused_yaw < bound, f"fused yaw off {math.degrees(fused_yaw):.2f}° > {bound:.4f} rad"
+    assert fused_tilt < math.radians(0.5), f"tilt off {math.degrees(fused_tilt):.2f}°"
