@@ -38,7 +38,7 @@ from daemon.plugins import Isolated
 from daemon.profile import Profile
 from daemon.safety import Safety
 from daemon.smoothing import SmoothingError
-from drivers.base import DriverError, Imu, JointBus
+from drivers.base import DriverError, Imu, ImuSample, JointBus
 
 log = logging.getLogger("climbd.control")
 
@@ -218,7 +218,11 @@ class Controller:
         if self.estimator is not None:
             self._estimate(t, dt, q, state)
         elif self._ticks % self._odometry_every == 0 or self._stance_changed:
-            self.body = self.odometry.update(q, self.stance, t)
+            sample = self._read_imu()
+            if sample is None:
+                self.body = self.odometry.update(q, self.stance, t)
+            else:
+                self.body = self.odometry.update(q, self.stance, t, sample.gyro, sample.accel)
             self._stance_changed = False
         if self.fault_reset:
             self.fault_reset = False
@@ -251,14 +255,18 @@ class Controller:
 
     def _estimate(self, t: float, dt: float, q: np.ndarray, state: JointState) -> None:
         """Body state from the stance feet and the IMU (paper 004 eqs. 5-9, filter 1)."""
-        try:
-            sample = self.imu.read() if self.imu is not None else None
-        except DriverError as e:
-            self.messages.append(f"imu: {e}")
-            sample = None
+        sample = self._read_imu()
         gyro = sample.gyro if sample is not None else None
         accel = sample.accel if sample is not None else None
         self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t)
+
+    def _read_imu(self) -> ImuSample | None:
+        """The IMU's sample now, or None without an IMU or when it fails (noted in messages)."""
+        try:
+            return self.imu.read() if self.imu is not None else None
+        except DriverError as e:
+            self.messages.append(f"imu: {e}")
+            return None
 
     def _feed_forward(self, q: np.ndarray, command: JointCommand) -> None:
         """Torque legs with ``feed_forward``: each stance foot's share of the weight as feed-forward

@@ -272,10 +272,11 @@ class ControlRole:
 
     def _estimator(self, sim):
         """Profiles with joint torque sensing (torque legs) get paper 004's state estimator, and
-        the gravity feed-forward; in the twin, calibrated from its build and fed its IMU."""
+        the gravity feed-forward; in the twin, calibrated from its build and fed its IMU. Other
+        profiles get leg odometry, fused with the twin's IMU in the twin."""
         profile = self.profile
         if profile.bus.kind != "torque":
-            return None, None
+            return None, (_TwinImu(sim.twin) if sim is not None else None)
         from daemon.estimation import EstimatorConfig, StateEstimator
 
         if sim is None:

@@ -6,14 +6,16 @@ relies on: decisions, where the body ended, its tilt, which feet are down, and e
 of the body box or a leg link (not a foot) with a joist along the way. By default the gait's
 joint goals are set in the twin in-process (fast); with ``driver=True`` the gait runs as the
 daemon runs it: a gait plugin under the Controller and the safety supervisor, on the body
-its leg odometry estimates, writing through dynamixel_sdk to the twin's servo emulator on its
-pty, lock-step by count (``Twin.driver_sent``), as ``climbd run --sim --stepped`` does.
+its leg odometry estimates fused with the twin's IMU, writing through dynamixel_sdk to the
+twin's servo emulator on its pty, lock-step by count (``Twin.driver_sent``), as
+``climbd run --sim --stepped`` does.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import mujoco
 import numpy as np
@@ -210,7 +212,13 @@ def _through_driver(
         clock = SteppedClock(on_advance=lambda t0, t1: scene.advance(t1))
         safety = Safety(WIDOWX)
         controller = Controller(
-            WIDOWX, bus, safety, clock.now, Isolated("joist_climb", behaviour), lambda m: None
+            WIDOWX,
+            bus,
+            safety,
+            clock.now,
+            Isolated("joist_climb", behaviour),
+            lambda m: None,
+            imu=SimpleNamespace(read=twin.imu_sample),
         )
         loop = ControlLoop(WIDOWX.rate_hz, clock, controller.tick)
         assert safety.request(Mode.STAND, clock.now(), reason="start-up")
