@@ -259,3 +259,16 @@ def test_config_is_validated_and_the_plugin_loads_by_name():
         instantiate("climbd.gaits", "joist_climb", {"side_direction": 2}, WIDOWX, "test")
     with pytest.raises(PluginError, match="profile"):
         JoistClimb(JoistClimbConfig(), None)
+
+
+def test_a_joist_beside_the_legs_is_walked_away_from_before_the_turn_to_square_up():
+    """Table 2 test 6 (75°, 1.8 m long): the joist's near end is beside the left legs from the
+    start. Walking on, or turning 75° in place there, sweeps a leg into it; the behaviour first
+    walks straight away from its face until the turn's circle of feet clears it."""
+    psi = math.radians(75.0)
+    joist = JoistSpec(1.0 - 0.02 / math.cos(psi), psi, 0.10, length=1.8)
+    r = run([joist], goal=None, seconds=25.0)
+    modes = [e.split(":")[0] for _, e in r.events]
+    assert modes[:4] == ["clear", "align", "approach", "settle"], modes
+    c = r.behaviour.config
+    assert r.clearance >= c.leg_radius + c.turn_clearance / 2, r.clearance

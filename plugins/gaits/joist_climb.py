@@ -1,8 +1,10 @@
 """Climb-or-sidestep behaviour of paper 000: walk, then climb a low joist or go round a high one.
 
 The robot walks forward with the tripod gait until the nearest joist across its path is
-closer than ``approach_distance`` (0.55 m). Under ``climb_max_height`` (14 cm) it turns square
-to the joist when oblique (the tripod's turn, closed on the measured yaw), walks up to it,
+closer than ``approach_distance`` (0.55 m), or any joist comes within the circle its feet sweep
+turning in place. Under ``climb_max_height`` (14 cm) it turns square to the joist when oblique
+(the tripod's turn, closed on the measured yaw; first walking straight away from the joist's
+face while that is inside the turn's circle of feet), walks up to it,
 stops, re-measures, squares up to within ``square_tolerance_deg`` with small turns in place
 (leg by leg, five feet standing), and crosses it with the free gait of
 plugins/gaits/joist_crossing.py: body raised to the climb height, legs stepped one at a time
@@ -57,6 +59,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     side_speed: float = 0.05
     turn_rate: float = 0.3
     align_tolerance_deg: float = 3.0
+    turn_clearance: float = 0.04
     square_tolerance_deg: float = 1.0
     fine_turn_max_deg: float = 6.0
     side_direction: int = 1
@@ -110,6 +113,7 @@ class Phase(str, enum.Enum):
 
     WALK = "walk"
     SIDESTEP = "sidestep"
+    CLEAR = "clear"
     ALIGN = "align"
     SQUARE = "square"
     APPROACH = "approach"
@@ -183,6 +187,14 @@ class InPlaceTurn:
 def _rot(yaw: float) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s], [s, c]])
+
+
+def _reach(joist: Joist) -> float:
+    """Distance (m) from the body's centre to the joist's seen segment, on the floor."""
+    a, b = (np.array(p[:2], float) for p in joist.endpoints)
+    ab = b - a
+    s = float(np.clip(-(a @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0))
+    return float(np.hypot(*(a + s * ab)))
 
 
 def _planar(body: BodyState) -> np.ndarray:
@@ -352,6 +364,8 @@ class JoistClimb(GaitPlugin):
             return self._step_walk(t, dt, body, world)
         if self.mode == Phase.SIDESTEP:
             return self._step_sidestep(t, dt, body, world)
+        if self.mode == Phase.CLEAR:
+            return self._step_clear(t, dt, body)
         if self.mode == Phase.ALIGN:
             return self._step_align(t, dt, body)
         if self.mode == Phase.APPROACH:
@@ -384,6 +398,28 @@ class JoistClimb(GaitPlugin):
         if self.mode == Phase.CROSS:
             return self._step_cross(t, dt, body, world)
         return self._walk(t, dt, body, 0.0, 0.0, 0.0)
+
+    def _turn_radius(self) -> float:
+        """How near (m) a joist's face may come to the body's centre before a turn in place
+        sweeps a foot or a leg into it: the farthest foot, the leg's radius and
+        ``turn_clearance``."""
+        c = self.config
+        return float(np.hypot(*self.tripod.home[:, :2].T).max()) + c.leg_radius + c.turn_clearance
+
+    def _face_gap(self, joist: TrackedJoist) -> float:
+        """Distance (m) from the body's centre to the joist's near face (its whole line)."""
+        return float(np.dot(joist.normal, np.subtract(joist.point, self.pose[:2])))
+
+    def _step_clear(self, t: float, dt: float, body: BodyState) -> FootTargets:
+        """A tick of walking straight away from an oblique joist whose face is inside the circle
+        the feet sweep turning in place (at 75° its near end is beside the legs from the start),
+        until the turn to square up clears it."""
+        c = self.config
+        if self._face_gap(self.target) >= self._turn_radius():
+            self._switch(t, Phase.ALIGN, f"{math.degrees(self._turn_left):.1f} deg to square")
+            return self._walk(t, dt, body, 0.0, 0.0, 0.0)
+        away = -(_rot(-self.pose[2]) @ np.array(self.target.normal)) * c.walk_speed
+        return self._walk(t, dt, body, float(away[0]), float(away[1]), 0.0)
 
     def _step_align(self, t: float, dt: float, body: BodyState) -> FootTargets:
         """A tick of the tripod's turn by ``_turn_left``, closed on the measured yaw: over a
@@ -453,15 +489,20 @@ class JoistClimb(GaitPlugin):
                 self.done = True
             return out
         joists = self._relevant(world)
-        if joists and joists[0].distance < c.approach_distance:
-            nearest = joists[0]
+        near = [j for j in joists if _reach(j) < self._turn_radius()]
+        if near or (joists and joists[0].distance < c.approach_distance):
+            nearest = near[0] if near else joists[0]
             self.target = self.track(nearest)
             if self._blocks(nearest):
                 self._switch(t, Phase.SIDESTEP, f"joist {nearest.height:.3f} m high: too high")
                 return self._step_sidestep(t, dt, body, world)
             self._turn_left = nearest.yaw
             if abs(nearest.yaw) > math.radians(c.align_tolerance_deg):
-                self._switch(t, Phase.ALIGN, f"joist {nearest.height:.3f} m, yaw {nearest.yaw:.3f}")
+                what = f"joist {nearest.height:.3f} m, yaw {nearest.yaw:.3f}"
+                if self._face_gap(self.target) < self._turn_radius():
+                    self._switch(t, Phase.CLEAR, f"{what}: too near to turn")
+                    return self._step_clear(t, dt, body)
+                self._switch(t, Phase.ALIGN, what)
             else:
                 self._switch(t, Phase.APPROACH, f"joist {nearest.height:.3f} m high: climb")
             return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
