@@ -40,12 +40,16 @@ STILL_ACCEL = 0.5
 """m/s²: a specific force within this of ``GRAVITY`` counts as gravity alone (tilt observable)."""
 TILT_TIME = 1.0
 """Seconds: time constant pulling the gyro's tilt toward the accelerometer's gravity."""
-HEADING_TIME = 120.0
+HEADING_TIME = 300.0
 """Seconds: time constant τ pulling the gyro's heading toward the stance feet's. A leg drift of
-rate r leaks in as r·(t - τ·(1 - exp(-t/τ))) (0.05°/s over 40 s: 0.3° of 2°); a gyro bias left
+rate r leaks in as r·(t - τ·(1 - exp(-t/τ))) (0.05°/s over 40 s: 0.13° of 2°); a gyro bias left
 after ``BIAS_TIME`` holds an error bias·τ."""
-BIAS_TIME = 0.5
-"""Seconds: time constant of the gyro bias estimate, learnt while all six feet rest."""
+BIAS_TIME = 30.0
+"""Seconds of rest: time constant of the gyro bias estimate, learnt while all six feet rest. Slow,
+because the body rocks on its feet as a leg lands (0.5 s learnt that as a bias: 0.5° of heading
+over a 60° crossing through the driver, 0.16° at 30 s, replayed on the recording)."""
+REST_HEADING_TIME = 1.0
+"""Seconds: the heading's pull toward the stance feet's at rest, where no foot slips."""
 STILL_RATE = 0.005
 """rad/s: the stance feet's rotation rate under which a body on all its feet is at rest."""
 
@@ -120,17 +124,19 @@ class LegOdometry:
     def _steer(self, gyro: np.ndarray, legs_rot: np.ndarray | None, rest: bool, dt: float) -> None:
         """Pull the IMU's heading toward the stance feet's by ``dt / heading_time``; at ``rest``
         (all feet down, the stance feet's rotation ``legs_rot`` before this update unchanged)
-        learn the gyro's bias from ``gyro``."""
+        learn the gyro's bias from ``gyro`` and pull by ``dt / REST_HEADING_TIME``."""
         if self._legs_rot is None:
             return
+        tau = self.heading_time
         if rest and legs_rot is not None and dt > 0.0:
             rate = np.linalg.norm(log_so3(legs_rot.T @ self._legs_rot)) / dt
             if rate < STILL_RATE:
                 self.gyro_bias += (np.asarray(gyro, float) - self.gyro_bias) * min(
                     1.0, dt / BIAS_TIME
                 )
+                tau = REST_HEADING_TIME
         turn = self._legs_rot @ self.attitude.T
-        yaw = np.arctan2(turn[1, 0], turn[0, 0]) * min(1.0, dt / self.heading_time)
+        yaw = np.arctan2(turn[1, 0], turn[0, 0]) * min(1.0, dt / tau)
         self.attitude = exp_so3(np.array([0.0, 0.0, yaw])) @ self.attitude
 
     def update(

@@ -109,14 +109,18 @@ def test_a_slipping_foot_is_left_out_and_registered_again(robots) -> None:
     assert worst < 1e-3, f"body estimate off by {worst * 1000:.1f} mm"
 
 
+REST, BIAS = 90.0, 0.001
+"""Seconds the robot stands before walking, and the gyro's bias (rad/s)."""
+
+
 def _slipping_turn(odo: LegOdometry, kin: Kinematics, imu: bool) -> tuple[float, float]:
-    """Stand 3 s, then walk a tripod 40 s turning at 0.02 rad/s and pitching ±1.7°, while the
+    """Stand 90 s, then walk a tripod 40 s turning at 0.02 rad/s and pitching ±1.7°, while the
     stance feet twist on the ground at 0.05°/s (the slow slip measured crossing a joist). The
-    IMU reads the true rates plus a 0.3°/s gyro bias. Worst (yaw, tilt) error (rad) walking."""
+    IMU reads the true rates plus a 0.06°/s gyro bias. Worst (yaw, tilt) error (rad) walking."""
     stand = kin.stand_feet()
     tripod = np.array([0, 1, 0, 1, 0, 1], bool)
     world = stand.copy()
-    dt, rest, slip, turn, bias = 0.02, 3.0, math.radians(0.05), 0.02, np.array([0, 0, 0.005])
+    dt, rest, slip, turn, bias = 0.02, REST, math.radians(0.05), 0.02, np.array([0, 0, BIAS])
     worst_yaw = worst_tilt = 0.0
     for k in range(int((rest + 40.0) / dt) + 1):
         t = k * dt
@@ -156,7 +160,7 @@ def test_the_gyro_bounds_the_heading_of_slipping_legs(robots) -> None:
     fused_yaw, fused_tilt = _slipping_turn(LegOdometry(kin), kin, imu=True)
     r, t, tau = math.radians(0.05), 40.0, HEADING_TIME
     leak = r * (t - tau * (1.0 - math.exp(-t / tau)))
-    left_bias = 0.005 * math.exp(-(3.0 - 0.5) / BIAS_TIME) * t  # half a second to first rest
+    left_bias = BIAS * math.exp(-(REST - 0.5) / BIAS_TIME) * t  # half a second to first rest
     bound = leak + left_bias + math.radians(0.1)
     assert legs_yaw > 3 * bound, f"legs alone {math.degrees(legs_yaw):.2f}°: no drift to bound"
     assert fused_yaw < bound, f"fused yaw off {math.degrees(fused_yaw):.2f}° > {bound:.4f} rad"
