@@ -62,7 +62,7 @@ def climbd_loop(profile_name: str, rate: float, seconds: float) -> tuple[np.ndar
     """Lateness and compute samples of ControlLoop running the full control tick on a fake bus."""
     from daemon import profile as profiles
     from daemon.control import Controller
-    from daemon.loop import ControlLoop, MonotonicClock
+    from daemon.loop import ControlLoop, MonotonicClock, TimingWindow
     from daemon.messages import Mode
     from daemon.safety import Safety
     from drivers.base import FakeJointBus
@@ -77,7 +77,7 @@ def climbd_loop(profile_name: str, rate: float, seconds: float) -> tuple[np.ndar
     controller = Controller(profile, bus, safety, clock.now)
     n = int(rate * seconds)
     loop = ControlLoop(rate, clock, controller.tick)
-    loop.timing.__init__(size=n)
+    loop.timing = TimingWindow(size=n)
     safety.request(Mode.STAND, clock.now())
     thread = threading.Thread(target=loop.run, kwargs={"max_ticks": n})
     thread.start()
