@@ -23,6 +23,8 @@ from daemon.messages import BodyState
 from daemon.profile import Profile
 
 GRAVITY = 9.80665
+ICP_GATE = 3.0
+"""Standard deviations: an ICP height correction beyond the drift filter 2 expects is rejected."""
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
@@ -30,6 +32,11 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Noise figures (SI, 1-sigma) of the two filters and the stance detector.
 
+    The kinematic pose corrects the IMU's heading only (``kinematic_rotation_noise``): its tilt
+    drifts with every misregistered foot, and a tilt error turns the distance walked into height.
+    The tilt is pulled toward gravity instead, with time constant ``tilt_time`` (s): gravity is
+    the world-frame specific force less the body's acceleration, both low-passed twice with
+    ``gravity_time`` (s), the acceleration from the stance feet's positions.
     ``foot_radius``: radius of the rubber foot (m); a stance foot rolls on it, which moves its
     centre (what FK gives) over the ground. ``link_masses``: mass (kg) of each leg's three
     links, centres at mid-link, whose weight the joint torques carry besides the foot force.
@@ -42,10 +49,10 @@ class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     velocity_walk: Positive = 0.5
     kinematic_position_noise: Positive = 0.005
     kinematic_rotation_noise: Positive = 0.01
+    gravity_time: Positive = 0.5
+    tilt_time: Positive = 2.0
     drift_position_rate: Positive = 0.005
-    drift_rotation_rate: Positive = 0.005
     icp_position_noise: Positive = 0.005
-    icp_rotation_noise: Positive = 0.005
     switch_margin: NonNegative = 0.1
     foot_radius: NonNegative = 0.0
     link_masses: list[float] = []
@@ -290,10 +297,11 @@ class StateEstimator:
         self.omega = np.zeros(3)
         self.p_rot = np.full(3, 1e-4)
         self.p_pv = np.tile(np.diag([1e-4, 1e-2]), (3, 1, 1))
-        # filter 2: drift correction (rotation vector, translation) applied on top of filter 1
-        self.drift_rot = np.eye(3)
+        # filter 2: translation drift correction applied on top of filter 1
         self.drift_pos = np.zeros(3)
-        self.p_drift = np.zeros(2)
+        self.p_drift = 0.0
+        self.icp_rejected = 0
+        self._lowpass: np.ndarray | None = None
         self.kinematic: tuple[np.ndarray, np.ndarray] | None = None
 
     # --- filter 1 -------------------------------------------------------------------------
@@ -315,12 +323,42 @@ class StateEstimator:
     def _rotate(self, delta: np.ndarray) -> None:
         self.rot = nearest_rotation(exp_so3(delta) @ self.rot)
 
-    def _correct(self, rot_kin: np.ndarray, pos_kin: np.ndarray) -> None:
+    def _level(self, accel: np.ndarray, pos_kin: np.ndarray, dt: float) -> None:
+        """Pull the tilt toward gravity: specific force (world) = acceleration + g·z, with the
+        force low-passed twice (f1, f2) and the acceleration the same filter's second
+        derivative of the stance feet's position, (p - 2·p1 + p2) / T² (T = ``gravity_time``)."""
+        c = self.config
+        force = self.rot @ accel
+        if self._lowpass is None:
+            self._lowpass = np.array([force, force, pos_kin, pos_kin])
+        a = min(1.0, dt / c.gravity_time)
+        f1, f2, p1, p2 = self._lowpass
+        f1 += a * (force - f1)
+        f2 += a * (f1 - f2)
+        p1 += a * (pos_kin - p1)
+        p2 += a * (p1 - p2)
+        up = f2 - (pos_kin - 2.0 * p1 + p2) / c.gravity_time**2
+        err = np.cross(up / np.linalg.norm(up), [0.0, 0.0, 1.0])  # z component 0: tilt only
+        self._rotate(err * min(1.0, dt / c.tilt_time))
+
+    def _correct(
+        self,
+        rot_kin: np.ndarray,
+        feet: np.ndarray,
+        anchors: np.ndarray,
+        accel: np.ndarray,
+        dt: float,
+    ) -> None:
+        """Heading from the stance feet's rotation, tilt from gravity, then position from the
+        stance feet fitted on that rotation (eq. 8 with R known)."""
         c = self.config
         err = log_so3(rot_kin @ self.rot.T)
-        gain = self.p_rot / (self.p_rot + c.kinematic_rotation_noise**2)
+        gain = np.zeros(3)
+        gain[2] = self.p_rot[2] / (self.p_rot[2] + c.kinematic_rotation_noise**2)
         self._rotate(gain * err)
         self.p_rot *= 1.0 - gain
+        pos_kin = (anchors - feet @ self.rot.T).mean(0)
+        self._level(accel, pos_kin, dt)
         h = np.array([1.0, 0.0])
         s = self.p_pv[:, 0, 0] + c.kinematic_position_noise**2
         k = self.p_pv[:, :, 0] / s[:, None]
@@ -357,7 +395,8 @@ class StateEstimator:
         q = np.asarray(q, float)
         feet = self.kin.fk(q)
         link_rot = foot_link_rotations(self.kin, q)
-        if gyro is not None and accel is not None and dt > 0:
+        imu = gyro is not None and accel is not None and dt > 0
+        if imu:
             self._predict(np.asarray(gyro, float), np.asarray(accel, float), dt)
         self.forces = self.foot_forces(q, tau, self.rot)
         if self.stance_group >= 0:
@@ -379,35 +418,40 @@ class StateEstimator:
         except EstimationError:
             rot_kin, pos_kin = self.rot, self.pos
         self.kinematic = (rot_kin, pos_kin)
-        if gyro is None or accel is None:
+        if imu:
+            self._correct(rot_kin, feet[stance], self.anchors[stance], np.asarray(accel, float), dt)
+        else:
             if dt > 0:
                 self.vel = (pos_kin - self.pos) / dt
             self.rot, self.pos = rot_kin, pos_kin
-        else:
-            self._correct(rot_kin, pos_kin)
         self._drift_predict(dt)
         return self.body(stamp)
 
     # --- filter 2 (ICP) ---------------------------------------------------------------------
 
     def _drift_predict(self, dt: float) -> None:
-        c = self.config
-        self.p_drift += np.array([c.drift_rotation_rate**2, c.drift_position_rate**2]) * dt
+        self.p_drift += self.config.drift_position_rate**2 * dt
 
     def icp_correction(self, rot: np.ndarray, trans: np.ndarray) -> None:
-        """Fuse an ICP alignment (global frame: maps the newest cloud onto the stitched map)."""
-        c = self.config
-        k_rot = self.p_drift[0] / (self.p_drift[0] + c.icp_rotation_noise**2)
-        k_pos = self.p_drift[1] / (self.p_drift[1] + c.icp_position_noise**2)
-        corr_rot = exp_so3(k_rot * log_so3(np.asarray(rot, float)))
-        corr_pos = k_pos * np.asarray(trans, float)
-        self.drift_rot = corr_rot @ self.drift_rot
-        self.drift_pos = corr_rot @ self.drift_pos + corr_pos
-        self.p_drift *= 1.0 - np.array([k_rot, k_pos])
+        """Fuse an ICP alignment (global frame: maps the newest cloud onto the stitched map).
+
+        Only the body's height under the alignment is fused: treads pin it, while along the
+        flight the fit slides (treads alike one tread apart, partial overlap at a landing:
+        measured on a recorded run) and the tilt and heading are the IMU's.
+        """
+        _, pos = self.pose()
+        rise = float((np.asarray(rot, float) @ pos + np.asarray(trans, float) - pos)[2])
+        var = self.p_drift + self.config.icp_position_noise**2
+        if rise * rise > ICP_GATE**2 * var:
+            self.icp_rejected += 1
+            return
+        gain = self.p_drift / var
+        self.drift_pos[2] += gain * rise
+        self.p_drift *= 1.0 - gain
 
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Final body rotation and position: filter 2's correction applied to filter 1."""
-        return self.drift_rot @ self.rot, self.drift_rot @ self.pos + self.drift_pos
+        return self.rot, self.pos + self.drift_pos
 
     def body(self, stamp: float = 0.0) -> BodyState:
         rot, pos = self.pose()
@@ -416,7 +460,7 @@ class StateEstimator:
             stamp=stamp,
             position=pos.tolist(),
             orientation=quaternion(rot),
-            linear_velocity=(self.drift_rot @ self.vel).tolist(),
-            angular_velocity=(self.drift_rot @ self.omega).tolist(),
+            linear_velocity=self.vel.tolist(),
+            angular_velocity=self.omega.tolist(),
             stance=stance,
         )

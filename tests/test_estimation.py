@@ -217,16 +217,20 @@ def test_imu_fusion_gains_over_kinematics_alone(walk) -> None:
     assert pos_f.max() < 0.02 and tilt_f.max() < 2.0
 
 
-def test_icp_correction_removes_drift(walk) -> None:
-    """Filter 2: a 3 cm, 2° drift of the odometry, measured by ICP, is mostly removed."""
+def test_icp_correction_removes_height_drift_and_rejects_a_tread_apart(walk) -> None:
+    """Filter 2: a 3 cm height drift that ICP measures is mostly removed, the horizontal
+    estimate is left to the legs, and an alignment one tread (30 cm) off is rejected."""
     est = StateEstimator(walk["profile"], walk["config"], walk["pos"][0], walk["quat"][0])
     for k in range(len(walk["q"])):
         est.update(walk["q"][k], walk["tau"][k], dt=1e-3)
-    drift_rot, drift_pos = exp_so3(np.radians([0.0, 0.0, 2.0])), np.array([0.03, -0.01, 0.0])
-    est.rot, est.pos = drift_rot @ est.rot, drift_rot @ est.pos + drift_pos
-    before = np.linalg.norm(est.pose()[1] - walk["pos"][-1])
+    drift = np.array([0.02, -0.01, 0.03])
+    est.pos = est.pos + drift
+    before = est.pose()[1] - walk["pos"][-1]
     # ICP aligns the newest cloud (placed with the drifted pose) back onto the map
-    back_rot = drift_rot.T
-    est.icp_correction(back_rot, -back_rot @ drift_pos)
-    after = np.linalg.norm(est.pose()[1] - walk["pos"][-1])
-    assert before > 0.025 and after < 0.5 * before, (before, after)
+    est.icp_correction(np.eye(3), -drift)
+    after = est.pose()[1] - walk["pos"][-1]
+    assert abs(before[2]) > 0.025 and abs(after[2]) < 0.5 * abs(before[2]), (before, after)
+    np.testing.assert_allclose(after[:2], before[:2], atol=1e-9)
+    est.icp_correction(np.eye(3), np.array([0.3, 0.0, -0.13]))  # one tread of 300 x 130 mm
+    assert est.icp_rejected == 1
+    np.testing.assert_allclose(est.pose()[1], after + walk["pos"][-1], atol=1e-9)

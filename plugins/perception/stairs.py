@@ -14,7 +14,7 @@ import msgspec
 import numpy as np
 from scipy.spatial import cKDTree
 
-from daemon.estimation import exp_so3, rotation
+from daemon.estimation import exp_so3, log_so3, rotation
 from daemon.messages import BodyState, Stair, Stairs
 from daemon.plugins import PerceptionPlugin
 
@@ -28,6 +28,11 @@ class StairsConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     ``max_tilt_deg``: a plane counts as horizontal within this tilt. ``inlier``: distance (m) of
     a point to its plane. ``min_points``: smallest plane kept; ``min_depth``: narrowest
     tread (m) along the ascent (a riser's slice is not a tread). ``voxel``: map thinning (m).
+    ``icp_max_shift`` (m) and ``icp_max_turn_deg``: an alignment moving the body more along
+    the directions the map constrains, or turning it more, is rejected (a flight's treads look
+    alike one tread apart).
+    ``icp_min_share``: a direction counts as constrained when the matched surfaces' normals put
+    at least this share of their weight on it.
     """
 
     inlier: Positive = 0.01
@@ -40,6 +45,9 @@ class StairsConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     voxel: Positive = 0.01
     icp_iterations: int = 30
     icp_max_distance: Positive = 0.05
+    icp_max_shift: Positive = 0.05
+    icp_max_turn_deg: Positive = 3.0
+    icp_min_share: Fraction = 0.05
     seed: int = 0
 
 
@@ -80,6 +88,22 @@ def icp(
         if np.linalg.norm(x) < 1e-7:
             break
     return rot, trans
+
+
+def constrained_directions(
+    aligned: np.ndarray, target: np.ndarray, max_distance: float, share: float
+) -> np.ndarray:
+    """Unit directions (k, 3) along which the aligned cloud's matched target normals constrain
+    a translation: eigenvectors of their mean n·nᵀ holding at least ``share`` of it (treads
+    give z, risers the ascent; a flight wider than the view gives nothing across it)."""
+    tree = cKDTree(target)
+    dist, idx = tree.query(aligned, distance_upper_bound=max_distance)
+    keep = np.isfinite(dist)
+    if keep.sum() < 6:
+        return np.zeros((0, 3))
+    n = normals(target, tree)[idx[keep]]
+    vals, vecs = np.linalg.eigh(n.T @ n / len(n))
+    return vecs[:, vals >= share].T
 
 
 def horizontal_planes(points: np.ndarray, config: StairsConfig) -> list[np.ndarray]:
@@ -164,23 +188,36 @@ class StairPerception(PerceptionPlugin):
     def __init__(self, config: StairsConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
         self.map: np.ndarray | None = None
-        self.last_correction = (np.eye(3), np.zeros(3))
+        self.last_correction: tuple[np.ndarray, np.ndarray] | None = None
+        self.last_constrained = np.zeros((0, 3))
+        self.rejected = 0
 
     def add_cloud(self, points: np.ndarray, body: BodyState) -> np.ndarray:
         """Place a body-frame cloud in the global frame (eq. 10), align it on the map by ICP.
 
-        The alignment (R, t) is kept in ``last_correction``: the estimator's filter 2 input.
+        The alignment (R, t) is kept in ``last_correction`` and the directions the map
+        constrains in ``last_constrained``: the estimator's filter 2 input. An
+        implausible alignment (see StairsConfig) is counted in ``rejected``, the cloud is left
+        out of the map and ``last_correction`` is None.
         """
         c: StairsConfig = self.config
         rot = rotation(np.asarray(body.orientation, float))
         world = voxel_thin(np.asarray(points, float), c.voxel) @ rot.T + body.position
         if self.map is None:
             self.map = world
-            self.last_correction = (np.eye(3), np.zeros(3))
+            self.last_correction = None
             return world
         r, t = icp(world, self.map, c.icp_iterations, c.icp_max_distance)
-        self.last_correction = (r, t)
         aligned = world @ r.T + t
+        constrained = constrained_directions(aligned, self.map, c.icp_max_distance, c.icp_min_share)
+        body_shift = constrained @ (r @ np.asarray(body.position, float) + t - body.position)
+        turn = np.degrees(np.linalg.norm(log_so3(r)))
+        if np.linalg.norm(body_shift) > c.icp_max_shift or turn > c.icp_max_turn_deg:
+            self.rejected += 1
+            self.last_correction = None
+            return world
+        self.last_correction = (r, t)
+        self.last_constrained = constrained
         self.map = voxel_thin(np.vstack([self.map, aligned]), c.voxel)
         return aligned
 
