@@ -5,8 +5,8 @@ driver on the twin's port (the Dynamixel pty, or the virtual CAN channel of torq
 the twin's ray-cast depth goes over Zenoh (``sim/depth``) to the perception role, which feeds
 it into a pyrealsense2 software device as it would a camera. ``--stepped`` runs the loop on
 simulated time in lock-step with the physics and, while a perception role answers, waits for
-its features of each frame before simulating on (from its first answer: start-up is not
-waited for), so perception sees the world at the pace it would in real time.
+its features of each frame before simulating on (PerceptionGate), so perception sees the world
+at the pace it would in real time.
 """
 
 from __future__ import annotations
@@ -30,11 +30,76 @@ log = logging.getLogger("climbd.sim")
 PERCEPTION_WAIT = 5.0
 """Wall seconds a stepped run waits for the features of a frame before going on without."""
 
+FRAME_STAMP_TOLERANCE = 1e-6
+"""Seconds an answer's ``frame_stamp`` may fall short of its frame's stamp and still answer it.
+
+The stamp reaches the features through pyrealsense2's software device, which keeps time in
+milliseconds: s -> ms -> s is not exact and comes back an ulp short for some stamps (in
+``make demo`` one frame in 32, and one in 8 past 2^18 ms = 262.144 s, where the product in ms
+loses a bit)."""
+
 STEPPED_TIMEOUT_MARGIN_MS = 100.0
 """Dynamixel packet-timeout margin in stepped mode: replies wait for the physics step."""
 
 STEPPED_REPLY_TIMEOUT = 0.05
 """MIT-mode reply timeout (s) in stepped mode, for the same reason."""
+
+
+class PerceptionGate:
+    """Lock-step of the twin's depth frames with perception: physics waits for the answer to
+    the last frame rendered, from perception's first answer on (start-up is not waited for).
+
+    A frame not answered within ``wait`` s is given up and said so; lock-step then pauses until
+    perception answers again, so a stalled role costs one wait, not one per frame, and the
+    control role's feature-age check holds the gait on the stale features.
+    """
+
+    def __init__(self, wait: float = PERCEPTION_WAIT) -> None:
+        self.wait = wait
+        self.given_up = 0
+        self._pending = -math.inf
+        self._answered = -math.inf
+        self._waiting = False
+        self._cond = threading.Condition()
+
+    def rendered(self, stamp: float) -> None:
+        """A frame taken at ``stamp`` (s, simulated) went to perception."""
+        with self._cond:
+            self._pending = stamp
+
+    def answered(self, frame_stamp: float) -> None:
+        """Perception published features of the frame taken at ``frame_stamp``."""
+        with self._cond:
+            if not self._waiting and self.given_up:
+                log.warning(
+                    "perception answers again (frame at %.2f s): lock-step resumes", frame_stamp
+                )
+            self._answered = max(self._answered, frame_stamp)
+            self._waiting = True
+            self._cond.notify_all()
+
+    def _open(self) -> bool:
+        return self._answered >= self._pending - FRAME_STAMP_TOLERANCE
+
+    def pass_frame(self) -> bool:
+        """Block until the last frame is answered (or lock-step is paused); False if given up."""
+        with self._cond:
+            if not self._waiting or self._open():
+                return True
+            end = time.monotonic() + self.wait
+            while not self._open() and time.monotonic() < end:
+                self._cond.wait(end - time.monotonic())
+            if self._open():
+                return True
+            self.given_up += 1
+            self._waiting = False
+            log.warning(
+                "perception did not answer the frame at %.2f s within %.0f s: simulating on "
+                "without waiting for it until it answers again (the gait holds on stale features)",
+                self._pending,
+                self.wait,
+            )
+            return False
 
 
 class SimHost:
@@ -56,10 +121,7 @@ class SimHost:
         self.twin = Twin(profile, world, stepped=stepped, depth_backend=depth_backend)
         self.path: list[np.ndarray] = []
         self.detected: list[tuple[list[float], list[float]]] = []
-        self._pending = -math.inf
-        self._answered = -math.inf
-        self._waiting = False
-        self._cond = threading.Condition()
+        self.gate = PerceptionGate()
         self._next_sample = 0.0
 
     def start(self) -> None:
@@ -94,19 +156,7 @@ class SimHost:
 
     def _advance(self, t0: float, t1: float) -> None:
         """Stepped mode: wait for perception's answer to the last frame, then simulate to t1."""
-        with self._cond:
-            if self._waiting and self._answered < self._pending:
-                end = time.monotonic() + PERCEPTION_WAIT
-                while self._answered < self._pending and time.monotonic() < end:
-                    self._cond.wait(end - time.monotonic())
-                if self._answered < self._pending:
-                    log.warning(
-                        "no perception features for the frame at %.2f s within %.0f s: "
-                        "simulating on",
-                        self._pending,
-                        PERCEPTION_WAIT,
-                    )
-                    self._answered = self._pending  # that frame is given up, not waited again
+        self.gate.pass_frame()
         self.twin.advance_to(t1)
         self._sample_path(t1)
 
@@ -118,8 +168,7 @@ class SimHost:
     def _on_depth(self, camera: str, frame) -> None:
         """Publish a rendered frame for the perception role (``sim/depth``)."""
         depth = np.ascontiguousarray(frame.depth, dtype="<u2")
-        with self._cond:
-            self._pending = frame.timestamp
+        self.gate.rendered(frame.timestamp)
         self.publish(
             DepthImage(
                 stamp=frame.timestamp,
@@ -133,10 +182,8 @@ class SimHost:
 
     def on_feature(self, message: Message) -> None:
         """A perception feature arrived: the frame it answers is done (lock-step)."""
-        with self._cond:
-            self._answered = max(self._answered, getattr(message, "frame_stamp", -math.inf))
-            self._waiting = self.stepped  # lock-step from the first answer: perception is up
-            self._cond.notify_all()
+        if self.stepped:
+            self.gate.answered(getattr(message, "frame_stamp", -math.inf))
         joists = getattr(message, "joists", None)
         if joists:
             self._remember_joists(joists)
@@ -174,7 +221,9 @@ class SimHost:
             f"{self.twin.time:.1f} s simulated; body moved {travelled:.2f} m "
             f"(x {end[0] - start[0]:+.2f} m, y {end[1] - start[1]:+.2f} m), body height "
             f"{height:.3f} m, fallen: {fallen}; "
-            f"{len(self.detected)} joist(s) in the last detection; top view: {png}"
+            f"{len(self.detected)} joist(s) in the last detection; "
+            + (f"perception frames given up: {self.gate.given_up}; " if self.stepped else "")
+            + f"top view: {png}"
         )
 
 

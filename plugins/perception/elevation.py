@@ -174,6 +174,8 @@ class ElevationMap:
         points = np.asarray(points)
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"elevation: points must be N×3, got shape {points.shape}")
+        if not len(points):
+            return  # nothing in range (a wall up close, a covered lens): nothing to fuse
         c = self.config
         res = c.resolution
         position = np.asarray(body.position, float)
