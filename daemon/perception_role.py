@@ -131,6 +131,7 @@ class PerceptionRole:
         """Worker thread: newest frame → every healthy plugin → publish what they return."""
         from daemon.messages import BodyState
 
+        idle = False
         while not self._stop.is_set() and capture.running:
             frame = capture.latest(timeout=0.2)
             if frame is None:
@@ -141,6 +142,13 @@ class PerceptionRole:
                 if feature is not None:
                     publish(feature)
                     self.published += 1
+            if not idle and all(iso.failed for iso in plugins):
+                idle = True
+                log.error(
+                    "every perception plugin has failed (%s): this role publishes no features "
+                    "until it is restarted",
+                    "; ".join(f"{iso.name} {iso.status}" for iso in plugins),
+                )
 
     async def run(self) -> int:
         from daemon import messages as m

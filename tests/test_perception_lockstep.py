@@ -10,12 +10,15 @@ again and every frame was waited out.
 
 from __future__ import annotations
 
+import argparse
 import logging
+import threading
 
 import numpy as np
 
 from daemon.messages import BodyState, DepthImage, Joists, decode, encode
-from daemon.perception_role import make_plugins
+from daemon.perception_role import PerceptionRole, make_plugins
+from daemon.plugins import Isolated
 from daemon.profile import load
 from daemon.sim_host import PerceptionGate, feed, sim_camera
 from drivers.realsense.capture import Capture
@@ -129,3 +132,43 @@ def test_a_frame_with_nothing_in_range_is_answered():
     assert [round(a.frame_stamp, 6) for a in answers] == [0.1, 0.2, 0.3]
     assert answers[0].joists, "the wall's foot 0.5 m ahead reads as a step: a joist"
     assert answers[2].joists == answers[1].joists == answers[0].joists  # nothing new to fuse
+
+
+class _Cracked:
+    """A perception plugin whose every frame fails (a lens cracked, a bug)."""
+
+    def __init__(self) -> None:
+        self.called = threading.Event()
+
+    def process(self, frame, body):
+        self.called.set()
+        raise RuntimeError("lens cracked")
+
+
+def test_a_role_whose_plugins_all_failed_says_it_answers_nothing(caplog):
+    """The role's worker on the software camera: once no plugin is left it says so, naming
+    the failures (the control role then gives up waiting and holds on stale features)."""
+    profile = load("robots/widowx-attic-sim.toml")
+    config = profile.cameras[0]
+    camera = sim_camera(profile, config)
+    capture = Capture(camera, config.name)
+    cracked = _Cracked()
+    role = PerceptionRole(profile, argparse.Namespace())
+    published = []
+    capture.start()
+    worker = threading.Thread(
+        target=role._work, args=(capture, [Isolated("cracked", cracked)], published.append)
+    )
+    worker.start()
+    try:
+        camera.push(np.zeros((config.height, config.width), np.uint16), 0.1)
+        assert cracked.called.wait(5.0), "the worker never ran the plugin"
+    finally:
+        role._stop.set()
+        worker.join(5.0)
+        capture.stop()
+    assert not published and not worker.is_alive()
+    assert (
+        "every perception plugin has failed (cracked failed: RuntimeError: lens cracked)"
+        in caplog.text
+    )
