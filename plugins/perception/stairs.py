@@ -60,7 +60,11 @@ def normals(points: np.ndarray, tree: cKDTree, k: int = 12) -> np.ndarray:
 
 
 def icp(
-    source: np.ndarray, target: np.ndarray, iterations: int = 30, max_distance: float = 0.05
+    source: np.ndarray,
+    target: np.ndarray,
+    iterations: int = 30,
+    max_distance: float = 0.05,
+    surface: tuple[cKDTree, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rigid transform (R, t) aligning ``source`` onto ``target`` (point-to-plane ICP).
 
@@ -68,10 +72,9 @@ def icp(
     point-to-point fit lets two samplings of a plane slide); pairs farther apart than
     ``max_distance`` are left out; each step solves the linearised 6-DOF least squares
     (minimum norm: a direction no surface constrains, e.g. along the edges of a flight wider
-    than the view, gets no correction).
+    than the view, gets no correction). ``surface``: the target's tree and normals, if known.
     """
-    tree = cKDTree(target)
-    tn = normals(target, tree)
+    tree, tn = surface or target_surface(target)
     rot, trans = np.eye(3), np.zeros(3)
     moved = source.copy()
     for _ in range(iterations):
@@ -90,18 +93,24 @@ def icp(
     return rot, trans
 
 
+def target_surface(target: np.ndarray) -> tuple[cKDTree, np.ndarray]:
+    """KD-tree and normals of an ICP target, built once per map."""
+    tree = cKDTree(target)
+    return tree, normals(target, tree)
+
+
 def constrained_directions(
-    aligned: np.ndarray, target: np.ndarray, max_distance: float, share: float
+    aligned: np.ndarray, surface: tuple[cKDTree, np.ndarray], max_distance: float, share: float
 ) -> np.ndarray:
     """Unit directions (k, 3) along which the aligned cloud's matched target normals constrain
     a translation: eigenvectors of their mean n·nᵀ holding at least ``share`` of it (treads
     give z, risers the ascent; a flight wider than the view gives nothing across it)."""
-    tree = cKDTree(target)
+    tree, tn = surface
     dist, idx = tree.query(aligned, distance_upper_bound=max_distance)
     keep = np.isfinite(dist)
     if keep.sum() < 6:
         return np.zeros((0, 3))
-    n = normals(target, tree)[idx[keep]]
+    n = tn[idx[keep]]
     vals, vecs = np.linalg.eigh(n.T @ n / len(n))
     return vecs[:, vals >= share].T
 
@@ -188,15 +197,14 @@ class StairPerception(PerceptionPlugin):
     def __init__(self, config: StairsConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
         self.map: np.ndarray | None = None
+        self._surface: tuple[cKDTree, np.ndarray] | None = None
         self.last_correction: tuple[np.ndarray, np.ndarray] | None = None
-        self.last_constrained = np.zeros((0, 3))
         self.rejected = 0
 
     def add_cloud(self, points: np.ndarray, body: BodyState) -> np.ndarray:
         """Place a body-frame cloud in the global frame (eq. 10), align it on the map by ICP.
 
-        The alignment (R, t) is kept in ``last_correction`` and the directions the map
-        constrains in ``last_constrained``: the estimator's filter 2 input. An
+        The alignment (R, t) is kept in ``last_correction``: the estimator's filter 2 input. An
         implausible alignment (see StairsConfig) is counted in ``rejected``, the cloud is left
         out of the map and ``last_correction`` is None.
         """
@@ -205,11 +213,14 @@ class StairPerception(PerceptionPlugin):
         world = voxel_thin(np.asarray(points, float), c.voxel) @ rot.T + body.position
         if self.map is None:
             self.map = world
+            self._surface = target_surface(world)
             self.last_correction = None
             return world
-        r, t = icp(world, self.map, c.icp_iterations, c.icp_max_distance)
+        r, t = icp(world, self.map, c.icp_iterations, c.icp_max_distance, self._surface)
         aligned = world @ r.T + t
-        constrained = constrained_directions(aligned, self.map, c.icp_max_distance, c.icp_min_share)
+        constrained = constrained_directions(
+            aligned, self._surface, c.icp_max_distance, c.icp_min_share
+        )
         body_shift = constrained @ (r @ np.asarray(body.position, float) + t - body.position)
         turn = np.degrees(np.linalg.norm(log_so3(r)))
         if np.linalg.norm(body_shift) > c.icp_max_shift or turn > c.icp_max_turn_deg:
@@ -217,8 +228,8 @@ class StairPerception(PerceptionPlugin):
             self.last_correction = None
             return world
         self.last_correction = (r, t)
-        self.last_constrained = constrained
         self.map = voxel_thin(np.vstack([self.map, aligned]), c.voxel)
+        self._surface = target_surface(self.map)
         return aligned
 
     def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> Stairs:

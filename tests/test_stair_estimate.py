@@ -1,0 +1,112 @@
+"""Paper 004's state estimate over the whole stair run, against the twin's true pose.
+
+tests/data/stair_run.npz is Qingzhui's full run in the twin (three 130 x 300 mm stairs up, 24 s,
+and back down, 24 s, at 1 kHz through the torque-leg driver; tests/stair_estimate_record.py),
+replayed here into the estimator at 250 Hz three ways: the stance feet alone (eqs. 5-9), fused
+with the IMU (filter 1), and with stair-cloud ICP on top (filter 2).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from qingzhui_twin import QingzhuiRig, estimator_config
+from stair_estimate_record import CLOUD_VOXEL
+from stair_run import stair_world
+
+from daemon.estimation import StateEstimator, log_so3, rotation
+from plugins.perception.stairs import StairPerception, StairsConfig
+
+RUN = Path(__file__).resolve().parent / "data" / "stair_run.npz"
+
+
+@pytest.fixture(scope="module")
+def run() -> dict[str, np.ndarray]:
+    data = dict(np.load(RUN))
+    rig = QingzhuiRig(stair_world())
+    data["profile"], data["config"] = rig.profile, estimator_config(rig.twin)
+    rig.close()
+    return data
+
+
+def replay(run: dict, imu: bool, icp: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Position error (m, world axes) and rotation error (deg) of every replayed tick."""
+    est = StateEstimator(run["profile"], run["config"], run["pos"][0], run["quat"][0])
+    stairs = StairPerception(StairsConfig(voxel=CLOUD_VOXEL))
+    dt = float(np.median(np.diff(run["t"])))
+    ends = np.cumsum(run["cloud_sizes"])
+    spans = zip(ends - run["cloud_sizes"], ends, strict=True)
+    clouds = dict(zip(run["cloud_ticks"].tolist(), spans, strict=True))
+    n = len(run["t"])
+    pos_err, rot_err = np.zeros((n, 3)), np.zeros(n)
+    for k in range(n):
+        if imu:
+            est.update(run["q"][k], run["tau"][k], run["gyro"][k], run["accel"][k], dt)
+        else:
+            est.update(run["q"][k], run["tau"][k], dt=dt)
+        if icp and k in clouds:
+            a, b = clouds[k]
+            stairs.add_cloud(run["clouds_mm"][a:b] / 1000.0, est.body())
+            if stairs.last_correction is not None:
+                est.icp_correction(*stairs.last_correction)
+        rot, pos = est.pose()
+        pos_err[k] = pos - run["pos"][k]
+        rot_err[k] = np.degrees(np.linalg.norm(log_so3(rot @ rotation(run["quat"][k]).T)))
+    return pos_err, rot_err
+
+
+@pytest.fixture(scope="module")
+def errors(run) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    return {
+        "legs": replay(run, imu=False, icp=False),
+        "imu": replay(run, imu=True, icp=False),
+        "imu+icp": replay(run, imu=True, icp=True),
+    }
+
+
+def test_run_climbs_and_returns(run) -> None:
+    """The recording is the whole run: up three 130 mm stairs and back to the floor behind."""
+    x, z = run["pos"][:, 0], run["pos"][:, 2]
+    assert z.max() - z[0] > 3 * 0.13 - 0.01
+    assert abs(z[-1] - z[0]) < 0.03 and x[-1] < x[0]
+
+
+def test_fused_rotation_within_2_degrees_over_the_run(errors) -> None:
+    _, rot = errors["imu+icp"]
+    assert rot.max() < 2.0, rot.max()
+
+
+def test_fused_height_within_2_cm_over_the_run(errors) -> None:
+    pos, _ = errors["imu+icp"]
+    assert np.abs(pos[:, 2]).max() < 0.02, np.abs(pos[:, 2]).max()
+
+
+def test_fusion_gains_over_the_legs_alone(errors) -> None:
+    """The stance feet alone let a misregistered foot tilt the body, and the distance walked
+    then turns into height: gravity bounds the tilt and ICP the height."""
+    legs_pos, legs_rot = errors["legs"]
+    imu_pos, imu_rot = errors["imu"]
+    fused_pos, fused_rot = errors["imu+icp"]
+    print(
+        "max rotation error (deg) legs / imu / imu+icp: "
+        f"{legs_rot.max():.2f} / {imu_rot.max():.2f} / {fused_rot.max():.2f}; "
+        "max position error (mm): "
+        + " / ".join(f"{np.linalg.norm(p, axis=1).max() * 1e3:.1f}" for p in (legs_pos, imu_pos))
+        + f" / {np.linalg.norm(fused_pos, axis=1).max() * 1e3:.1f}"
+    )
+    assert imu_rot.max() < 0.25 * legs_rot.max()
+    assert np.abs(imu_pos[:, 2]).max() < 0.5 * np.abs(legs_pos[:, 2]).max()
+    assert np.abs(fused_pos[:, 2]).max() < 0.5 * np.abs(imu_pos[:, 2]).max()
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="along the flight the estimate drifts 3-4 cm: the feet slip 1-6 mm a stance beyond "
+    "their modelled roll, and stair ICP does not pin the horizontal (it slid a tread apart, and "
+    "steadily at the top landing, replayed on this recording), so only the height is fused",
+)
+def test_fused_position_within_2_cm_over_the_run(errors) -> None:
+    pos, _ = errors["imu+icp"]
+    assert np.linalg.norm(pos, axis=1).max() < 0.02
