@@ -14,7 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daemon.estimation import StateEstimator, SupportTorques, rotation, support_forces
+from daemon.estimation import (
+    StateEstimator,
+    SupportTorques,
+    exp_so3,
+    rotation,
+    support_forces,
+)
 from daemon.kinematics import Kinematics
 from daemon.messages import (
     BodyState,
@@ -31,6 +37,7 @@ from daemon.messages import (
     MotionCommand,
     MotionStats,
     SessionClaim,
+    Stairs,
 )
 from daemon.motion import MotionPipeline
 from daemon.odometry import LegOdometry
@@ -107,6 +114,7 @@ class Controller:
         self.command: JointCommand | None = None
         self.motion_command: Timed | None = None
         self.features: dict[str, Timed] = {}
+        self._alignment: list[float] | None = None
         self.body = BodyState()
         self.estimator = estimator
         self.odometry = LegOdometry(self.kinematics) if estimator is None else None
@@ -192,6 +200,8 @@ class Controller:
 
     def on_feature(self, msg: Message) -> None:
         self.features[msg.TOPIC] = Timed(msg, self.now())
+        if isinstance(msg, Stairs) and len(msg.alignment) == 6:
+            self._alignment = msg.alignment  # filter 2's input, fused by the loop thread
 
     # --- the tick (loop thread) -------------------------------------------------------
 
@@ -254,10 +264,15 @@ class Controller:
             self.publish_health(t)
 
     def _estimate(self, t: float, dt: float, q: np.ndarray, state: JointState) -> None:
-        """Body state from the stance feet and the IMU (paper 004 eqs. 5-9, filter 1)."""
+        """Body state from the stance feet and the IMU (paper 004 eqs. 5-9, filter 1), with the
+        latest stair cloud's ICP alignment (filter 2)."""
         sample = self._read_imu()
         gyro = sample.gyro if sample is not None else None
         accel = sample.accel if sample is not None else None
+        alignment, self._alignment = self._alignment, None
+        if alignment is not None:
+            rot, trans = exp_so3(np.asarray(alignment[:3])), np.asarray(alignment[3:])
+            self.estimator.icp_correction(rot, trans)
         self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t)
 
     def _read_imu(self) -> ImuSample | None:

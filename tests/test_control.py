@@ -7,8 +7,17 @@ import pytest
 
 from daemon import profile as profiles
 from daemon.control import Controller
+from daemon.estimation import StateEstimator
 from daemon.loop import ControlLoop, SteppedClock
-from daemon.messages import EStop, FootTargets, Heartbeat, Mode, ModeRequest, SessionClaim
+from daemon.messages import (
+    EStop,
+    FootTargets,
+    Heartbeat,
+    Mode,
+    ModeRequest,
+    SessionClaim,
+    Stairs,
+)
 from daemon.plugins import GaitPlugin, Isolated
 from daemon.safety import Safety
 from drivers.base import FakeJointBus
@@ -187,3 +196,21 @@ def test_overheat_derates_then_faults(widowx) -> None:
     rig.bus.temperature[4] = widowx.safety.max_temperature + 1
     rig.run(0.5)
     assert rig.safety.mode == Mode.FAULT and "overheat" in rig.safety.reason
+
+
+def test_stair_alignment_reaches_the_estimator(robots) -> None:
+    """A Stairs feature's ICP alignment is fused by filter 2 on the next tick: the height
+    moves toward it, the horizontal stays the legs'; a Stairs without one changes nothing."""
+    profile = profiles.load(robots / "qingzhui.toml")
+    rigs = [Rig(profile) for _ in range(3)]
+    for rig in rigs:
+        rig.controller.estimator = StateEstimator(profile)
+        rig.stand()
+    rigs[1].controller.on_feature(Stairs(alignment=[0.0, 0.0, 0.0, 0.0, 0.0, -0.02]))
+    rigs[2].controller.on_feature(Stairs())
+    for rig in rigs:
+        rig.run(1.0 / profile.rate_hz)
+    plain, aligned, empty = (np.array(rig.controller.body.position) for rig in rigs)
+    assert -0.02 < aligned[2] - plain[2] < -0.01
+    np.testing.assert_allclose(aligned[:2], plain[:2], atol=1e-12)
+    np.testing.assert_allclose(empty, plain, atol=1e-12)

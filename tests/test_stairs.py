@@ -80,6 +80,8 @@ def test_stitching_corrects_a_drifted_body_pose() -> None:
     r, t = plugin.last_correction
     np.testing.assert_allclose(r @ drift_rot, np.eye(3), atol=np.radians(0.3))
     np.testing.assert_allclose((r @ drift + t)[[0, 2]], 0.0, atol=0.005)
+    np.testing.assert_allclose(exp_so3(np.array(stairs.alignment[:3])), r, atol=1e-12)
+    np.testing.assert_allclose(stairs.alignment[3:], t, atol=1e-12)  # on the wire for filter 2
     assert [round(s.rise, 2) for s in stairs.steps] == [RISE] * COUNT
 
 

@@ -236,8 +236,13 @@ class StairPerception(PerceptionPlugin):
         self.add_cloud(points, body)
         planes = horizontal_planes(self.map, self.config)
         yaw_axis = rotation(np.asarray(body.orientation, float))[:, 0]
+        alignment = []
+        if self.last_correction is not None:
+            r, t = self.last_correction
+            alignment = [*log_so3(r).tolist(), *t.tolist()]
         return Stairs(
             stamp=stamp,
             frame_stamp=stamp,
             steps=stairs_from_planes(planes, self.config, yaw_axis),
+            alignment=alignment,
         )
