@@ -1,11 +1,12 @@
-"""Stance-based body state estimation (paper 004, section 3.1, eqs. 5-9) with two Kalman filters.
+"""Stance-based body state estimation (paper 004, section 3.1, eqs. 5-9) with two filters.
 
 Each tick: foot forces from joint torques (eq. 5); the stance tripod is the group whose feet
 carry the larger support force (group A: MF, RB, LB; group B: MB, RF, LF); the body pose in the
 global (odometry) frame follows from the three stance feet (eqs. 6-9), whose global positions
-are registered when their group takes the load. The first Kalman filter fuses that kinematic
-pose with the IMU (gyro and accelerometer predict, the kinematic pose corrects); the second
-holds a drift correction that ICP between successive stair clouds measures, applied on top.
+are registered when their group takes the load. Filter 1 fuses that with the IMU: the gyro
+carries the rotation, gravity corrects its tilt and the stance feet its heading; the
+accelerometer predicts the position and the stance feet, fitted on that rotation, correct it
+(Kalman). Filter 2 holds the height drift that ICP between successive stair clouds measures.
 Pure: arrays in, BodyState out, no clock, no I/O.
 """
 
@@ -87,6 +88,11 @@ def log_so3(r: np.ndarray) -> np.ndarray:
         w, vec = np.linalg.eigh((r + r.T) / 2.0)
         return angle * vec[:, np.argmax(w)]
     return angle / (2.0 * math.sin(angle)) * v
+
+
+def cross_up(v: np.ndarray) -> np.ndarray:
+    """v × z (z up), written out: numpy's cross costs tens of µs on one 3-vector."""
+    return np.array([v[1], -v[0], 0.0])
 
 
 def nearest_rotation(m: np.ndarray) -> np.ndarray:
@@ -212,21 +218,25 @@ class FootForces:
         if link_masses and len(link_masses) != 3:
             raise ValueError(f"estimator link_masses: expected 3 values, found {link_masses}")
         self.kin = kin
-        self.masses = np.asarray(link_masses, float)
-        self.centres = []
-        for k in range(3 if link_masses else 0):
-            cut = copy.copy(kin)
-            share = [1.0 if j < k else (0.5 if j == k else 0.0) for j in range(3)]
-            cut.l1, cut.l2, cut.l3 = kin.l1 * share[0], kin.l2 * share[1], kin.l3 * share[2]
-            self.centres.append(cut)
+        self.weighted: Kinematics | None = None
+        if link_masses:
+            # the foot Jacobian is linear in the link lengths, so sum_i m_i J_i is the Jacobian
+            # of one leg whose link j is l_j x (half its own mass + the masses beyond it)
+            m1, m2, m3 = link_masses
+            self.weighted = copy.copy(kin)
+            w = self.weighted
+            w.l1, w.l2, w.l3 = kin.l1 * (m1 / 2 + m2 + m3), kin.l2 * (m2 / 2 + m3), kin.l3 * m3 / 2
+
+    def link_gravity(self, q: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """sum_i J_i^T m_i g (n_legs, 3): the joint torques the legs' own weight asks for."""
+        if self.weighted is None:
+            return np.zeros((self.kin.n_legs, 3))
+        g = rot.T @ np.array([0.0, 0.0, -GRAVITY])
+        return np.einsum("lij,i->lj", self.weighted.jacobian(q), g)
 
     def __call__(self, q: np.ndarray, tau: np.ndarray, rot: np.ndarray) -> np.ndarray:
         tau = np.asarray(tau, float).reshape(self.kin.n_legs, 3)
-        if self.centres:
-            g = rot.T @ np.array([0.0, 0.0, -GRAVITY])
-            for m, cut in zip(self.masses, self.centres, strict=True):
-                tau = tau + m * np.einsum("lij,i->lj", cut.jacobian(q), g)
-        return self.kin.foot_forces(q, tau)
+        return self.kin.foot_forces(q, tau + self.link_gravity(q, rot))
 
 
 class SupportTorques:
@@ -253,11 +263,7 @@ class SupportTorques:
         kin = self.forces.kin
         push = np.outer(self.shares(load), rot.T @ np.array([0.0, 0.0, -1.0]))
         tau = np.einsum("lij,li->lj", kin.jacobian(q), push)
-        if self.forces.centres:
-            g = rot.T @ np.array([0.0, 0.0, -GRAVITY])
-            for m, cut in zip(self.forces.masses, self.forces.centres, strict=True):
-                tau = tau - m * np.einsum("lij,i->lj", cut.jacobian(q), g)
-        return tau.reshape(-1)
+        return (tau - self.forces.link_gravity(q, rot)).reshape(-1)
 
 
 # --- the estimator -------------------------------------------------------------------------
@@ -290,12 +296,12 @@ class StateEstimator:
         self.stance_group = -1
         self.switches = 0
         self._link_rot = np.zeros((n, 3, 3))
-        # filter 1: orientation error state (3) and per-axis position/velocity
+        # filter 1: heading variance and per-axis position/velocity
         self.rot = np.eye(3) if orientation is None else rotation(orientation)
         self.pos = np.zeros(3) if position is None else np.asarray(position, float).copy()
         self.vel = np.zeros(3)
         self.omega = np.zeros(3)
-        self.p_rot = np.full(3, 1e-4)
+        self.p_heading = 1e-4
         self.p_pv = np.tile(np.diag([1e-4, 1e-2]), (3, 1, 1))
         # filter 2: translation drift correction applied on top of filter 1
         self.drift_pos = np.zeros(3)
@@ -310,7 +316,7 @@ class StateEstimator:
         c = self.config
         self.omega = self.rot @ gyro
         self.rot = self.rot @ exp_so3(gyro * dt)
-        self.p_rot += c.gyro_noise**2 * dt
+        self.p_heading += c.gyro_noise**2 * dt
         acc = self.rot @ accel - np.array([0.0, 0.0, GRAVITY])
         f = np.array([[1.0, dt], [0.0, 1.0]])
         self.pos += self.vel * dt + 0.5 * acc * dt * dt
@@ -323,9 +329,9 @@ class StateEstimator:
     def _rotate(self, delta: np.ndarray) -> None:
         self.rot = nearest_rotation(exp_so3(delta) @ self.rot)
 
-    def _level(self, accel: np.ndarray, pos_kin: np.ndarray, dt: float) -> None:
-        """Pull the tilt toward gravity: specific force (world) = acceleration + g·z, with the
-        force low-passed twice (f1, f2) and the acceleration the same filter's second
+    def _tilt(self, accel: np.ndarray, pos_kin: np.ndarray, dt: float) -> np.ndarray:
+        """The turn pulling the tilt toward gravity: specific force (world) = acceleration + g·z,
+        with the force low-passed twice (f1, f2) and the acceleration the same filter's second
         derivative of the stance feet's position, (p - 2·p1 + p2) / T² (T = ``gravity_time``)."""
         c = self.config
         force = self.rot @ accel
@@ -338,8 +344,7 @@ class StateEstimator:
         p1 += a * (pos_kin - p1)
         p2 += a * (p1 - p2)
         up = f2 - (pos_kin - 2.0 * p1 + p2) / c.gravity_time**2
-        err = np.cross(up / np.linalg.norm(up), [0.0, 0.0, 1.0])  # z component 0: tilt only
-        self._rotate(err * min(1.0, dt / c.tilt_time))
+        return cross_up(up / np.linalg.norm(up)) * min(1.0, dt / c.tilt_time)
 
     def _correct(
         self,
@@ -352,13 +357,13 @@ class StateEstimator:
         """Heading from the stance feet's rotation, tilt from gravity, then position from the
         stance feet fitted on that rotation (eq. 8 with R known)."""
         c = self.config
-        err = log_so3(rot_kin @ self.rot.T)
-        gain = np.zeros(3)
-        gain[2] = self.p_rot[2] / (self.p_rot[2] + c.kinematic_rotation_noise**2)
-        self._rotate(gain * err)
-        self.p_rot *= 1.0 - gain
+        heading = log_so3(rot_kin @ self.rot.T)[2]
+        gain = self.p_heading / (self.p_heading + c.kinematic_rotation_noise**2)
+        self.p_heading *= 1.0 - gain
         pos_kin = (anchors - feet @ self.rot.T).mean(0)
-        self._level(accel, pos_kin, dt)
+        turn = self._tilt(accel, pos_kin, dt)
+        turn[2] = gain * heading
+        self._rotate(turn)
         h = np.array([1.0, 0.0])
         s = self.p_pv[:, 0, 0] + c.kinematic_position_noise**2
         k = self.p_pv[:, :, 0] / s[:, None]
@@ -380,7 +385,7 @@ class StateEstimator:
             return
         for leg in legs:
             turn = log_so3(self.rot @ link_rot[leg] @ self._link_rot[leg].T @ self.rot.T)
-            self.anchors[leg] += np.cross(turn, [0.0, 0.0, r])
+            self.anchors[leg] += r * cross_up(turn)
 
     def update(
         self,
