@@ -67,7 +67,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     crossing_start: float = 0.10
     joist_width: float = 0.04
     foot_margin: float = 0.025
-    clearance: float = 0.025
+    clearance: float = 0.03
     leg_radius: float = 0.013
     support_margin: float = 0.01
     body_clearance: float = 0.015

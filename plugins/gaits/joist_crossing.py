@@ -187,6 +187,14 @@ def waypoint_samples(paths: np.ndarray, taus: np.ndarray) -> np.ndarray:
     return a + local[..., None] * (b - a)
 
 
+def segment_points(paths: np.ndarray, fractions: np.ndarray) -> np.ndarray:
+    """Points (C, S·F, 3) at ``fractions`` (F,) of each of the S straight segments of C
+    waypoint paths (C, S + 1, 3): every place a swing's foot passes, however it is timed."""
+    a, b = paths[:, :-1, None, :], paths[:, 1:, None, :]
+    points = a + fractions[None, None, :, None] * (b - a)
+    return points.reshape(len(paths), -1, 3)
+
+
 def path_point(path: np.ndarray, tau: float) -> np.ndarray:
     """Point of one waypoint path (W, 3) at ``tau`` ∈ [0, 1] (see ``waypoint_samples``)."""
     tau = float(np.clip(tau, 0.0, 1.0))
@@ -217,7 +225,11 @@ class Move:
 
 
 TAUS = np.linspace(0.0, 1.0, 17)
-"""Instants (fraction of a phase) at which a candidate phase is checked."""
+"""Instants (fraction of a phase) at which a candidate body move is checked."""
+SEGMENT_FRACTIONS = np.linspace(0.0, 1.0, 9)
+"""Points (fractions of each straight segment) at which a swing path is checked. Per segment,
+not per instant of the swing: 17 instants left one or none on the short segment across the
+apex, where a middle leg's femur peaks, and it passed its limit there by 0.01 rad."""
 SLACK = 0.002
 """Added (m) to the legs' clearance from a bar, for the motion between checked instants."""
 ADVANCES = np.arange(0.03, 0.0049, -0.005)
@@ -380,13 +392,14 @@ class CrossingPlan:
         end = np.tile(start, (len(xs), 1))
         end[:, 0], end[:, 1], end[:, 2] = xs, y, 0.0
         paths = self._swing_paths(np.tile(start, (len(xs), 1)), end, spread)
-        swing = waypoint_samples(paths, TAUS)
-        ground = np.repeat(np.broadcast_to(feet, (len(xs), self.n, 3))[:, None], len(TAUS), 1)
+        swing = segment_points(paths, SEGMENT_FRACTIONS)
+        samples = swing.shape[1]
+        ground = np.repeat(np.broadcast_to(feet, (len(xs), self.n, 3))[:, None], samples, 1)
         ground = ground.copy()
         ground[:, :, leg] = swing
         stance = np.ones(self.n, bool)
         stance[leg] = False
-        bodies = np.broadcast_to(body, (len(xs), len(TAUS), 3))
+        bodies = np.broadcast_to(body, (len(xs), samples, 3))
         local = (swing - bodies)[:, :, None, :]
         reach, _, _ = self.chains.solve(local, joints=False, legs=[leg])
         sel = np.flatnonzero(reach[..., 0].all(axis=1))
