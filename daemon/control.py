@@ -17,7 +17,6 @@ import numpy as np
 from daemon.estimation import (
     StateEstimator,
     SupportTorques,
-    exp_so3,
     rotation,
     support_forces,
 )
@@ -114,7 +113,7 @@ class Controller:
         self.command: JointCommand | None = None
         self.motion_command: Timed | None = None
         self.features: dict[str, Timed] = {}
-        self._alignment: list[float] | None = None
+        self._alignment: Stairs | None = None
         self.body = BodyState()
         self.estimator = estimator
         self.odometry = LegOdometry(self.kinematics) if estimator is None else None
@@ -200,8 +199,12 @@ class Controller:
 
     def on_feature(self, msg: Message) -> None:
         self.features[msg.TOPIC] = Timed(msg, self.now())
-        if isinstance(msg, Stairs) and len(msg.alignment) == 6:
-            self._alignment = msg.alignment  # filter 2's input, fused by the loop thread
+        if (
+            isinstance(msg, Stairs)
+            and len(msg.alignment) == 3
+            and all(len(d) == 3 for d in msg.constrained)
+        ):
+            self._alignment = msg  # filter 2's input, fused by the loop thread
 
     # --- the tick (loop thread) -------------------------------------------------------
 
@@ -269,10 +272,11 @@ class Controller:
         sample = self._read_imu()
         gyro = sample.gyro if sample is not None else None
         accel = sample.accel if sample is not None else None
-        alignment, self._alignment = self._alignment, None
-        if alignment is not None:
-            rot, trans = exp_so3(np.asarray(alignment[:3])), np.asarray(alignment[3:])
-            self.estimator.icp_correction(rot, trans)
+        stairs, self._alignment = self._alignment, None
+        if stairs is not None:
+            self.estimator.icp_correction(
+                np.asarray(stairs.alignment), np.asarray(stairs.constrained)
+            )
         self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t)
 
     def _read_imu(self) -> ImuSample | None:

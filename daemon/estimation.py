@@ -6,7 +6,9 @@ global (odometry) frame follows from the three stance feet (eqs. 6-9), whose glo
 are registered when their group takes the load. Filter 1 fuses that with the IMU: the gyro
 carries the rotation, gravity corrects its tilt and the stance feet its heading; the
 accelerometer predicts the position and the stance feet, fitted on that rotation, correct it
-(Kalman). Filter 2 holds the height drift that ICP between successive stair clouds measures.
+(Kalman). Filter 2 holds the position drift that ICP of each stair cloud onto the stitched map
+measures, along the directions the stairs in view constrain (treads the height, risers the
+ascent).
 Pure: arrays in, BodyState out, no clock, no I/O.
 """
 
@@ -25,7 +27,7 @@ from daemon.profile import Profile
 
 GRAVITY = 9.80665
 ICP_GATE = 3.0
-"""Standard deviations: an ICP height correction beyond the drift filter 2 expects is rejected."""
+"""Standard deviations: an ICP correction beyond the drift filter 2 expects is rejected."""
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
@@ -273,8 +275,8 @@ class StateEstimator:
     """Leg odometry from the stance tripod, fused with the IMU (filter 1) and ICP (filter 2).
 
     ``update(q, tau, gyro, accel, dt)`` returns the BodyState; without ``gyro``/``accel`` the
-    pose is the kinematic one. ``icp_correction(rot, trans)`` feeds filter 2 with the
-    transform that aligns the latest stair cloud (placed with this estimate) onto the previous.
+    pose is the kinematic one. ``icp_correction(translation, directions)`` feeds filter 2 with
+    the shift that aligns the latest stair cloud (placed with this estimate) onto the map.
     """
 
     def __init__(
@@ -303,9 +305,9 @@ class StateEstimator:
         self.omega = np.zeros(3)
         self.p_heading = 1e-4
         self.p_pv = np.tile(np.diag([1e-4, 1e-2]), (3, 1, 1))
-        # filter 2: translation drift correction applied on top of filter 1
+        # filter 2: translation drift correction applied on top of filter 1, its covariance
         self.drift_pos = np.zeros(3)
-        self.p_drift = 0.0
+        self.p_drift = np.zeros((3, 3))
         self.icp_rejected = 0
         self._lowpass: np.ndarray | None = None
         self.kinematic: tuple[np.ndarray, np.ndarray] | None = None
@@ -435,24 +437,30 @@ class StateEstimator:
     # --- filter 2 (ICP) ---------------------------------------------------------------------
 
     def _drift_predict(self, dt: float) -> None:
-        self.p_drift += self.config.drift_position_rate**2 * dt
+        self.p_drift.flat[::4] += self.config.drift_position_rate**2 * dt  # the diagonal
 
-    def icp_correction(self, rot: np.ndarray, trans: np.ndarray) -> None:
-        """Fuse an ICP alignment (global frame: maps the newest cloud onto the stitched map).
+    def icp_correction(self, translation: np.ndarray, directions: np.ndarray) -> None:
+        """Fuse an ICP shift (global frame: moves the newest cloud onto the stitched map) along
+        each of its orthonormal ``directions`` (k, 3), the ones the stairs in view constrain.
 
-        Only the body's height under the alignment is fused: treads pin it, while along the
-        flight the fit slides (treads alike one tread apart, partial overlap at a landing:
-        measured on a recorded run) and the tilt and heading are the IMU's.
+        The cloud was placed with this estimate, so the shift along a direction measures the
+        position error there, negated. One scalar Kalman update a direction, less what the
+        updates before it moved the drift along it, gated at ``ICP_GATE`` sigma (a rejected
+        direction counts in ``icp_rejected``); the rotation is the IMU's.
         """
-        _, pos = self.pose()
-        rise = float((np.asarray(rot, float) @ pos + np.asarray(trans, float) - pos)[2])
-        var = self.p_drift + self.config.icp_position_noise**2
-        if rise * rise > ICP_GATE**2 * var:
-            self.icp_rejected += 1
-            return
-        gain = self.p_drift / var
-        self.drift_pos[2] += gain * rise
-        self.p_drift *= 1.0 - gain
+        noise = self.config.icp_position_noise**2
+        shift = np.asarray(translation, float)
+        before = self.drift_pos.copy()
+        for d in np.asarray(directions, float).reshape(-1, 3):
+            innovation = float(d @ (shift - (self.drift_pos - before)))
+            pd = self.p_drift @ d
+            var = float(d @ pd) + noise
+            if innovation * innovation > ICP_GATE**2 * var:
+                self.icp_rejected += 1
+                continue
+            gain = pd / var
+            self.drift_pos += gain * innovation
+            self.p_drift -= np.outer(gain, pd)
 
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Final body rotation and position: filter 2's correction applied to filter 1."""

@@ -322,15 +322,17 @@ class Stair(msgspec.Struct, kw_only=True):
 
 
 class Stairs(Message):
-    """Stairs in the odometry frame, bottom step first. ``alignment``: the ICP transform that
-    moved this frame's cloud onto the stitched map (rotation vector, rad, then translation, m;
-    odometry frame), the estimator's drift measurement; empty when the cloud was not aligned."""
+    """Stairs in the odometry frame, bottom step first. ``alignment``: the translation (m,
+    odometry frame) that moved this frame's cloud onto the stitched map, solved only along
+    ``constrained``, the unit directions the stairs in view pin (treads z, risers the ascent);
+    the estimator's drift measurement. Both empty when the cloud was not aligned."""
 
     TOPIC: ClassVar[str] = "features/stairs"
     RATE: ClassVar[str] = "camera rate"
     frame_stamp: float = 0.0
     steps: list[Stair] = []
     alignment: list[float] = []
+    constrained: list[list[float]] = []
 
 
 class DepthImage(Message):

@@ -199,18 +199,23 @@ def test_overheat_derates_then_faults(widowx) -> None:
 
 
 def test_stair_alignment_reaches_the_estimator(robots) -> None:
-    """A Stairs feature's ICP alignment is fused by filter 2 on the next tick: the height
-    moves toward it, the horizontal stays the legs'; a Stairs without one changes nothing."""
+    """A Stairs feature's ICP alignment is fused by filter 2 on the next tick along the
+    directions it is constrained in: the height moves toward it, the horizontal (unconstrained)
+    stays the legs'; a Stairs without one, or with malformed directions, changes nothing."""
     profile = profiles.load(robots / "qingzhui.toml")
-    rigs = [Rig(profile) for _ in range(3)]
+    rigs = [Rig(profile) for _ in range(4)]
     for rig in rigs:
         rig.controller.estimator = StateEstimator(profile)
         rig.stand()
-    rigs[1].controller.on_feature(Stairs(alignment=[0.0, 0.0, 0.0, 0.0, 0.0, -0.02]))
+    alignment = [0.01, 0.0, -0.02]
+    rigs[1].controller.on_feature(Stairs(alignment=alignment, constrained=[[0.0, 0.0, 1.0]]))
     rigs[2].controller.on_feature(Stairs())
+    rigs[3].controller.on_feature(Stairs(alignment=alignment, constrained=[[0.0, 1.0]]))
     for rig in rigs:
         rig.run(1.0 / profile.rate_hz)
-    plain, aligned, empty = (np.array(rig.controller.body.position) for rig in rigs)
+    plain, aligned, empty, malformed = (np.array(rig.controller.body.position) for rig in rigs)
     assert -0.02 < aligned[2] - plain[2] < -0.01
     np.testing.assert_allclose(aligned[:2], plain[:2], atol=1e-12)
     np.testing.assert_allclose(empty, plain, atol=1e-12)
+    np.testing.assert_allclose(malformed, plain, atol=1e-12)
+    assert rigs[3].safety.mode == rigs[0].safety.mode

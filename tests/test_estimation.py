@@ -217,20 +217,28 @@ def test_imu_fusion_gains_over_kinematics_alone(walk) -> None:
     assert pos_f.max() < 0.02 and tilt_f.max() < 2.0
 
 
-def test_icp_correction_removes_height_drift_and_rejects_a_tread_apart(walk) -> None:
-    """Filter 2: a 3 cm height drift that ICP measures is mostly removed, the horizontal
-    estimate is left to the legs, and an alignment one tread (30 cm) off is rejected."""
+def test_icp_correction_removes_drift_along_what_is_constrained_and_gates_each(walk) -> None:
+    """Filter 2: a 3 cm height and 2 cm ascent drift that ICP measures along z and x (treads and
+    risers in view) is mostly removed, y (unconstrained) is left to the legs; an alignment one
+    tread (30 x 13 cm) off is rejected in both directions, and a direction gated alone does not
+    stop the other."""
     est = StateEstimator(walk["profile"], walk["config"], walk["pos"][0], walk["quat"][0])
     for k in range(len(walk["q"])):
         est.update(walk["q"][k], walk["tau"][k], dt=1e-3)
     drift = np.array([0.02, -0.01, 0.03])
     est.pos = est.pos + drift
     before = est.pose()[1] - walk["pos"][-1]
-    # ICP aligns the newest cloud (placed with the drifted pose) back onto the map
-    est.icp_correction(np.eye(3), -drift)
+    # ICP shifts the newest cloud (placed with the drifted pose) back onto the map along x, z
+    x_z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    est.icp_correction(-drift * [1.0, 0.0, 1.0], x_z)
     after = est.pose()[1] - walk["pos"][-1]
+    assert abs(before[0]) > 0.015 and abs(after[0]) < 0.5 * abs(before[0]), (before, after)
     assert abs(before[2]) > 0.025 and abs(after[2]) < 0.5 * abs(before[2]), (before, after)
-    np.testing.assert_allclose(after[:2], before[:2], atol=1e-9)
-    est.icp_correction(np.eye(3), np.array([0.3, 0.0, -0.13]))  # one tread of 300 x 130 mm
-    assert est.icp_rejected == 1
+    assert after[1] == pytest.approx(before[1], abs=1e-9)
+    est.icp_correction(np.array([0.3, 0.0, -0.13]), x_z)  # one tread of 300 x 130 mm
+    assert est.icp_rejected == 2
     np.testing.assert_allclose(est.pose()[1], after + walk["pos"][-1], atol=1e-9)
+    est.icp_correction(np.array([0.3, 0.0, -after[2]]), x_z)
+    assert est.icp_rejected == 3
+    final = est.pose()[1] - walk["pos"][-1]
+    assert final[0] == pytest.approx(after[0], abs=1e-9) and abs(final[2]) < abs(after[2])

@@ -9,7 +9,12 @@ import pytest
 from daemon.estimation import exp_so3, quaternion
 from daemon.messages import BodyState
 from daemon.plugins import load_class
-from plugins.perception.stairs import StairPerception, StairsConfig, icp
+from plugins.perception.stairs import (
+    StairPerception,
+    StairsConfig,
+    icp_translation,
+    target_surface,
+)
 
 RISE, TREAD, COUNT, START = 0.13, 0.30, 3, 0.8
 
@@ -56,32 +61,39 @@ def test_other_stairs_100_150_180_rise() -> None:
         assert [round(s.rise, 2) for s in steps] == [rise] * COUNT
 
 
-def test_icp_recovers_a_pose_error_between_two_views() -> None:
+def test_icp_recovers_a_position_error_along_what_the_stairs_constrain() -> None:
+    """Risers pin x and treads z; a flight wider than the view has no lateral feature, so y is
+    neither solved nor reported as constrained; a view of treads alone pins z only."""
     rng = np.random.default_rng(2)
     target = staircase(rng, noise=0.002)
-    rot, shift = exp_so3(np.radians([0.5, -0.5, 2.0])), np.array([0.02, -0.015, 0.01])
-    source = (staircase(rng, noise=0.002) - shift) @ rot  # the same stairs seen with an error
-    r, t = icp(source, target)
-    np.testing.assert_allclose(r, rot, atol=np.radians(0.3))
-    # a flight wider than the view has no lateral feature: only x and z are observable
-    np.testing.assert_allclose(t[[0, 2]], shift[[0, 2]], atol=0.005)
+    shift = np.array([0.02, -0.015, 0.01])
+    source = staircase(rng, noise=0.002) - shift  # the same stairs seen with a position error
+    t, dirs = icp_translation(source, target, target_surface(target))
+    np.testing.assert_allclose(t, [shift[0], 0.0, shift[2]], atol=0.003)
+    np.testing.assert_allclose(np.abs(dirs @ dirs.T), np.eye(2), atol=1e-9)
+    np.testing.assert_allclose(np.abs(dirs[:, [0, 2]]).max(0), 1.0, atol=0.01)
+    treads = source[np.abs(source[:, 0] - START - TREAD * np.arange(COUNT)[:, None]).min(0) > 0.05]
+    t, dirs = icp_translation(treads, target, target_surface(target))
+    np.testing.assert_allclose(dirs, [[0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(t, [0.0, 0.0, shift[2]], atol=0.003)
 
 
 def test_stitching_corrects_a_drifted_body_pose() -> None:
-    """The second view arrives with a 2 cm / 1.5 deg pose error; the map stays one staircase
-    and the correction handed to the estimator undoes the error."""
+    """The second view arrives with a 2 cm position error (and a 0.3 deg heading error, what
+    the IMU leaves); the map stays one staircase and the correction handed to the estimator
+    undoes the error along x and z, the directions it reports."""
     rng = np.random.default_rng(3)
     plugin = StairPerception()
     plugin.process_cloud(staircase(rng), BodyState(), 0.0)
-    drift_rot, drift = exp_so3(np.radians([0.0, 0.0, 1.5])), np.array([0.02, 0.01, 0.0])
+    drift_rot, drift = exp_so3(np.radians([0.0, 0.0, 0.3])), np.array([0.02, 0.01, 0.0])
     body = BodyState(position=drift.tolist(), orientation=quaternion(drift_rot))
     # body-frame cloud of the true stairs, placed by the drifted pose
     stairs = plugin.process_cloud(staircase(rng), body, 1.0)
-    r, t = plugin.last_correction
-    np.testing.assert_allclose(r @ drift_rot, np.eye(3), atol=np.radians(0.3))
-    np.testing.assert_allclose((r @ drift + t)[[0, 2]], 0.0, atol=0.005)
-    np.testing.assert_allclose(exp_so3(np.array(stairs.alignment[:3])), r, atol=1e-12)
-    np.testing.assert_allclose(stairs.alignment[3:], t, atol=1e-12)  # on the wire for filter 2
+    t, dirs = plugin.last_correction
+    np.testing.assert_allclose((drift + t)[[0, 2]], 0.0, atol=0.005)
+    assert abs(t[1]) < 1e-3 and sorted(np.abs(dirs).argmax(1)) == [0, 2]
+    np.testing.assert_allclose(stairs.alignment, t, atol=1e-12)  # on the wire for filter 2
+    np.testing.assert_allclose(stairs.constrained, dirs, atol=1e-12)
     assert [round(s.rise, 2) for s in stairs.steps] == [RISE] * COUNT
 
 
