@@ -73,6 +73,16 @@ TOUCH_SUPPORT = 10.0
 the feed-forward's share) before its feed-forward fades in: a late foot is not pushed down."""
 
 
+def fusable(stairs: Stairs) -> bool:
+    """Whether a Stairs carries an alignment filter 2 can take: a finite shift (3) and unit
+    directions (k x 3); anything else from the wire is dropped rather than poison the estimate."""
+    if len(stairs.alignment) != 3 or any(len(d) != 3 for d in stairs.constrained):
+        return False
+    dirs = np.array(stairs.constrained, float).reshape(-1, 3)
+    norms = np.linalg.norm(dirs, axis=1)
+    return bool(np.isfinite(stairs.alignment).all() and np.allclose(norms, 1.0, atol=1e-6))
+
+
 @dataclass
 class Timed:
     """A message and the controller-clock time it arrived."""
@@ -199,11 +209,7 @@ class Controller:
 
     def on_feature(self, msg: Message) -> None:
         self.features[msg.TOPIC] = Timed(msg, self.now())
-        if (
-            isinstance(msg, Stairs)
-            and len(msg.alignment) == 3
-            and all(len(d) == 3 for d in msg.constrained)
-        ):
+        if isinstance(msg, Stairs) and fusable(msg):
             self._alignment = msg  # filter 2's input, fused by the loop thread
 
     # --- the tick (loop thread) -------------------------------------------------------

@@ -201,7 +201,8 @@ def test_overheat_derates_then_faults(widowx) -> None:
 def test_stair_alignment_reaches_the_estimator(robots) -> None:
     """A Stairs feature's ICP alignment is fused by filter 2 on the next tick along the
     directions it is constrained in: the height moves toward it, the horizontal (unconstrained)
-    stays the legs'; a Stairs without one, or with malformed directions, changes nothing."""
+    stays the legs'; a Stairs without one, or a malformed one (directions not unit 3-vectors,
+    a NaN shift), changes nothing."""
     profile = profiles.load(robots / "qingzhui.toml")
     rigs = [Rig(profile) for _ in range(4)]
     for rig in rigs:
@@ -211,6 +212,10 @@ def test_stair_alignment_reaches_the_estimator(robots) -> None:
     rigs[1].controller.on_feature(Stairs(alignment=alignment, constrained=[[0.0, 0.0, 1.0]]))
     rigs[2].controller.on_feature(Stairs())
     rigs[3].controller.on_feature(Stairs(alignment=alignment, constrained=[[0.0, 1.0]]))
+    rigs[3].controller.on_feature(Stairs(alignment=alignment, constrained=[[0.0, 0.0, 2.0]]))
+    rigs[3].controller.on_feature(
+        Stairs(alignment=[0.0, 0.0, float("nan")], constrained=[[0.0, 0.0, 1.0]])
+    )
     for rig in rigs:
         rig.run(1.0 / profile.rate_hz)
     plain, aligned, empty, malformed = (np.array(rig.controller.body.position) for rig in rigs)
