@@ -297,12 +297,7 @@ class CrossingPlan:
         """Worst margin (C,) over T instants of C candidates: body (C, T, 3) as (x, y, height),
         ground feet (C, T, n, 3), stance (n,); reach and clearance of ``legs`` only (the
         others stand still on a checked pose). Negative: a constraint is broken (-inf:
-        unreachable).
-
-        The candidates share their first instant, the pose the move starts from. A replan
-        may start inside a margin (the body slipped off the plan, a tibia came within its
-        radius of a joist's corner): the margin is then counted from that start's, so a move
-        that never gets worse than where it starts is allowed and the plan can back out."""
+        unreachable)."""
         p = self.p
         moving = feet[:, :, legs]
         local = moving - body[:, :, None, :]
@@ -327,8 +322,7 @@ class CrossingPlan:
         support = support_margin(feet[:, :, stance, :2], body[..., :2]) - p.support_margin
         margin = np.minimum(margin, support)
         margin = np.where(ok.all(axis=2), margin, -np.inf)
-        start = float(margin[:, 0].max())
-        return margin.min(axis=1) - (start if -np.inf < start < 0.0 else 0.0)
+        return margin.min(axis=1)
 
     def _free(self, x: np.ndarray) -> np.ndarray:
         """Footholds x (m) outside every bar's band widened by ``foot_margin``."""
