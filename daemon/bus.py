@@ -97,6 +97,22 @@ class Publisher:
         self._publisher.undeclare()
 
 
+class _Handler:
+    """A subscriber's callback, dropped when the bus closes: Zenoh may keep the sample handler
+    alive past undeclare, and with it whatever the callback holds (a controller, its ruckig)."""
+
+    def __init__(self, callback: Callable[[Message], None]) -> None:
+        self._callback: Callable[[Message], None] | None = callback
+
+    def __call__(self, msg: Message) -> None:
+        callback = self._callback  # read once: release() may run on another thread
+        if callback is not None:
+            callback(msg)
+
+    def release(self) -> None:
+        self._callback = None
+
+
 class Bus:
     """One Zenoh session of a climbd process, for robot ``robot``.
 
@@ -117,6 +133,7 @@ class Bus:
         self._warned: set[str] = set()
         self._lock = threading.Lock()
         self._declared: list = []
+        self._handlers: list[_Handler] = []
         self._publishers: dict[type[Message], Publisher] = {}
         self._declare_lock = threading.Lock()
 
@@ -186,6 +203,8 @@ class Bus:
         queue of one: a newer message replaces one asyncio has not yet taken.
         """
         k = key(robot or self.robot, message)
+        handler = _Handler(callback)
+        self._handlers.append(handler)
         pending: list[Message] = []
 
         def deliver() -> None:
@@ -193,7 +212,7 @@ class Bus:
                 batch = pending.copy()
                 pending.clear()
             for msg in batch:
-                callback(msg)
+                handler(msg)
 
         def on_sample(sample: zenoh.Sample) -> None:
             try:
@@ -202,7 +221,7 @@ class Bus:
                 self._drop(sample, e)
                 return
             if self.loop is None:
-                callback(msg)
+                handler(msg)
                 return
             with self._lock:
                 schedule = not pending
@@ -243,4 +262,7 @@ class Bus:
             except Exception as e:  # already gone with the session: nothing left to release
                 log.debug("undeclare failed: %s", e)
         self._declared.clear()
+        for handler in self._handlers:
+            handler.release()
+        self._handlers.clear()
         self.session.close()
