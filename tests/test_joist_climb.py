@@ -24,8 +24,9 @@ from daemon.motion import MotionPipeline
 from daemon.plugins import PluginError, instantiate
 from daemon.profile import stock_profiles
 from drivers.base import FakeJointBus
+from drivers.sim.worlds import INCH
 from plugins.gaits.joist_climb import InPlaceTurn, JoistClimb, JoistClimbConfig, Phase
-from plugins.gaits.joist_crossing import support_margin
+from plugins.gaits.joist_crossing import Bar, CrossingGeometry, CrossingPlan, support_margin
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 DT = 0.01
@@ -272,3 +273,44 @@ def test_a_joist_beside_the_legs_is_walked_away_from_before_the_turn_to_square_u
     assert modes[:4] == ["clear", "align", "approach", "settle"], modes
     c = r.behaviour.config
     assert r.clearance >= c.leg_radius + c.turn_clearance / 2, r.clearance
+
+
+def test_a_replan_from_a_slip_into_a_margin_backs_the_body_out_first():
+    """Through the driver the robot slips (a foot lands off its mark and shoves the body): on a
+    row of two, 8 mm forward leaves the lm tibia inside its margin of the second joist's
+    corner, where every move of the plan fails at its first instant. The replan backs the body
+    along x out of the margin first; every later move keeps every margin."""
+    config = JoistClimbConfig()
+    kin = Kinematics(WIDOWX)
+    feet = kin.stand_feet()
+    stand = -float(feet[0, 2])
+    ground = np.column_stack([feet[:, :2], np.zeros(len(feet))])
+    half_length = float(np.abs(kin.mount[:, 0]).max())
+    faces = (0.31, 0.31 + 16 * INCH)
+
+    def plan(slip: float, feet: np.ndarray, height: float, x: float = 0.0) -> CrossingPlan:
+        bars = tuple(Bar(face - x - slip, config.joist_width, 0.10) for face in faces)
+        geometry = CrossingGeometry(bars=bars, half_length=half_length)
+        return CrossingPlan(geometry, config.crossing_params(), kin, feet, stand, height)
+
+    row = plan(0.0, ground, stand)
+    stance = np.ones(kin.n_legs, bool)
+    slipped = []
+    slip = np.array([0.008, 0.0, 0.0])
+    for move in row.moves:
+        body, on = move.body0, move.feet0
+        start = row.check((body + slip)[None, None], (on + slip)[None, None], stance)[0]
+        if move.paths or not -np.inf < start < 0.0:
+            continue
+        local = on - np.array([body[0], body[1], 0.0])
+        slipped.append(plan(slip[0], local, float(body[2]), float(body[0])))
+    assert slipped, "no phase of the row where an 8 mm slip breaks a margin"
+    for replan in slipped:
+        assert replan.recovery < 0.0, "backs away from the joist ahead"
+        first = replan.moves[0]
+        assert not first.paths and first.body1[0] == pytest.approx(replan.recovery)
+        for move in replan.moves[1:]:
+            for tau in np.linspace(0.0, 1.0, 9):
+                body, at, down = move.sample(tau)
+                margin = replan.check(body[None, None], at[None, None], down)[0]
+                assert margin >= -1e-9, f"a move after the recovery breaks a margin ({margin})"

@@ -99,6 +99,27 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
         if not self.touchdown_time >= 0:
             raise ValueError(f"joist_climb: touchdown_time must be >= 0, got {self.touchdown_time}")
 
+    def crossing_params(self) -> CrossingParams:
+        """The crossing planner's clearances, body heights, steps and timing."""
+        return CrossingParams(
+            foot_margin=self.foot_margin,
+            clearance=self.clearance,
+            leg_radius=self.leg_radius,
+            support_margin=self.support_margin,
+            body_clearance=self.body_clearance,
+            body_half_height=self.body_half_height,
+            climb_heights=tuple(self.climb_heights),
+            step_height=self.step_height,
+            reach=self.reach,
+            lead=self.lead,
+            body_speed=self.body_speed,
+            foot_speed=self.foot_speed,
+            swing_time=self.swing_time,
+            shift_time=self.shift_time,
+            touchdown_time=self.touchdown_time,
+            exit_distance=self.exit_distance,
+        )
+
 
 BACK_OFF = 0.03
 """How much closer (m) than ``crossing_start`` the front feet may be before backing off."""
@@ -554,31 +575,13 @@ class JoistClimb(GaitPlugin):
 
     def _plan(self, feet: np.ndarray, height: float) -> CrossingPlan:
         """A crossing of the row from here: ``feet`` relative to the body (n×3, z ignored)."""
-        c = self.config
         geometry = CrossingGeometry(
             bars=self._bars(),
             half_length=float(np.abs(self.kin.mount[:, 0]).max()),
         )
-        params = CrossingParams(
-            foot_margin=c.foot_margin,
-            clearance=c.clearance,
-            leg_radius=c.leg_radius,
-            support_margin=c.support_margin,
-            body_clearance=c.body_clearance,
-            body_half_height=c.body_half_height,
-            climb_heights=tuple(c.climb_heights),
-            step_height=c.step_height,
-            reach=c.reach,
-            lead=c.lead,
-            body_speed=c.body_speed,
-            foot_speed=c.foot_speed,
-            swing_time=c.swing_time,
-            shift_time=c.shift_time,
-            touchdown_time=c.touchdown_time,
-            exit_distance=c.exit_distance,
-        )
         feet = np.asarray(feet, float)
         ground = np.column_stack([feet[:, :2], np.zeros(len(feet))])
+        params = self.config.crossing_params()
         return CrossingPlan(geometry, params, self.kin, ground, self.tripod.height0, height)
 
     def _begin_crossing(self, t: float, world: dict[str, Message]) -> None:
@@ -663,7 +666,8 @@ class JoistClimb(GaitPlugin):
         self._plan_origin = self.pose.copy()
         self._t_mode = t
         self._phase = 0
-        self._event(t, f"cross: replanned ({len(self.row)} joists in the row)")
+        backed = f", backing {plan.recovery:+.3f} m out of a margin" if plan.recovery else ""
+        self._event(t, f"cross: replanned ({len(self.row)} joists in the row{backed})")
 
     def _step_cross(
         self, t: float, dt: float, body: BodyState, world: dict[str, Message]

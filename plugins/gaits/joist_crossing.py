@@ -242,6 +242,8 @@ LOOK_AHEAD = 0.10
 """How far (m) ahead of its goal a bar makes a leg try to cross it."""
 MIN_STEP = 0.01
 """Shortest forward step (m) worth a swing."""
+RECOVERY_SHIFTS = np.array([-0.005, 0.005, -0.01, 0.01, -0.015, 0.015, -0.02, 0.02, -0.03, 0.03])
+"""Candidate body shifts (m, along x, nearest first) out of a margin the robot slipped into."""
 MAX_PHASES = 300
 """Bound on the phases of one plan (a crossing takes about 40)."""
 SPREADS = np.array([0.0, 0.03, 0.06])
@@ -250,7 +252,9 @@ LINK_SAMPLES = np.linspace(0.0, 1.0, 7)[:, None]
 
 
 class CrossingPlan:
-    """Builds and plays the free-gait crossing: ``sample(t)`` gives body, feet and stance."""
+    """Builds and plays the free-gait crossing: ``sample(t)`` gives body, feet and stance.
+    ``recovery`` is the body shift (m, along x) of its first move, backing out of a margin the
+    robot slipped into (0 when it had not)."""
 
     def __init__(
         self,
@@ -354,14 +358,37 @@ class CrossingPlan:
 
     # --- phases -------------------------------------------------------------------------
 
-    def _try_body(self, body: np.ndarray, feet: np.ndarray, targets: np.ndarray):
-        """The first candidate body pose (rows of ``targets``) reachable by a checked move."""
+    def _try_body(self, body: np.ndarray, feet: np.ndarray, targets: np.ndarray, floor=0.0):
+        """The first candidate body pose (rows of ``targets``) reachable by a checked move. From
+        a start that breaks a margin (``floor`` < 0, its worst), one that breaks none worse on
+        the way and ends with every margin kept."""
         c = len(targets)
         path = body + progress(TAUS)[None, :, None] * (targets - body)[:, None, :]
         ground = np.broadcast_to(feet, (c, len(TAUS), self.n, 3))
-        margin = self.check(path, ground, np.ones(self.n, bool))
-        good = np.flatnonzero(margin >= 0.0)
+        stance = np.ones(self.n, bool)
+        good = self.check(path, ground, stance) >= floor
+        if floor < 0.0:
+            good &= self.check(path[:, -1:], ground[:, -1:], stance) >= 0.0
+        good = np.flatnonzero(good)
         return targets[good[0]] if len(good) else None
+
+    def _recovery(self, body: np.ndarray, feet: np.ndarray) -> np.ndarray:
+        """The body pose to plan from: ``body`` itself, or, when the robot has slipped into a
+        margin (a link too near a bar), the nearest shift along x that backs out of it."""
+        start = self.check(body[None, None], feet[None, None], np.ones(self.n, bool))[0]
+        if start >= 0.0:
+            return body
+        if start == -np.inf:
+            raise CrossingError("a standing foot is out of reach of its leg")
+        shifts = np.zeros((len(RECOVERY_SHIFTS), 3))
+        shifts[:, 0] = RECOVERY_SHIFTS
+        target = self._try_body(body, feet, body + shifts, floor=start)
+        if target is None:
+            raise CrossingError(
+                f"the start pose breaks a margin by {-start:.3f} m and no body shift within "
+                f"{np.abs(RECOVERY_SHIFTS).max():.2f} m backs out of it"
+            )
+        return target
 
     def _try_swing(
         self, leg: int, body: np.ndarray, feet: np.ndarray, goal: float, y: float, cross: bool
@@ -448,6 +475,10 @@ class CrossingPlan:
                 # one then would rock the body on a foot that is not yet carrying it
                 moves.append(Move(p.touchdown_time, body, body, feet.copy()))
 
+        recovered = self._recovery(body, feet)
+        self.recovery = float(recovered[0] - body[0])
+        if self.recovery:
+            body_move(recovered)
         raised = np.array([body[0], body[1], climb])
         if abs(climb - body[2]) > 1e-6:
             if self._try_body(body, feet, raised[None]) is None:
