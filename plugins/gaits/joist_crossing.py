@@ -385,10 +385,24 @@ class CrossingPlan:
         target = self._try_body(body, feet, body + shifts, floor=start)
         if target is None:
             raise CrossingError(
-                f"the start pose breaks a margin by {-start:.3f} m and no body shift within "
-                f"{np.abs(RECOVERY_SHIFTS).max():.2f} m backs out of it"
+                f"the start pose breaks a margin by {-start:.3f} m ({self._breach(body, feet)}) "
+                f"and no body shift within {np.abs(RECOVERY_SHIFTS).max():.2f} m backs out of it"
             )
         return target
+
+    def _breach(self, body: np.ndarray, feet: np.ndarray) -> str:
+        """Which margin a standing pose breaks worst: a leg's links (its foot's own gap to the
+        nearest bar given), or the support or body clearance shared by all."""
+        stance = np.ones(self.n, bool)
+        per_leg = [
+            self.check(body[None, None], feet[None, None], stance, [i])[0] for i in range(self.n)
+        ]
+        worst = int(np.argmin(per_leg))
+        if np.allclose(per_leg, per_leg[worst]):
+            return "support or body clearance"
+        foot = min(float(bar_gap(feet[worst], bar)) for bar in self.g.bars)
+        name = self.chains.kin.leg_names[worst]
+        return f"leg {name}, its foot {foot:.3f} m from a bar"
 
     def _try_swing(
         self, leg: int, body: np.ndarray, feet: np.ndarray, goal: float, y: float, cross: bool
