@@ -6,7 +6,7 @@ Each setup runs twice in the same process: the gait's joint goals set in the twi
 lock-step). Prints each run's verdict (the tests' own checks) and its wall seconds per
 simulated second, with the driver path's ratio to the baseline.
 
-    .venv/bin/python bench/joist_climb.py [--only 1 3 row]
+    .venv/bin/python bench/joist_climb.py [--only 1 3 row] [--set foot_margin=0.035]
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from joist_twin_run import run_scenario  # noqa: E402
 from test_joist_climb_twin import TABLE_2, assert_climbed, assert_went_round  # noqa: E402
 
 from drivers.sim.worlds import INCH, JoistRow  # noqa: E402
+from plugins.gaits.joist_climb import JoistClimbConfig  # noqa: E402
 
 
 def setups() -> dict[str, tuple[JoistRow, float, float]]:
@@ -59,18 +60,28 @@ def verdict(outcome, row: JoistRow) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="*", help="setups to run (1-7, row)")
+    parser.add_argument(
+        "--set", nargs="*", default=[], metavar="KEY=VALUE", help="JoistClimbConfig overrides"
+    )
     args = parser.parse_args()
+    config = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        if key not in JoistClimbConfig.__struct_fields__:
+            parser.error(f"--set {item}: JoistClimbConfig has no field {key!r}")
+        try:
+            config[key] = float(value)
+        except ValueError:
+            parser.error(f"--set {item}: {key} needs a number")
     chosen = {k: v for k, v in setups().items() if not args.only or k in args.only}
     print("| setup | in-process | wall/sim | driver path | wall/sim | ratio | replans |")
     print("|---|---|---|---|---|---|---|")
     for name, (row, goal, seconds) in chosen.items():
         cells = []
-        rates = []
         for driver in (False, True):
             t0 = time.perf_counter()
-            outcome = run_scenario([row], goal=goal, seconds=seconds, driver=driver)
+            outcome = run_scenario([row], goal=goal, seconds=seconds, driver=driver, **config)
             rate = (time.perf_counter() - t0) / max(outcome.seconds, 1e-9)
-            rates.append(rate)
             replans = sum("replanned" in e or "no new plan" in e for e in outcome.events)
             cells.append((verdict(outcome, row), rate, replans))
         (v0, r0, n0), (v1, r1, n1) = cells

@@ -82,6 +82,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     shift_time: float = 0.3
     touchdown_time: float = 0.4
     exit_distance: float = 0.06
+    landing_height: float = 0.0
     replan_drift: float = 0.006
     replan_yaw_deg: float = 0.5
     row_angle_deg: float = 10.0
@@ -118,6 +119,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
             shift_time=self.shift_time,
             touchdown_time=self.touchdown_time,
             exit_distance=self.exit_distance,
+            landing_height=self.landing_height,
         )
 
 
@@ -574,15 +576,14 @@ class JoistClimb(GaitPlugin):
         return tuple(sorted(bars, key=lambda bar: bar.face))
 
     def _plan(self, feet: np.ndarray, height: float) -> CrossingPlan:
-        """A crossing of the row from here: ``feet`` relative to the body (n×3, z ignored)."""
+        """A crossing of the row from here: ``feet`` on the ground (n×3: x, y relative to the
+        body, z above the floor)."""
         geometry = CrossingGeometry(
             bars=self._bars(),
             half_length=float(np.abs(self.kin.mount[:, 0]).max()),
         )
-        feet = np.asarray(feet, float)
-        ground = np.column_stack([feet[:, :2], np.zeros(len(feet))])
         params = self.config.crossing_params()
-        return CrossingPlan(geometry, params, self.kin, ground, self.tripod.height0, height)
+        return CrossingPlan(geometry, params, self.kin, feet, self.tripod.height0, height)
 
     def _begin_crossing(self, t: float, world: dict[str, Message]) -> None:
         """Plan the crossing from here: the joist (and its row) square ahead, the feet at home."""
@@ -590,7 +591,8 @@ class JoistClimb(GaitPlugin):
         self.row = [self.target]
         self._grow_row(world)
         try:
-            self.plan = self._plan(self.tripod.feet, self.tripod.height)
+            feet = np.column_stack([self.tripod.feet[:, :2], np.zeros(len(self.tripod.feet))])
+            self.plan = self._plan(feet, self.tripod.height)
         except CrossingError as e:
             self.impassable.append(self.target)
             self._switch(t, Phase.SIDESTEP, f"cannot cross safely ({e})")
