@@ -280,7 +280,7 @@ def test_a_replan_from_a_slip_into_a_margin_backs_the_body_out_first():
     row of two, 8 mm forward leaves the lm tibia inside its margin of the second joist's
     corner, where every move of the plan fails at its first instant. The replan backs the body
     along x out of the margin first; every later move keeps every margin."""
-    config = JoistClimbConfig()
+    config = JoistClimbConfig(slip_recovery=True)
     kin = Kinematics(WIDOWX)
     feet = kin.stand_feet()
     stand = -float(feet[0, 2])

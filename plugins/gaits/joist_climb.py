@@ -83,6 +83,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     touchdown_time: float = 0.4
     exit_distance: float = 0.06
     landing_height: float = 0.0
+    slip_recovery: bool = False
     replan_drift: float = 0.006
     replan_yaw_deg: float = 0.5
     row_angle_deg: float = 10.0
@@ -120,6 +121,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
             touchdown_time=self.touchdown_time,
             exit_distance=self.exit_distance,
             landing_height=self.landing_height,
+            slip_recovery=self.slip_recovery,
         )
 
 

@@ -64,7 +64,9 @@ class CrossingParams:
     (an AX-18A stance leg about 3 mm), so a foot sent to the floor lands that much lower than
     the standing ones and jacks the body up: through the driver on Table 2 test 2 that lifted
     three feet and the robot slid 1 cm. 3 mm fixes that run but leaves the in-process row of
-    three unfinished in 420 s, so the default stays 0."""
+    three unfinished in 420 s, so the default stays 0. ``slip_recovery``: a plan that starts
+    inside a margin first shifts the body out of it (``_recovery``); off by default, since
+    through the driver it turned Table 2 test 5 from a clean crossing into a tibia touch."""
 
     foot_margin: float
     clearance: float
@@ -83,6 +85,7 @@ class CrossingParams:
     touchdown_time: float
     exit_distance: float
     landing_height: float
+    slip_recovery: bool
 
 
 class LegChains:
@@ -498,7 +501,7 @@ class CrossingPlan:
                 # one then would rock the body on a foot that is not yet carrying it
                 moves.append(Move(p.touchdown_time, body, body, feet.copy()))
 
-        recovered = self._recovery(body, feet)
+        recovered = self._recovery(body, feet) if p.slip_recovery else body
         self.recovery = float(recovered[0] - body[0])
         if self.recovery:
             body_move(recovered)
