@@ -144,6 +144,7 @@ class Controller:
         self._last_health_publish = -1e9
         self.fault_reset = False
         self.feed_forward = feed_forward and profile.bus.kind == "torque"
+        self.stiffness = profile.bus.stiffness if getattr(bus, "compliant", False) else 0.0
         self.support: SupportTorques | None = None
         self.load = np.zeros(len(profile.legs))
         self.landed = np.zeros(len(profile.legs), bool)
@@ -294,24 +295,36 @@ class Controller:
             return None
 
     def _feed_forward(self, q: np.ndarray, command: JointCommand) -> None:
-        """Torque legs with ``feed_forward``: each stance foot's share of the weight as feed-forward
-        torque (paper 004 eq. 5 inverted), so stance legs hold the body's height at the profile's
-        gains."""
-        if not self.feed_forward:
+        """Each stance foot's share of the weight (paper 004 eq. 5 inverted): torque legs with
+        ``feed_forward`` get it as feed-forward torque, so they hold the body's height at the
+        profile's gains; compliant position servos get their goals offset by torque / stiffness,
+        the sag that load would deflect them by."""
+        if not (self.feed_forward or self.stiffness):
             return
         masses = self.estimator.config.link_masses if self.estimator is not None else []
         if self.support is None or self.support.link_masses != masses:
             self.support = SupportTorques(self.kinematics, self.profile.mass, masses)
         rot = rotation(np.asarray(self.body.orientation, float))
+        if self.feed_forward:
+            self.landed = self.stance & (self.landed | (self._own_support(q, rot) > TOUCH_SUPPORT))
+        else:
+            self.landed = self.stance
+        self.load = np.minimum(self.load + self.dt / LOAD_RAMP, self.landed)
+        tau = self.support(q, self.load, rot)
+        if self.feed_forward:
+            command.effort = tau.tolist()
+        else:
+            sagged = np.asarray(command.position) + tau / self.stiffness
+            command.position = self.motion.guard.limit(sagged.tolist())
+
+    def _own_support(self, q: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """Support (N) each foot carries by its position loop alone: sensed minus feed-forward."""
         if self.estimator is not None:
             support = self.estimator.support
         else:
             forces = self.kinematics.foot_forces(q, self.measured.effort)
             support = np.nan_to_num(support_forces(forces, rot))
-        own = support - self.support.shares(self.load)
-        self.landed = self.stance & (self.landed | (own > TOUCH_SUPPORT))
-        self.load = np.minimum(self.load + self.dt / LOAD_RAMP, self.landed)
-        command.effort = self.support(q, self.load, rot).tolist()
+        return support - self.support.shares(self.load)
 
     def _clear_faults(self, t: float) -> None:
         """The operator's reset, while nothing moves (not STAND/ACTIVE): a bus that can bring

@@ -87,6 +87,9 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     Torque legs (``kind = "torque"``) use the CAN fields, the actuator ranges, and the
     default position gains ``kp`` (N·m/rad) and ``kd`` (N·m·s/rad) for commands without gains;
     ``can_channels`` spreads the legs over several CAN buses (leg i on channel i mod n).
+    Position servos (Dynamixel) sag under load by torque / ``stiffness`` (N·m/rad, the firmware
+    gain's); above 0, each stance leg's goal is offset by its share of the weight's torque over
+    it, so loaded legs hold their height (0: no sag compensation).
     """
 
     kind: str = "fake"
@@ -106,6 +109,7 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     actuator: ActuatorRanges = msgspec.field(default_factory=ActuatorRanges)
     kp: float = 60.0
     kd: float = 1.5
+    stiffness: float = 0.0
 
 
 class CameraMount(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -282,6 +286,13 @@ def validate(profile: Profile) -> Profile:
     src = profile.source or profile.name
     _check(profile.rate_hz > 0, src, "$.rate_hz", f"expected > 0, found {profile.rate_hz}")
     _check(profile.mass > 0, src, "$.mass", f"expected > 0, found {profile.mass}")
+    k = profile.bus.stiffness
+    _check(
+        k >= 0 and math.isfinite(k),
+        src,
+        "$.bus.stiffness",
+        f"expected a finite value >= 0, found {k}",
+    )
     tol = profile.safety.stand_tolerance
     _check(tol > 0, src, "$.safety.stand_tolerance", f"expected > 0, found {tol}")
     _check(len(profile.legs) >= 2, src, "$.legs", f"expected >= 2 legs, found {len(profile.legs)}")

@@ -224,3 +224,31 @@ def test_stair_alignment_reaches_the_estimator(robots) -> None:
     np.testing.assert_allclose(empty, plain, atol=1e-12)
     np.testing.assert_allclose(malformed, plain, atol=1e-12)
     assert rigs[3].safety.mode == rigs[0].safety.mode
+
+
+class SwingGait(StillGait):
+    """Keeps every foot where it started, with the first leg in swing."""
+
+    def step(self, t, dt, body, world, command):
+        targets = super().step(t, dt, body, world, command)
+        targets.stance[0] = False
+        return targets
+
+
+def test_compliant_servos_get_stance_goals_offset_by_their_sag(widowx) -> None:
+    """On a bus of compliant position servos each stance foot's goal reaches below its target
+    by the sag its share of the weight would cause (torque / stiffness); the swing foot's goal
+    is its target. A stiff bus (the fake) gets its targets as they are."""
+    rig = Rig(widowx, SwingGait(profile=widowx))
+    rig.bus.compliant = True
+    rig.controller.__init__(widowx, rig.bus, rig.safety, rig.clock.now, rig.controller.gait)
+    rig.stand()
+    assert rig.safety.request(Mode.ACTIVE, rig.clock.now())
+    rig.run(0.5)
+    assert rig.safety.mode == Mode.ACTIVE, rig.safety.reason
+    kin = rig.controller.kinematics
+    target = kin.fk(np.asarray(rig.controller.motion.command))
+    goal = kin.fk(rig.commands[-1])
+    drop = target[:, 2] - goal[:, 2]
+    assert drop[0] == pytest.approx(0.0, abs=1e-9)
+    assert np.all((drop[1:] > 0.0005) & (drop[1:] < 0.01)), drop

@@ -128,6 +128,9 @@ def set_latency_timer(port: str, latency_ms: int) -> None:
 class DynamixelBus:
     """The joints of a profile on one Dynamixel bus, in profile order and SI units."""
 
+    compliant = True
+    """Position servos: load deflects them from their goals (the controller's sag offset)."""
+
     def __init__(
         self,
         profile: Profile,
