@@ -314,3 +314,23 @@ def test_a_replan_from_a_slip_into_a_margin_backs_the_body_out_first():
                 body, at, down = move.sample(tau)
                 margin = replan.check(body[None, None], at[None, None], down)[0]
                 assert margin >= -1e-9, f"a move after the recovery breaks a margin ({margin})"
+
+
+def test_the_walk_is_done_only_after_the_feet_have_had_touchdown_time_to_land():
+    """Smoothing and servo lag put the real feet behind their targets: ``done`` (and with it
+    the daemon's HOLD) waits ``touchdown_time`` after the last foot target stopped moving
+    (the stop filter's µm/tick tail counts as still)."""
+    b = JoistClimb(JoistClimbConfig(goal_distance=0.3), WIDOWX)
+    b.start(body_state(b.pose), b.kin.stand_feet())
+    last_move, previous = 0.0, None
+    for k in range(int(30.0 / DT)):
+        t = k * DT
+        feet = np.array(b.step(t, DT, body_state(b.pose, t), {}, None).positions)
+        if previous is not None and np.abs(feet - previous).max() > 1e-5:  # 1 mm/s
+            last_move = t
+        previous = feet
+        if b.done:
+            break
+    assert b.done and b.travelled >= 0.3
+    assert t - last_move >= b.config.touchdown_time - DT
+    assert t - last_move < b.config.touchdown_time + 2 * DT

@@ -263,6 +263,7 @@ class JoistClimb(GaitPlugin):
         self._turn_left = 0.0
         self._squarings = 0
         self._clear_since: float | None = None
+        self._rest_since: float | None = None
         self.turn: InPlaceTurn | None = None
         self._align_from: tuple[float, float, float] | None = None
         self._square_from = 0.0
@@ -374,6 +375,16 @@ class JoistClimb(GaitPlugin):
         feet = np.asarray(tri.feet, float)
         home = np.hypot(*(feet[:, :2] - tri.home).T).max() < HOME_TOLERANCE
         return bool(still and home and abs(tri.height - tri.height0) < 1e-4)
+
+    def _at_rest(self, t: float) -> bool:
+        """Settled for ``touchdown_time``: the feet land after their targets (smoothing, servo
+        lag), so the walk is done only once they have had that long to come down."""
+        if not self._settled():
+            self._rest_since = None
+            return False
+        if self._rest_since is None:
+            self._rest_since = t
+        return t - self._rest_since >= self.config.touchdown_time
 
     def step(
         self,
@@ -509,7 +520,7 @@ class JoistClimb(GaitPlugin):
         c = self.config
         if c.goal_distance is not None and self.travelled >= c.goal_distance:
             out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
-            if self._settled():
+            if self._at_rest(t):
                 self._switch(t, Phase.DONE, f"walked {self.travelled:.2f} m")
                 self.done = True
             return out
