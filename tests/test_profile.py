@@ -69,6 +69,11 @@ MALFORMED = [
         ["$.safety.stand_tolerance", "expected > 0", "0.0"],
     ),
     (
+        "negative servo stiffness",
+        lambda t: replace_once(t, "stiffness = 11.0", "stiffness = -2.0"),
+        ["$.bus.stiffness", "expected a finite value >= 0", "-2.0"],
+    ),
+    (
         "limit min > max",
         lambda t: re.sub(r"lower = -?[0-9.]+", "lower = 9.5", t, count=1),
         ["$.legs[0].joints[0].limits", "lower < upper", "lower=9.5"],
