@@ -62,7 +62,8 @@ class JointState(Message):
 
 
 class JointCommand(Message):
-    """Joint command in profile order; torque legs add velocity, feed-forward torque, kp, kd."""
+    """Joint command in profile order; torque legs add velocity, feed-forward torque, kp, kd.
+    Compliant position servos' positions include their sag offset (profile bus.stiffness)."""
 
     TOPIC: ClassVar[str] = "state/command"
     RATE: ClassVar[str] = "control rate"
