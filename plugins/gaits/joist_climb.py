@@ -66,7 +66,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     side_margin: float = 0.10
     crossing_start: float = 0.10
     joist_width: float = 0.04
-    foot_margin: float = 0.025
+    foot_margin: float = 0.035
     clearance: float = 0.03
     leg_radius: float = 0.013
     support_margin: float = 0.01
