@@ -41,10 +41,12 @@ class FailingGait(StillGait):
 class Rig:
     """A controller, fake bus, safety supervisor and loop on one stepped clock."""
 
-    def __init__(self, profile, gait=None, tau: float = 0.01) -> None:
+    def __init__(self, profile, gait=None, tau: float = 0.01, compliant: bool = False) -> None:
+        """``compliant`` marks the fake bus as position servos that sag (sag compensation)."""
         self.clock = SteppedClock()
         self.profile = profile
         self.bus = FakeJointBus(profile, tau=tau, clock=self.clock.now)
+        self.bus.compliant = compliant
         self.bus.open()
         self.safety = Safety(profile)
         self.published: list = []
@@ -239,9 +241,7 @@ def test_compliant_servos_get_stance_goals_offset_by_their_sag(widowx) -> None:
     """On a bus of compliant position servos each stance foot's goal reaches below its target
     by the sag its share of the weight would cause (torque / stiffness); the swing foot's goal
     is its target. A stiff bus (the fake) gets its targets as they are."""
-    rig = Rig(widowx, SwingGait(profile=widowx))
-    rig.bus.compliant = True
-    rig.controller.__init__(widowx, rig.bus, rig.safety, rig.clock.now, rig.controller.gait)
+    rig = Rig(widowx, SwingGait(profile=widowx), compliant=True)
     rig.stand()
     assert rig.safety.request(Mode.ACTIVE, rig.clock.now())
     rig.run(0.5)

@@ -89,6 +89,21 @@ class Hil:
             if self.safety.mode != Mode.STAND:
                 break
 
+    def walk(self, vx: float, heights: list[float]):
+        """Claim a session and go ACTIVE; the returned ``run`` callback keeps the robot walking
+        at ``vx`` (heartbeat and motion command), noting the body height, checking no fall."""
+        c = self.controller
+        c.on_claim(SessionClaim(session="t", client="test"))
+        c.on_mode(ModeRequest(session="t", mode=Mode.ACTIVE))
+
+        def drive():
+            c.on_heartbeat(Heartbeat(session="t"))
+            c.on_motion(MotionCommand(session="t", vx=vx))
+            heights.append(self.twin.body_pose()[0][2])
+            assert not self.twin.fallen(self.profile.stand.body_height)
+
+        return drive
+
     def close(self) -> None:
         self.bus.close()
         self.twin.stop()
@@ -113,18 +128,9 @@ def test_widowx_stands_and_walks_one_metre_through_the_real_driver(hil):
     z_stand = hil.twin.body_pose()[0][2]
     target = hil.profile.stand.body_height + hil.twin.robot.foot_radius
     assert abs(z_stand - target) < 0.01
-    c = hil.controller
-    c.on_claim(SessionClaim(session="t", client="test"))
-    c.on_mode(ModeRequest(session="t", mode=Mode.ACTIVE))
-    start = hil.twin.body_pose()[0]
     heights = []
-
-    def drive():
-        c.on_heartbeat(Heartbeat(session="t"))
-        c.on_motion(MotionCommand(session="t", vx=0.1))
-        heights.append(hil.twin.body_pose()[0][2])
-        assert not hil.twin.fallen(hil.profile.stand.body_height)
-
+    drive = hil.walk(0.1, heights)
+    start = hil.twin.body_pose()[0]
     for _ in range(20):
         hil.run(1.0, drive)
         if hil.twin.body_pose()[0][0] - start[0] >= 1.0:
@@ -141,17 +147,8 @@ def walking_sag(rig: Hil, seconds: float = 6.0) -> float:
     """Mean body height (m) below the standing target over a tripod walk at 0.1 m/s."""
     rig.stand()
     assert rig.safety.mode == Mode.HOLD, rig.safety.reason
-    c = rig.controller
-    c.on_claim(SessionClaim(session="t", client="test"))
-    c.on_mode(ModeRequest(session="t", mode=Mode.ACTIVE))
     heights = []
-
-    def drive():
-        c.on_heartbeat(Heartbeat(session="t"))
-        c.on_motion(MotionCommand(session="t", vx=0.1))
-        heights.append(rig.twin.body_pose()[0][2])
-
-    rig.run(seconds, drive)
+    rig.run(seconds, rig.walk(0.1, heights))
     assert rig.safety.mode == Mode.ACTIVE, rig.safety.reason
     target = rig.profile.stand.body_height + rig.twin.robot.foot_radius
     return target - float(np.mean(heights[10:]))
