@@ -45,6 +45,12 @@ class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     links, centres at mid-link, whose weight the joint torques carry besides the foot force.
     ``groups``: the two tripods by leg name; empty
     means paper 004's layout rule (alternate legs along each side).
+    With the IMU, a stance foot whose eq. 5 force leaves the cone ``slip_ratio`` (traction over
+    support, below the ground's friction coefficient) or whose support falls under
+    ``slip_load`` of an equal share of the weight is taken to slide: it drops out of the
+    position fit, the other feet and the IMU carry the pose, and it is registered again where it
+    holds once more (in the twin, the body's bounce after a tripod's touchdown unloads front
+    feet to 16 N under 47 N of traction: they slid 15 mm).
     """
 
     gyro_noise: Positive = 0.02
@@ -57,6 +63,8 @@ class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     drift_position_rate: Positive = 0.005
     icp_position_noise: Positive = 0.005
     switch_margin: NonNegative = 0.1
+    slip_ratio: Positive = 0.6
+    slip_load: NonNegative = 0.2
     foot_radius: NonNegative = 0.0
     link_masses: list[float] = []
     groups: list[list[str]] = []
@@ -296,6 +304,8 @@ class StateEstimator:
         self.forces = np.zeros((n, 3))
         self.support = np.zeros(n)
         self.stance_group = -1
+        self.holding = np.zeros(n, bool)
+        self.held = np.zeros(n, bool)
         self.switches = 0
         self._link_rot = np.zeros((n, 3, 3))
         # filter 1: heading variance and per-axis position/velocity
@@ -357,15 +367,19 @@ class StateEstimator:
         dt: float,
     ) -> None:
         """Heading from the stance feet's rotation, tilt from gravity, then position from the
-        stance feet fitted on that rotation (eq. 8 with R known)."""
+        holding ``feet`` fitted on that rotation (eq. 8 with R known); with none holding, the
+        IMU's prediction stands."""
         c = self.config
         heading = log_so3(rot_kin @ self.rot.T)[2]
         gain = self.p_heading / (self.p_heading + c.kinematic_rotation_noise**2)
         self.p_heading *= 1.0 - gain
-        pos_kin = (anchors - feet @ self.rot.T).mean(0)
+        held = len(feet) > 0
+        pos_kin = (anchors - feet @ self.rot.T).mean(0) if held else self.pos
         turn = self._tilt(accel, pos_kin, dt)
         turn[2] = gain * heading
         self._rotate(turn)
+        if not held:
+            return
         h = np.array([1.0, 0.0])
         s = self.p_pv[:, 0, 0] + c.kinematic_position_noise**2
         k = self.p_pv[:, :, 0] / s[:, None]
@@ -388,6 +402,27 @@ class StateEstimator:
         for leg in legs:
             turn = log_so3(self.rot @ link_rot[leg] @ self._link_rot[leg].T @ self.rot.T)
             self.anchors[leg] += r * cross_up(turn)
+
+    def _holding(self, stance: np.ndarray, feet: np.ndarray) -> np.ndarray:
+        """The stance feet that hold their ground (see ``slip_ratio``). A foot's first hold since
+        its touchdown registers it where it is; one holding again after a slide is moved there
+        along the ground only, as a slide keeps the foot on its tread."""
+        c = self.config
+        force = self.forces[stance] @ self.rot.T
+        support = -force[:, 2]
+        traction = np.hypot(force[:, 0], force[:, 1])
+        holds = (support > c.slip_load * self.weight / len(stance)) & (
+            traction < c.slip_ratio * support
+        )
+        regained = stance[holds & ~self.holding[stance]]
+        height = self.anchors[regained, 2].copy()
+        self._register(regained, feet)
+        slid = self.held[regained]
+        self.anchors[regained[slid], 2] = height[slid]
+        self.holding[:] = False
+        self.holding[stance] = holds
+        self.held[stance] |= holds
+        return stance[holds]
 
     def update(
         self,
@@ -419,6 +454,7 @@ class StateEstimator:
             self.stance_group = leading
             self.switches += 1
             self._register(np.flatnonzero(self.group == leading), feet)
+            self.held[self.group == leading] = False
         stance = np.flatnonzero(self.group == self.stance_group)
         try:
             rot_kin, pos_kin = stance_pose(feet[stance], self.anchors[stance])
@@ -426,7 +462,8 @@ class StateEstimator:
             rot_kin, pos_kin = self.rot, self.pos
         self.kinematic = (rot_kin, pos_kin)
         if imu:
-            self._correct(rot_kin, feet[stance], self.anchors[stance], np.asarray(accel, float), dt)
+            held = self._holding(stance, feet)
+            self._correct(rot_kin, feet[held], self.anchors[held], np.asarray(accel, float), dt)
         else:
             if dt > 0:
                 self.vel = (pos_kin - self.pos) / dt

@@ -6,10 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import ROOT
 from qingzhui_twin import QingzhuiRig, contact_forces, estimator_config, flat_world
 
+from daemon import profile as profiles
 from daemon.estimation import (
     GRAVITY,
+    EstimatorConfig,
     StateEstimator,
     SupportTorques,
     exp_so3,
@@ -242,3 +245,49 @@ def test_icp_correction_removes_drift_along_what_is_constrained_and_gates_each(w
     assert est.icp_rejected == 3
     final = est.pose()[1] - walk["pos"][-1]
     assert final[0] == pytest.approx(after[0], abs=1e-9) and abs(final[2]) < abs(after[2])
+
+
+SLIDE = 0.02
+"""Metres the sliding foot of ``_slide`` moves along x."""
+
+
+def _slide(config: EstimatorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A standing Qingzhui (body still at the origin, 0.3 m up, IMU at rest) whose tripod-A foot
+    MF slides ``SLIDE`` along x over 50 ms, unloaded to 10 N under 30 N of traction, then holds
+    again: the estimated body positions, and MF's anchor at the end and its true place."""
+    profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
+    kin = Kinematics(profile)
+    stance = np.flatnonzero(tripod_groups(profile) == 0)
+    mf = [leg.name for leg in profile.legs].index("mf")
+    others = stance[stance != mf]
+    weight = profile.mass * GRAVITY
+    body = np.array([0.0, 0.0, 0.3])
+    est = StateEstimator(profile, config, body)
+    stand = kin.stand_feet()
+    feet = stand.copy()
+    track = []
+    for k in range(400):
+        feet[mf, 0] = stand[mf, 0] + SLIDE * min(max(k - 100, 0), 50) / 50
+        force = np.zeros((kin.n_legs, 3))
+        if 100 <= k < 150:
+            force[mf] = [30.0, 0.0, -10.0]
+            force[others, 2] = -(weight - 10.0) / 2
+        else:
+            force[stance, 2] = -weight / 3
+        q, _ = kin.ik(feet)
+        tau = np.einsum("lij,li->lj", kin.jacobian(q), force).reshape(-1)
+        est.update(q, tau, np.zeros(3), np.array([0.0, 0.0, GRAVITY]), 1e-3)
+        track.append(est.pose()[1].copy())
+    return np.array(track) - body, est.anchors[mf], body + feet[mf]
+
+
+def test_a_sliding_stance_foot_does_not_drag_the_estimate() -> None:
+    """The slide shows in eq. 5's force (traction over support above ``slip_ratio``): the foot
+    leaves the fit, the IMU and the other feet hold the body, and the foot is moved to where it
+    holds again along the ground; taken as holding, it drags the body back by a third of its
+    slide."""
+    held, anchor, foot = _slide(EstimatorConfig())
+    dragged, _, _ = _slide(EstimatorConfig(slip_ratio=1e6, slip_load=0.0))
+    assert np.linalg.norm(held, axis=1).max() < 0.001, held
+    assert dragged[-1, 0] < -0.2 * SLIDE, dragged[-1]
+    np.testing.assert_allclose(anchor, foot, atol=0.001)

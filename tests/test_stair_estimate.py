@@ -117,24 +117,17 @@ def test_fusion_gains_over_the_legs_alone(errors) -> None:
 
 def test_icp_pins_the_ascent_while_risers_are_in_view(run, errors) -> None:
     """With risers in view, stair ICP measures the position along the ascent too: the fused x
-    error stays within 8 mm there (measured 6.3; the IMU alone drifts to 36 mm), and the run's
-    position max drops from 48 mm (IMU) to 31 (bounded at 35)."""
+    error stays within 5 mm there (measured 3.3; the IMU and the holding feet alone 9.0)."""
     t = run["t"]
     seen = np.any([(t >= lo) & (t < hi) for lo, hi in RISERS_IN_VIEW], axis=0)
     imu_pos, _ = errors["imu"]
     fused_pos, _ = errors["imu+icp"]
     fused_x = np.abs(fused_pos[seen, 0]).max()
-    assert fused_x < 0.008, fused_x
-    assert np.abs(imu_pos[seen, 0]).max() > 3 * fused_x
-    assert np.linalg.norm(fused_pos, axis=1).max() < 0.035
+    assert fused_x < 0.005, fused_x
+    assert np.abs(imu_pos[seen, 0]).max() > 2 * fused_x
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="along the flight, treads alone in view (10-38 s), the estimate drifts up to 3.1 cm "
-    "along the ascent: the feet slip 1-6 mm a stance downhill beyond their modelled roll, and "
-    "stair ICP pins x only while risers are in view (fused there, and the height always)",
-)
 def test_fused_position_within_2_cm_over_the_run(errors) -> None:
+    """Measured 16.3 mm (before the estimator dropped sliding feet from the fit: 30.6 mm)."""
     pos, _ = errors["imu+icp"]
-    assert np.linalg.norm(pos, axis=1).max() < 0.02
+    assert np.linalg.norm(pos, axis=1).max() < 0.02, np.linalg.norm(pos, axis=1).max()
