@@ -6,9 +6,9 @@ global (odometry) frame follows from the three stance feet (eqs. 6-9), whose glo
 are registered when their group takes the load. Filter 1 fuses that with the IMU: the gyro
 carries the rotation, gravity corrects its tilt and the stance feet its heading; the
 accelerometer predicts the position and the stance feet, fitted on that rotation, correct it
-(Kalman). Filter 2 holds the position drift that ICP of each stair cloud onto the stitched map
-measures, along the directions the stairs in view constrain (treads the height, risers the
-ascent).
+(Kalman), each foot as far as its eq. 5 force says it holds its ground. Filter 2 holds the
+position drift that ICP of each stair cloud onto the stitched map measures, along the
+directions the stairs in view constrain (treads the height, risers the ascent).
 Pure: arrays in, BodyState out, no clock, no I/O.
 """
 
@@ -45,12 +45,12 @@ class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     links, centres at mid-link, whose weight the joint torques carry besides the foot force.
     ``groups``: the two tripods by leg name; empty
     means paper 004's layout rule (alternate legs along each side).
-    With the IMU, a stance foot whose eq. 5 force leaves the cone ``slip_ratio`` (traction over
-    support, below the ground's friction coefficient) or whose support falls under
-    ``slip_load`` of an equal share of the weight is taken to slide: it drops out of the
-    position fit, the other feet and the IMU carry the pose, and it is registered again where it
-    holds once more (in the twin, the body's bounce after a tripod's touchdown unloads front
-    feet to 16 N under 47 N of traction: they slid 15 mm).
+    With the IMU, eq. 5's force tells what each stance foot does: under ``slip_load`` of an
+    equal share of the weight it is off the ground and leaves the position fit; with traction
+    over support above ``slip_ratio`` (below the ground's friction coefficient) it slides and
+    gives the height only, the other feet and the IMU carrying the rest; holding again, it is
+    registered again along the ground. (In the twin the body's bounce after each touchdown
+    unloads front feet to 16 N under 47 N of traction: they slid 15 mm.)
     """
 
     gyro_noise: Positive = 0.02
@@ -304,8 +304,8 @@ class StateEstimator:
         self.forces = np.zeros((n, 3))
         self.support = np.zeros(n)
         self.stance_group = -1
+        self.touched = np.zeros(n, bool)
         self.holding = np.zeros(n, bool)
-        self.held = np.zeros(n, bool)
         self.switches = 0
         self._link_rot = np.zeros((n, 3, 3))
         # filter 1: heading variance and per-axis position/velocity
@@ -362,27 +362,32 @@ class StateEstimator:
         self,
         rot_kin: np.ndarray,
         feet: np.ndarray,
-        anchors: np.ndarray,
+        touching: np.ndarray,
+        holding: np.ndarray,
         accel: np.ndarray,
         dt: float,
     ) -> None:
         """Heading from the stance feet's rotation, tilt from gravity, then position from the
-        holding ``feet`` fitted on that rotation (eq. 8 with R known); with none holding, the
+        feet fitted on that rotation (eq. 8 with R known): the height from the touching feet, as
+        a slide keeps a foot on its tread, the rest from the holding ones; where none are, the
         IMU's prediction stands."""
         c = self.config
         heading = log_so3(rot_kin @ self.rot.T)[2]
         gain = self.p_heading / (self.p_heading + c.kinematic_rotation_noise**2)
         self.p_heading *= 1.0 - gain
-        held = len(feet) > 0
-        pos_kin = (anchors - feet @ self.rot.T).mean(0) if held else self.pos
+        origins = self.anchors - feet @ self.rot.T
+        measured = np.array([len(holding), len(holding), len(touching)]) > 0
+        pos_kin = self.pos.copy()
+        if len(holding):
+            pos_kin[:2] = origins[holding, :2].mean(0)
+        if len(touching):
+            pos_kin[2] = origins[touching, 2].mean()
         turn = self._tilt(accel, pos_kin, dt)
         turn[2] = gain * heading
         self._rotate(turn)
-        if not held:
-            return
         h = np.array([1.0, 0.0])
         s = self.p_pv[:, 0, 0] + c.kinematic_position_noise**2
-        k = self.p_pv[:, :, 0] / s[:, None]
+        k = self.p_pv[:, :, 0] / s[:, None] * measured[:, None]
         innov = pos_kin - self.pos
         self.pos += k[:, 0] * innov
         self.vel += k[:, 1] * innov
@@ -403,26 +408,24 @@ class StateEstimator:
             turn = log_so3(self.rot @ link_rot[leg] @ self._link_rot[leg].T @ self.rot.T)
             self.anchors[leg] += r * cross_up(turn)
 
-    def _holding(self, stance: np.ndarray, feet: np.ndarray) -> np.ndarray:
-        """The stance feet that hold their ground (see ``slip_ratio``). A foot's first hold since
-        its touchdown registers it where it is; one holding again after a slide is moved there
-        along the ground only, as a slide keeps the foot on its tread."""
+    def _footing(self, stance: np.ndarray, feet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stance feet that touch (support above ``slip_load``) and those that also hold
+        (traction inside ``slip_ratio``). A foot's first touch since its touchdown registers it
+        where it is; one holding again after a slide is moved there along the ground only."""
         c = self.config
         force = self.forces[stance] @ self.rot.T
         support = -force[:, 2]
-        traction = np.hypot(force[:, 0], force[:, 1])
-        holds = (support > c.slip_load * self.weight / len(stance)) & (
-            traction < c.slip_ratio * support
-        )
-        regained = stance[holds & ~self.holding[stance]]
-        height = self.anchors[regained, 2].copy()
-        self._register(regained, feet)
-        slid = self.held[regained]
-        self.anchors[regained[slid], 2] = height[slid]
+        touches = support > c.slip_load * self.weight / len(stance)
+        holds = touches & (np.hypot(force[:, 0], force[:, 1]) < c.slip_ratio * support)
+        first = stance[touches & ~self.touched[stance]]
+        slid = stance[holds & ~self.holding[stance] & self.touched[stance]]
+        height = self.anchors[slid, 2]
+        self._register(np.concatenate([first, slid]), feet)
+        self.anchors[slid, 2] = height
+        self.touched[stance] |= touches
         self.holding[:] = False
         self.holding[stance] = holds
-        self.held[stance] |= holds
-        return stance[holds]
+        return stance[touches], stance[holds]
 
     def update(
         self,
@@ -454,7 +457,7 @@ class StateEstimator:
             self.stance_group = leading
             self.switches += 1
             self._register(np.flatnonzero(self.group == leading), feet)
-            self.held[self.group == leading] = False
+            self.touched[self.group == leading] = False
         stance = np.flatnonzero(self.group == self.stance_group)
         try:
             rot_kin, pos_kin = stance_pose(feet[stance], self.anchors[stance])
@@ -462,8 +465,8 @@ class StateEstimator:
             rot_kin, pos_kin = self.rot, self.pos
         self.kinematic = (rot_kin, pos_kin)
         if imu:
-            held = self._holding(stance, feet)
-            self._correct(rot_kin, feet[held], self.anchors[held], np.asarray(accel, float), dt)
+            touching, holding = self._footing(stance, feet)
+            self._correct(rot_kin, feet, touching, holding, np.asarray(accel, float), dt)
         else:
             if dt > 0:
                 self.vel = (pos_kin - self.pos) / dt

@@ -22,6 +22,10 @@ _MARGIN = 0.999
 SNAP = 0.05
 """Rounding-level motion, as a fraction of what the acceleration (velocity) and jerk
 (acceleration) limits change in one tick, that a failed plan zeroes and replans from rest."""
+NUDGE = 1e-6
+"""Radians the target positions move along the current motion for a last replan: ruckig's
+step-1 solver fails on isolated states that targets this close plan from; far below encoder
+resolution (a 16-bit MIT encoder over ±12.5 rad: 3.8e-4 rad)."""
 
 
 class SmoothingError(RuntimeError):
@@ -177,6 +181,8 @@ class Smoother:
         if result not in _OK:
             result, error = self._retry_from_rest()
         if result not in _OK:
+            result, error = self._retry_nudged()
+        if result not in _OK:
             why = self._first_line(error) if error is not None else result.name
             raise SmoothingError(f"ruckig: {why}")
         out.pass_to_input(inp)
@@ -213,4 +219,15 @@ class Smoother:
         still = tiny & (np.abs(tv) < self._snap_velocity) & (np.abs(ta) < self._snap_acceleration)
         inp.target_velocity = np.where(still, 0.0, tv).tolist()
         inp.target_acceleration = np.where(still, 0.0, ta).tolist()
+        return self._update()
+
+    def _retry_nudged(self) -> tuple[ruckig.Result | None, Exception | None]:
+        """Replan with every target position ``NUDGE`` further along its joint's motion.
+
+        Ruckig 0.19 fails on states such as a joint braking into its target (0.057 rad/s and
+        48 rad/s^2 left, 4.5e-5 rad to go) that targets 1e-6 rad either side plan from.
+        """
+        inp = self._inp
+        ahead = np.where(np.array(inp.current_velocity) < 0.0, -NUDGE, NUDGE)
+        inp.target_position = (np.array(inp.target_position) + ahead).tolist()
         return self._update()

@@ -16,15 +16,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from stair_run import StairRun, stair_world  # noqa: E402
+from stair_run import CLOUD_PERIOD, CLOUD_VOXEL, StairRun, front_cloud, stair_world  # noqa: E402
 
-from daemon.cloud import frame_to_points  # noqa: E402
 from plugins.perception.stairs import voxel_thin  # noqa: E402
 
-CLOUD_PERIOD = 0.5
-"""Seconds (simulated) between recorded depth clouds."""
-CLOUD_VOXEL = 0.02
-"""Voxel (m) the recorded clouds are thinned to: the treads' planes, in a small file."""
 KEEP = 4
 """Every how many 1 kHz ticks one is kept: the replay runs the estimator at 250 Hz."""
 DEFAULT_OUT = Path(__file__).resolve().parent / "data" / "stair_run.npz"
@@ -59,9 +54,8 @@ class Recorder:
             self.rows[k].append(np.array(v, float))
         tick = len(self.rows["t"]) - 1
         if not self.cloud_ticks or stamp - self.rows["t"][self.cloud_ticks[-1]] >= CLOUD_PERIOD:
-            frame = twin.depth_frame("front")
-            points = frame_to_points(frame, decimation=2, max_range=2.0)
-            self.clouds.append(voxel_thin(points.astype(float), CLOUD_VOXEL).astype(np.float32))
+            points = voxel_thin(front_cloud(twin), CLOUD_VOXEL)
+            self.clouds.append(points.astype(np.float32))
             self.cloud_ticks.append(tick)
         return self.update(q, tau, gyro, accel, dt, stamp)
 

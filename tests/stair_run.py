@@ -5,23 +5,32 @@ tests/qingzhui_twin.py, with collision, foothold and estimate checks from the tw
 The stair model is the world's own geometry as a ``Stairs`` message in the odometry frame (what
 perception reports, without its noise: the camera sees the stairs from the true pose and places
 them with the estimated one, so the estimate's drift moves them with the body; tests/test_stairs.py
-measures perception separately).
+measures perception separately). With ``icp``, every ``CLOUD_PERIOD`` the front camera's cloud
+goes through the stairs perception plugin's ICP onto its stitched map, and the message carries
+that alignment to the estimator's filter 2, as the plugin's own does.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import msgspec
 import numpy as np
 from qingzhui_twin import QingzhuiRig
 
+from daemon.cloud import frame_to_points
 from daemon.estimation import StateEstimator, log_so3, quaternion, rotation
 from daemon.messages import MotionCommand, Stair, Stairs
 from daemon.plugins import Isolated
 from drivers.sim.worlds import Staircase, World, load
 from plugins.gaits.stair_gait import StairGait, StairGaitConfig
 from plugins.gaits.stair_plan import StairModel
+from plugins.perception.stairs import StairPerception, StairsConfig
 
+CLOUD_PERIOD = 0.5
+"""Seconds (simulated) between the front camera's clouds that ICP aligns (``icp``)."""
+CLOUD_VOXEL = 0.02
+"""Voxel (m) the clouds are thinned to: the treads' planes, at a cost the run can afford."""
 EDGE_NORMAL = 0.95
 """A foot contact whose normal is tilted more than this cosine allows touches an edge or riser."""
 
@@ -41,6 +50,11 @@ def stair_world(rise: float = 0.13, tread: float = 0.30, count: int = 3, landing
         )
     ]
     return world
+
+
+def front_cloud(twin) -> np.ndarray:
+    """The front camera's depth frame now as a body-frame cloud (m), within 2 m."""
+    return frame_to_points(twin.depth_frame("front"), decimation=2, max_range=2.0).astype(float)
 
 
 def world_stairs(world: World) -> Stairs:
@@ -111,9 +125,15 @@ class StairRun:
     """The rig with the stair gait, recording the checks at every tick."""
 
     def __init__(
-        self, world: World, start_x: float = 0.0, feed_forward: bool = False, **config
+        self,
+        world: World,
+        start_x: float = 0.0,
+        feed_forward: bool = False,
+        icp: bool = False,
+        **config,
     ) -> None:
         self.world = world
+        self.perception = StairPerception(StairsConfig(voxel=CLOUD_VOXEL)) if icp else None
         self.stairs = world_stairs(world)
         rig = QingzhuiRig(world, start_x=start_x, feed_forward=feed_forward)
         cfg = StairGaitConfig(foot_radius=rig.twin.robot.foot_radius, **config)
@@ -196,16 +216,23 @@ class StairRun:
             rig.activate(MotionCommand(vx=vx))
         else:
             rig.command = MotionCommand(vx=vx, session=rig.command.session)
-        step = 1.0
+        step = 1.0 if self.perception is None else CLOUD_PERIOD
         done = 0.0
         while done < seconds - 1e-9:
             seen = odometry_stairs(
                 self.stairs, rig.twin.body_pose(), rig.controller.estimator.pose()
             )
-            rig.controller.on_feature(seen)
+            rig.controller.on_feature(seen if self.perception is None else self._aligned(seen))
             rig.run(min(step, seconds - done))
             done += step
         self.log.seconds += seconds
+
+    def _aligned(self, seen: Stairs) -> Stairs:
+        """``seen`` with the alignment of the front camera's cloud now, placed with the
+        estimate, onto the perception's stitched map (empty when ICP did not align it)."""
+        self.perception.add_cloud(front_cloud(self.rig.twin), self.rig.controller.estimator.body())
+        shift, dirs = self.perception.last_correction or (np.zeros(0), np.zeros((0, 3)))
+        return msgspec.structs.replace(seen, alignment=shift.tolist(), constrained=dirs.tolist())
 
     def foothold_margins(self) -> np.ndarray:
         """Distance (m) of every touch-down to the nearer end of its tread (true geometry)."""

@@ -253,7 +253,7 @@ SLIDE = 0.02
 
 def _slide(config: EstimatorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A standing Qingzhui (body still at the origin, 0.3 m up, IMU at rest) whose tripod-A foot
-    MF slides ``SLIDE`` along x over 50 ms, unloaded to 10 N under 30 N of traction, then holds
+    MF slides ``SLIDE`` along x over 50 ms, unloaded to 30 N under 25 N of traction, then holds
     again: the estimated body positions, and MF's anchor at the end and its true place."""
     profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
     kin = Kinematics(profile)
@@ -270,8 +270,8 @@ def _slide(config: EstimatorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         feet[mf, 0] = stand[mf, 0] + SLIDE * min(max(k - 100, 0), 50) / 50
         force = np.zeros((kin.n_legs, 3))
         if 100 <= k < 150:
-            force[mf] = [30.0, 0.0, -10.0]
-            force[others, 2] = -(weight - 10.0) / 2
+            force[mf] = [25.0, 0.0, -30.0]
+            force[others, 2] = -(weight - 30.0) / 2
         else:
             force[stance, 2] = -weight / 3
         q, _ = kin.ik(feet)

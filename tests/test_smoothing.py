@@ -190,6 +190,34 @@ def test_rounding_level_state_towards_a_slowly_moving_target_is_planned() -> Non
     np.testing.assert_allclose(q, target, atol=1e-12)
 
 
+@pytest.mark.parametrize(
+    "q0,qd0,qdd0,target,target_qd,target_qdd",
+    [
+        # Qingzhui's mb abduction in stance on the stairs: 6e-9 rad to go, 1.3 rad/s^2 left
+        (-5.686724495847607e-4, -2.148123382101844e-5, -1.3227196956633076,
+         -5.686662268590628e-4, 6.317262481463255e-6, -0.0203573459975),
+        # its mb thigh braking into its target: 4.5e-5 rad to go at 0.057 rad/s, 48 rad/s^2
+        (0.28531507221895813, -0.05683456846951164, 47.67555250656845,
+         0.28526989339900144, -1.637554758460169e-6, 0.008974919696314032),
+    ],
+)  # fmt: skip
+def test_a_state_the_solver_fails_on_is_planned_toward_a_nudged_target(
+    q0, qd0, qdd0, target, target_qd, target_qdd
+) -> None:
+    """Ruckig 0.19 fails on these states of the twin's stair runs, from rest as well (the robot
+    went to HOLD on the stairs); a target NUDGE along the motion plans, and the joints go on to
+    settle on the target."""
+    smoother = Smoother(PROFILES["qingzhui"], 0.001)
+    smoother.reset(np.full(18, q0), np.full(18, qd0), np.full(18, qdd0))
+    goal = np.full(18, target)
+    q = smoother.step(goal, np.full(18, target_qd), np.full(18, target_qdd))
+    assert smoother.fallbacks == 1
+    assert np.all(np.abs(q - q0) < 1e-4)
+    for _ in range(20):
+        q = smoother.step(goal)
+    np.testing.assert_allclose(q, goal, atol=1e-12)
+
+
 def test_rounding_level_steps_of_a_streamed_target_are_planned() -> None:
     """Ruckig 0.19 fails on 1e-7..4e-7 rad steps of a target streamed at 1 kHz with its finite-
     difference velocity and acceleration (the pipeline's stream; hypothesis found it). The

@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from qingzhui_twin import QingzhuiRig, estimator_config
-from stair_estimate_record import CLOUD_VOXEL
-from stair_run import stair_world
+from stair_run import CLOUD_VOXEL, stair_world
 
 from daemon.estimation import StateEstimator, log_so3, rotation
 from plugins.perception.stairs import StairPerception, StairsConfig

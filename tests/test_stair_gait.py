@@ -143,6 +143,22 @@ def walk(knee: str, rise: float, tread: float, direction: float, steps: int = 40
     return body, np.array(footholds).reshape(-1, 3), stairs, clear
 
 
+def test_a_tripod_standing_past_reach_still_steps_back() -> None:
+    """Stance feet follow the estimated body's lead, so a tripod can stand millimetres past
+    ``reach`` (the twin's 150 × 300 mm run stood 2 mm past it on the top landing): it must still
+    lift off and step back, or no step of either tripod is feasible and the walk stalls."""
+    kin = Kinematics(qingzhui())
+    planner = StepPlanner(kin, StairGeometry(foot_radius=0.025))
+    g = planner.geometry
+    feet = kin.stand_feet(g.body_height)
+    feet[:, 2] = g.foot_radius
+    tripod = np.array([1, 3, 5])
+    feet[tripod, 0] += g.reach + 0.002
+    model = StairModel(flight(0.13, 0.30), np.zeros(3), 0.0, feet[:, 1], 0.0)
+    plan = planner.plan(model, feet, 0.0, tripod, -1.0, 0.30)
+    assert plan.length > 0.0
+
+
 def margins(stairs: Stairs, footholds: np.ndarray) -> np.ndarray:
     """Distance of each foothold to the nearer end of its tread (true geometry)."""
     model = StairModel(stairs, np.zeros(3), 0.0, footholds[:, 1], 0.0)

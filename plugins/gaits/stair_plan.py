@@ -355,18 +355,21 @@ def leg_checks(
     rot: np.ndarray,
     model: StairModel,
     geometry: StairGeometry,
+    standing: np.ndarray | bool = False,
 ) -> np.ndarray:
     """Whether each configuration is usable: the row's leg (``kin`` batched) reaches the global
     foot centre ``feet`` from the body pose (``pos``, ``rot``) within its joint limits and
     ``reach`` of ``home`` (x y in the body's heading frame: horizontal, as the support polygon
     is; the body's pitch on a flight would otherwise count the foot's depth below it as reach),
-    and neither shin nor foot meets an edge."""
+    and neither shin nor foot meets an edge. Rows ``standing`` (a foot over where it stands,
+    the body where it is) are exempt from ``reach``: stance feet follow the estimated body's
+    lead, and a foot drifted millimetres past it must still be able to hold and lift off."""
     rel = feet - pos
     body = np.einsum("nji,nj->ni", rot, rel)
     heading = rot[:, :2, 0] / np.hypot(rot[:, 0, 0], rot[:, 1, 0])[:, None]
     ahead = heading[:, 0] * rel[:, 0] + heading[:, 1] * rel[:, 1]
     left = heading[:, 0] * rel[:, 1] - heading[:, 1] * rel[:, 0]
-    near = np.hypot(ahead - home[:, 0], left - home[:, 1]) <= geometry.reach
+    near = standing | (np.hypot(ahead - home[:, 0], left - home[:, 1]) <= geometry.reach)
     theta, ok = kin.ik_leg(kin.to_leg(body))
     q = theta.reshape(-1) * kin.direction + kin.zero_offset
     inside = (np.abs(q - kin._mid) <= kin._half_range).reshape(-1, 3).all(1)
@@ -466,7 +469,9 @@ class StepPlanner:
         pos, rot = pos[m + j], rot[m + j]
         foot = model.to_global(s_foot, lat[legs], z_foot)
         ok = np.zeros(len(lanes) * n * n, bool)
-        ok[rows] = leg_checks(self._batched(legs), self.home[legs], foot, pos, rot, model, g)
+        ok[rows] = leg_checks(
+            self._batched(legs), self.home[legs], foot, pos, rot, model, g, (m == 0) & (j == 0)
+        )
         ok = ok.reshape(len(lanes), n, n)
         # swinging tripod: lands in a middle area, fine at touch-down and at its stance's end
         touch = (ok[group][:, :, 0] & middle[group]).all(0)
@@ -582,7 +587,9 @@ class StepPlanner:
         pos, rot = pos[li * end], rot[li * end]
         ok = np.zeros((n, k), bool)
         if w:
-            checked = leg_checks(self._batched(legs), self.home[legs], apex, pos, rot, model, g)
+            checked = leg_checks(
+                self._batched(legs), self.home[legs], apex, pos, rot, model, g, end == 0
+            )
             ok[idx] = checked.reshape(len(group), 3, w, k).all(1).all(0)  # every foot, 3 points
         first = np.argmax(ok, axis=1)
         return steps[first], top + steps[first], ok.any(1)
