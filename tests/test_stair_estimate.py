@@ -127,6 +127,6 @@ def test_icp_pins_the_ascent_while_risers_are_in_view(run, errors) -> None:
 
 
 def test_fused_position_within_2_cm_over_the_run(errors) -> None:
-    """Measured 16.3 mm (before the estimator dropped sliding feet from the fit: 30.6 mm)."""
+    """Measured 15.5 mm (before the estimator dropped sliding feet from the fit: 30.6 mm)."""
     pos, _ = errors["imu+icp"]
     assert np.linalg.norm(pos, axis=1).max() < 0.02, np.linalg.norm(pos, axis=1).max()
