@@ -35,6 +35,7 @@ from stair_run import StairRun, stair_world, world_stairs  # noqa: E402
 from test_stairs import staircase  # noqa: E402
 
 from daemon import profile as profiles  # noqa: E402
+from daemon.estimation import GRAVITY  # noqa: E402
 from daemon.kinematics import Kinematics  # noqa: E402
 from plugins.gaits.stair_plan import StairGeometry, StairModel, StepPlanner  # noqa: E402
 from plugins.perception.stairs import StairsConfig, horizontal_planes  # noqa: E402
@@ -126,6 +127,8 @@ def full_run(rise: float, tread: float, icp: bool) -> None:
     pos_err, rot_err = run.log.pose_errors()
     legs_pos, legs_rot = run.log.pose_errors(plain=True)
     margins = run.foothold_margins()
+    support = np.array(run.log.support)
+    weight = run.rig.profile.mass * GRAVITY
     flight = run.world.stairs[0]
     landing = flight.distance + (flight.count - 1) * flight.tread
     rows = [
@@ -134,6 +137,7 @@ def full_run(rise: float, tread: float, icp: bool) -> None:
         ("no shin contact with a stair", not run.log.shin_hits),
         ("no foot contact on an edge or riser", not run.log.foot_edge_hits),
         ("every touch-down >= 5 cm from its tread's ends", bool((margins >= 0.05).all())),
+        ("support never under half the weight", support.min() > 0.5 * weight),
         ("estimate within 2 cm", pos_err.max() < 0.02),
         ("estimate within 2 deg", rot_err.max() < 2.0),
     ]
@@ -152,6 +156,7 @@ def full_run(rise: float, tread: float, icp: bool) -> None:
         f"{len(run.log.foot_edge_hits)} ticks, smallest touch-down margin {margins.min():.3f} m, "
         f"estimate error max {pos_err.max() * 100:.1f} cm / {rot_err.max():.1f} deg "
         f"(stance feet alone {legs_pos.max() * 100:.1f} cm / {legs_rot.max():.1f} deg)"
+        + f", feet's support {support.min():.0f}-{support.max():.0f} N (weight {weight:.0f} N)"
         + (f", ICP alignments rejected {run.perception.rejected}" if icp else "")
     )
     print("| swing foot error (max) | apex | touch-down |\n|---|---|---|")

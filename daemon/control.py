@@ -68,6 +68,10 @@ LOAD_RAMP = 0.1
 (a step in torque would jolt the body); at lift-off it goes at once, or it would press the swing
 foot down and read as a load the estimator takes for stance."""
 
+UNLOAD_TIME = 0.4
+"""Seconds an unloading foot's share fades over at the slowest: the others may touch too lightly
+to sense (the feed-forward holds the body at its height), and the body settles onto them."""
+
 TOUCH_SUPPORT = 10.0
 """Support (N) a stance foot must carry by its position loop alone (force sensing: eq. 5 minus
 the feed-forward's share) before its feed-forward fades in: a late foot is not pushed down."""
@@ -148,6 +152,7 @@ class Controller:
         self.support: SupportTorques | None = None
         self.load = np.zeros(len(profile.legs))
         self.landed = np.zeros(len(profile.legs), bool)
+        self.unload = np.zeros(len(profile.legs), bool)
 
     def _sit_joints(self) -> np.ndarray:
         """Joint pose with the body lowered to rest: where a torque_off robot is switched off."""
@@ -309,13 +314,26 @@ class Controller:
             self.landed = self.stance & (self.landed | (self._own_support(q, rot) > TOUCH_SUPPORT))
         else:
             self.landed = self.stance
-        self.load = np.minimum(self.load + self.dt / LOAD_RAMP, self.landed)
+        self._transfer_load()
         tau = self.support(q, self.load, rot)
         if self.feed_forward:
             command.effort = tau.tolist()
         else:
             sagged = np.asarray(command.position) + tau / self.stiffness
             command.position = self.motion.guard.limit(sagged.tolist())
+
+    def _transfer_load(self) -> None:
+        """Landed feet take their share over LOAD_RAMP; an unloading foot gives its share up as
+        fast as the others take it (no faster than LOAD_RAMP, no slower than UNLOAD_TIME), so
+        the weight feed-forward stays whole across a double-support transfer."""
+        load = np.minimum(self.load + self.dt / LOAD_RAMP, self.landed & ~self.unload)
+        fading = self.landed & self.unload
+        if fading.any():
+            needed = (self.support.carriers - load[~fading].sum()) / np.count_nonzero(fading)
+            was = self.load[fading]
+            given = np.clip(needed, was - self.dt / LOAD_RAMP, was - self.dt / UNLOAD_TIME)
+            load[fading] = np.maximum(given, 0.0)
+        self.load = load
 
     def _own_support(self, q: np.ndarray, rot: np.ndarray) -> np.ndarray:
         """Support (N) each foot carries by its position loop alone: sensed minus feed-forward."""
@@ -358,6 +376,7 @@ class Controller:
         if previous == Mode.ACTIVE and self.gait is not None:
             self.gait.call("stop")
         self.stance[:] = True
+        self.unload[:] = False
         self._stance_changed = True
         self.publish(ModeState(stamp=t, mode=mode, reason=self.safety.reason))
         if mode == Mode.OFF or (
@@ -415,10 +434,12 @@ class Controller:
                         self.publish(message)
                 if self.gait.plugin.done:
                     self.safety.hold(t, f"behaviour {self.gait.name} done")
+                command = motion.feet_step(feet)
                 stance = np.asarray(feet.stance, bool)
                 self._stance_changed = not np.array_equal(stance, self.stance)
                 self.stance = stance
-                return motion.feet_step(feet)
+                self.unload = stance & np.asarray(feet.unload or False, bool)
+                return command
             command = motion.joint_step(self.target)
         except SmoothingError as e:
             self.messages.append(f"smoothing: {e}")

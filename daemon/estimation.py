@@ -261,11 +261,14 @@ class SupportTorques:
         self.forces = FootForces(kin, link_masses)
         self.link_masses = list(link_masses)
         self.weight = mass * GRAVITY
+        self.carriers = max(kin.n_legs // 2, 1)
 
     def shares(self, load: np.ndarray) -> np.ndarray:
-        """Support (N, up) each foot's feed-forward provides: ``load`` x weight / loaded feet."""
+        """Support (N, up) each foot's feed-forward provides: the weight split by ``load``, the
+        whole of it once the loads add up to ``carriers`` (half the legs, a tripod), so feet
+        taking their share from others keep the sum and feet landing on their own ramp it."""
         load = np.asarray(load, float)
-        return load * (self.weight / max(np.count_nonzero(load), 1))
+        return load * (self.weight / max(load.sum(), self.carriers))
 
     def __call__(self, q: np.ndarray, load: np.ndarray, rot: np.ndarray) -> np.ndarray:
         """Joint torques (n_joints,) for joints ``q``, body ``rot`` and each leg's ``load``

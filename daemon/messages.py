@@ -151,13 +151,15 @@ class BodyState(Message):
 
 
 class FootTargets(Message):
-    """Foot positions in the body frame, one (x, y, z) per leg in profile order; stance flags."""
+    """Foot positions in the body frame, one (x, y, z) per leg in profile order; stance flags;
+    ``unload`` marks stance feet about to lift, whose weight passes to the others first."""
 
     TOPIC: ClassVar[str] = "state/feet"
     RATE: ClassVar[str] = "control rate"
     positions: list[list[float]] = []
     stance: list[bool] = []
     grip: list[bool] | None = None
+    unload: list[bool] | None = None
 
 
 class MotionCommand(Message):

@@ -87,6 +87,12 @@ class MotionPipeline:
             raise MotionError(
                 f"foot targets: expected {kin.n_legs} finite (x, y, z) positions, got {feet!r:.120}"
             )
+        for name in ("stance", "unload"):
+            flags = getattr(targets, name)
+            if flags is not None and len(flags) != kin.n_legs:
+                raise MotionError(
+                    f"foot targets: {name} has {len(flags)} flags, expected {kin.n_legs}"
+                )
         q, ok = kin.ik_feet(feet)
         self.unreachable = [not good for good in ok]
         if not all(ok):

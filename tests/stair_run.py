@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import msgspec
 import numpy as np
-from qingzhui_twin import QingzhuiRig
+from qingzhui_twin import QingzhuiRig, contact_forces
 
 from daemon.cloud import frame_to_points
 from daemon.estimation import StateEstimator, log_so3, quaternion, rotation
@@ -99,6 +99,7 @@ class RunLog:
     cap_hits: list = field(default_factory=list)  # (t, leg): shank end cap inside the foot sphere
     touchdowns: list = field(default_factory=list)  # (t, leg, foot centre) while walking
     tracking: list = field(default_factory=list)  # (phase, foot error, joint-level error) (m)
+    support: list = field(default_factory=list)  # the feet's total upward contact force (N)
     seconds: float = 0.0
 
     def swing_tracking(self, lo: float, hi: float) -> tuple[float, float]:
@@ -178,6 +179,8 @@ class StairRun:
         for leg in np.flatnonzero(touching & ~self._down & self.walking):
             self.log.touchdowns.append((t, int(leg), feet[leg].copy()))
         self._down = touching
+        if self.walking:
+            self.log.support.append(float(contact_forces(twin)[:, 2].sum()))
         swing = self.gait.swing if self.walking else None
         if swing is not None:
             tau, legs, planned = swing

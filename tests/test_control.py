@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from daemon import profile as profiles
-from daemon.control import Controller
+from daemon.control import LOAD_RAMP, Controller
 from daemon.estimation import StateEstimator
 from daemon.loop import ControlLoop, SteppedClock
 from daemon.messages import (
@@ -252,3 +252,46 @@ def test_compliant_servos_get_stance_goals_offset_by_their_sag(widowx) -> None:
     drop = target[:, 2] - goal[:, 2]
     assert drop[0] == pytest.approx(0.0, abs=1e-9)
     assert np.all((drop[1:] > 0.0005) & (drop[1:] < 0.01)), drop
+
+
+class TransferGait(StillGait):
+    """Feet where they started: all six stand, then the second tripod unloads for ``UNLOAD`` s
+    and lifts (stance off) from ``LIFT`` s on."""
+
+    UNLOAD, LIFT = 0.3, 0.5
+
+    def step(self, t, dt, body, world, command):
+        targets = super().step(t, dt, body, world, command)
+        t = t - self.t0 if hasattr(self, "t0") else 0.0
+        self.t0 = getattr(self, "t0", targets.stamp)
+        lifting = t >= self.LIFT
+        targets.stance = [not (lifting and leg % 2) for leg in range(len(self.feet))]
+        unloading = self.UNLOAD <= t < self.LIFT
+        targets.unload = [unloading and bool(leg % 2) for leg in range(len(self.feet))]
+        return targets
+
+
+def test_unloading_feet_pass_their_share_on_before_they_lift(widowx) -> None:
+    """A tripod marked ``unload`` gives its feed-forward share to the feet that stay, over
+    LOAD_RAMP: the shares add up to the weight on every tick and no foot's changes faster
+    than a full share per LOAD_RAMP, so nothing steps when the tripod lifts."""
+    rig = Rig(widowx, TransferGait(profile=widowx), compliant=True)
+    rig.stand()
+    assert rig.safety.request(Mode.ACTIVE, rig.clock.now())
+    shares = []
+    write = rig.bus.write
+
+    def record(cmd):
+        shares.append(rig.controller.support.shares(rig.controller.load))
+        write(cmd)
+
+    rig.bus.write = record
+    rig.run(0.8)
+    assert rig.safety.mode == Mode.ACTIVE, rig.safety.reason
+    shares = np.array(shares)
+    weight = rig.controller.support.weight
+    np.testing.assert_allclose(shares.sum(axis=1), weight, rtol=1e-9)
+    full = weight / 3
+    step = np.abs(np.diff(shares, axis=0)).max()
+    assert step <= full / (LOAD_RAMP * widowx.rate_hz) * 1.001, (step, full)
+    np.testing.assert_allclose(shares[-1], [full, 0.0] * 3, atol=1e-9)

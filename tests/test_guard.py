@@ -96,5 +96,10 @@ def test_pipeline_starts_at_the_measured_state_and_names_bad_input() -> None:
     np.testing.assert_allclose(cmd.position, measured, atol=1e-12)
     with pytest.raises(MotionError, match="expected 4 finite"):
         pipeline.feet_step(FootTargets(positions=[[0.0, 0.0, 0.0]] * 3, stance=[True] * 3))
+    feet = pipeline.kinematics.stand_feet(0.1).tolist()
+    with pytest.raises(MotionError, match="stance has 3 flags, expected 4"):
+        pipeline.feet_step(FootTargets(positions=feet, stance=[True] * 3))
+    with pytest.raises(MotionError, match="unload has 6 flags, expected 4"):
+        pipeline.feet_step(FootTargets(positions=feet, stance=[True] * 4, unload=[False] * 6))
     with pytest.raises(SmoothingError, match="rf_coxa"):
         pipeline.joint_step(np.full(12, np.nan))

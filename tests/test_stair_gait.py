@@ -14,7 +14,7 @@ from conftest import ROOT
 from daemon import profile as profiles
 from daemon.kinematics import Kinematics
 from daemon.messages import BodyState, MotionCommand, Stair, Stairs
-from daemon.plugins import load_class
+from daemon.plugins import PluginError, load_class
 from plugins.gaits.stair_gait import StairGait, StairGaitConfig
 from plugins.gaits.stair_plan import (
     StairGeometry,
@@ -310,6 +310,39 @@ def test_gait_first_targets_equal_measured_feet_and_walks_on_level_ground() -> N
         assert np.abs(out - prev).max() < 2e-3
         prev = out
     assert gait.body_s >= 0.5  # 0.1 m/s for 6 s, after a start from rest
+
+
+def test_each_half_cycle_opens_with_both_tripods_down_the_lifting_one_unloading() -> None:
+    """For ``transfer`` s after each half cycle's start all six feet stand, the tripod about to
+    swing marked ``unload`` and held at its footholds; then it swings, the other alone in
+    stance. A transfer that leaves no swing is refused, naming the field."""
+    profile = qingzhui()
+    kin = Kinematics(profile)
+    config = StairGaitConfig(transfer=0.2)
+    gait = StairGait(config, profile)
+    feet = kin.stand_feet(0.29)
+    body = BodyState()
+    gait.start(body, feet)
+    half, dt = 0.5 * config.cycle_time, 1e-3
+    seen = []
+    for k in range(int(3 * half / dt)):
+        t = k * dt
+        out = gait.step(t, dt, body, {}, MotionCommand(vx=0.1))
+        stance, unload = np.array(out.stance), np.array(out.unload)
+        lifting = gait.step_plan.group
+        positions = np.array(out.positions)
+        if k % int(half / dt) == 0:
+            opened = positions
+        if (t % half) < config.transfer - dt:
+            assert stance.all() and unload[lifting].all() and unload.sum() == 3, t
+            moved = positions - opened  # the body's motion under feet fixed on the ground
+            np.testing.assert_allclose(moved, np.broadcast_to(moved[0], moved.shape), atol=1e-9)
+        elif (t % half) > config.transfer + dt:
+            assert not stance[lifting].any() and stance.sum() == 3 and not unload.any(), t
+        seen.append(unload.any())
+    assert any(seen) and not all(seen)
+    with pytest.raises(PluginError, match="transfer"):
+        StairGait(StairGaitConfig(transfer=half), profile)
 
 
 def test_entry_point_is_registered() -> None:

@@ -1,26 +1,25 @@
 """The stair gait (paper 004): the tripod gait whose step length and step height adapt to the
 stairs, the same gait on level ground and on stairs.
 
-Every half cycle one tripod (group A: MF, RB, LB; group B: MB, RF, LF, by the estimator's
-layout rule) swings while the other stands. At the start of each half cycle the planner
-(plugins/gaits/stair_plan.py) computes this step's length and height and the next step's length
-from the latest ``Stairs`` (odometry frame) and the footholds; the body advances half the step
-along its heading, its height and pitch following the terrain under it, with its speed at each
-half-cycle boundary the mean of the two planned half steps (two steps ahead keeps it smooth).
-Feet are held in the odometry frame: stance feet stay on their footholds, a swing foot rises to
-its step height above lift-off, crosses, and descends onto its foothold (quintic segments, at
-rest at both ends). The plan frame is anchored on the estimated body pose at start, so the
-first targets equal the measured feet; the measured-vs-planned height and tilt fade out over
-the first half cycle. While a foot swings over the stairs it is placed from the estimated body
-pose instead (faded in as it rises and out as it descends), so the body's sag under load does
-not bring it down onto an edge. Stance footholds follow the estimated body's horizontal lead
-over the planned one (an integral action, time constant ``1 / DRIFT_GAIN``): feet roll on their
-spheres and slip, so the body runs ahead of the plan by about a centimetre a step, which would
-otherwise accumulate into the swing feet's landings the planner keeps clear of edges.
-The operator's ``vx`` sets the direction (forward or backward) and caps the step (``|vx|`` ×
-cycle time); without a command, or when no step is feasible, the feet stay down.
-Without stairs the terrain is level at the feet.
-"""
+Every half cycle one tripod (group A: MF, RB, LB; group B: MB, RF, LF, by the estimator's layout
+rule) swings while the other stands; it opens with both down (``transfer``), marked ``unload``,
+while the controller passes the weight feed-forward to the tripod that landed. At the start of each
+half cycle the planner (plugins/gaits/stair_plan.py) computes this step's length and height and the
+next step's length from the latest ``Stairs`` (odometry frame) and the footholds; the body advances
+half the step along its heading, its height and pitch following the terrain under it, with its
+speed at each half-cycle boundary the mean of the two planned half steps (two steps ahead keeps it
+smooth). Feet are held in the odometry frame: stance feet stay on their footholds, a swing foot
+rises to its step height above lift-off, crosses, and descends onto its foothold (quintic segments,
+at rest at both ends). The plan frame is anchored on the estimated body pose at start, so the first
+targets equal the measured feet; the measured-vs-planned height and tilt fade out over the first
+half cycle. While a foot swings over the stairs it is placed from the estimated body pose instead
+(faded in as it rises and out as it descends), so the body's sag under load does not bring it down
+onto an edge. Stance footholds follow the estimated body's horizontal lead over the planned one (an
+integral action, time constant ``1 / DRIFT_GAIN``): feet roll on their spheres and slip, so the
+body runs ahead of the plan by about a centimetre a step, which would otherwise accumulate into the
+swing feet's landings the planner keeps clear of edges. The operator's ``vx`` sets the direction
+(forward or backward) and caps the step (``|vx|`` × cycle time); without a command, or when no step
+is feasible, the feet stay down. Without stairs the terrain is level at the feet."""
 
 from __future__ import annotations
 
@@ -53,20 +52,25 @@ beside the stance legs' stiffness (body mode about 20 rad/s at kp 300), fast bes
 
 
 class StairGaitConfig(StairGeometry, kw_only=True):
-    """Stair gait parameters (SI): the plan's geometry (StairGeometry) plus ``cycle_time`` (s,
-    one swing of each tripod), the longest ``step_length`` (m) and the tripods by leg name
-    (``groups``; empty: the layout rule). ``landing_margin`` defaults to 1 cm here: in the twin
-    (kp 300, feed-forward) feet land up to 4 mm off their planned place beside the estimate's
-    frame, and a foothold planned at exactly 5 cm landed 4.7 cm from the riser. ``roll_margin``
-    1 cm: in stance the sphere feet roll 1.5-1.8 cm along the walking direction (150 × 300 mm,
-    descending: landed 6.4 cm from the drop edge, lifted off 4.95 cm from it). ``shin_margin``
-    1 cm: the shins' clearance lost to that roll and the body's lead (180 × 280 mm: planned
-    3.2 cm from the riser's edge axis at lift-off, 1.9 cm in the twin: a contact)."""
+    """Stair gait parameters (SI): the plan's geometry (StairGeometry) plus ``cycle_time`` (s, one
+    transfer and swing of each tripod), the longest ``step_length`` (m) and the tripods by leg name
+    (``groups``; empty: the layout rule). ``landing_margin`` defaults to 1 cm here: in the twin (kp
+    300, feed-forward) feet land up to 4 mm off their planned place beside the estimate's frame, and
+    a foothold planned at exactly 5 cm landed 4.7 cm from the riser. ``roll_margin`` 1 cm: in stance
+    the sphere feet roll 1.5-1.8 cm along the walking direction (150 × 300 mm, descending: landed
+    6.4 cm from the drop edge, lifted off 4.95 cm from it). ``shin_margin`` 1 cm: the shins'
+    clearance lost to that roll and the body's lead (180 × 280 mm: planned 3.2 cm from the riser's
+    edge axis at lift-off, 1.9 cm in the twin: a contact). ``transfer`` (s) opens each half cycle
+    with both tripods down while the weight passes to the one that landed: swapping the feed-forward
+    at once dropped the body onto it (support 0-50 N of 245 N, then 460 N) and the rebound slid the
+    feet by up to 15 mm. The cycle is 2.4 s so the swing keeps its 1 s: swung in 0.8 s, the 180 ×
+    280 mm run's shins lagged into a riser's edge."""
 
     landing_margin: NonNegative = 0.01
     roll_margin: NonNegative = 0.01
     shin_margin: NonNegative = 0.01
-    cycle_time: Positive = 2.0
+    cycle_time: Positive = 2.4
+    transfer: NonNegative = 0.2
     step_length: Positive = 0.30
     groups: list[list[str]] = []
 
@@ -116,6 +120,11 @@ class StairGait(GaitPlugin):
         self.planner = StepPlanner(kin, c)
         self.geometry = self.planner.geometry
         self.half = 0.5 * c.cycle_time
+        if c.transfer >= self.half:
+            raise PluginError(
+                f"gait {self.name}: transfer {c.transfer} s leaves no swing in the half cycle "
+                f"{self.half} s (cycle_time / 2)"
+            )
         self.plans: list[StepPlan] = []
         self.footholds: list[np.ndarray] = []
         # this tick's swing phase, swinging legs and their planned feet (odometry frame)
@@ -217,25 +226,32 @@ class StairGait(GaitPlugin):
             offset = (1.0 - float(progress(tau))) * self.offset
         pos, rot = self.model.body_frames(np.array([s]), self.geometry, offset)
         stance = np.ones(6, bool)
+        unload = np.zeros(6, bool)
         plan = self.step_plan
+        transfer = self.config.transfer
+        swinging = plan.length > 0.0 and t - self.t0 >= transfer
         if plan.length > 0.0:
-            stance[plan.group] = False
+            stance[plan.group] = not swinging
+            unload[plan.group] = not swinging
         if self.estimated:
             lead = np.asarray(body.position[:2], float) - pos[0, :2]
-            self.feet[stance, :2] += min(DRIFT_GAIN * dt, 1.0) * lead
+            self.feet[stance & ~unload, :2] += min(DRIFT_GAIN * dt, 1.0) * lead
         feet = self.feet.copy()
         targets = (feet - pos[0]) @ rot[0]
         self.swing = None
-        if plan.length > 0.0:
-            swing = swing_point(tau, self.lift_off, plan.landing, self.top)
-            self.swing = (tau, plan.group, swing)
+        if swinging:
+            phase = min((t - self.t0 - transfer) / (self.half - transfer), 1.0)
+            swing = swing_point(phase, self.lift_off, plan.landing, self.top)
+            self.swing = (phase, plan.group, swing)
             targets[plan.group] = (swing - pos[0]) @ rot[0]
             w = float(
-                progress(min(tau / UP, 1.0))
-                * (1.0 - progress(max(tau - ACROSS, 0.0) / (1.0 - ACROSS)))
+                progress(min(phase / UP, 1.0))
+                * (1.0 - progress(max(phase - ACROSS, 0.0) / (1.0 - ACROSS)))
             )
             if w > 0.0 and self.estimated:
                 est_rot = rotation(np.asarray(body.orientation, float))
                 measured = (swing - np.asarray(body.position, float)) @ est_rot
                 targets[plan.group] += w * (measured - targets[plan.group])
-        return FootTargets(stamp=t, positions=targets.tolist(), stance=stance.tolist())
+        return FootTargets(
+            stamp=t, positions=targets.tolist(), stance=stance.tolist(), unload=unload.tolist()
+        )
