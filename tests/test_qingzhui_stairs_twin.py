@@ -18,7 +18,7 @@ from stair_run import StairRun, stair_world
 from daemon.estimation import GRAVITY
 from daemon.messages import Mode
 
-APPROACH, CLIMB = 3.0, 6.5
+APPROACH, CLIMB = 3.0, 5.0
 """Seconds of walking: to the first riser (the estimate's check), then onto the second tread."""
 
 

@@ -63,13 +63,12 @@ class StairGaitConfig(StairGeometry, kw_only=True):
     edge axis at lift-off, 1.9 cm in the twin: a contact). ``transfer`` (s) opens each half cycle
     with both tripods down while the weight passes to the one that landed: swapping the feed-forward
     at once dropped the body onto it (support 0-50 N of 245 N, then 460 N) and the rebound slid the
-    feet by up to 15 mm. The cycle is 2.4 s so the swing keeps its 1 s: swung in 0.8 s, the 180 ×
-    280 mm run's shins lagged into a riser's edge."""
+    feet by up to 15 mm. The swing has the rest of the half cycle, 0.8 s."""
 
     landing_margin: NonNegative = 0.01
     roll_margin: NonNegative = 0.01
     shin_margin: NonNegative = 0.01
-    cycle_time: Positive = 2.4
+    cycle_time: Positive = 2.0
     transfer: NonNegative = 0.2
     step_length: Positive = 0.30
     groups: list[list[str]] = []
