@@ -66,7 +66,8 @@ REST_FRACTION = 0.35
 LOAD_RAMP = 0.1
 """Seconds over which a foot's share of the weight feed-forward fades in once it touches down
 (a step in torque would jolt the body); at lift-off it goes at once, or it would press the swing
-foot down and read as a load the estimator takes for stance."""
+foot down and read as a load the estimator takes for stance (a gait that marks the foot
+``unload`` first has it handed on before)."""
 
 UNLOAD_TIME = 0.4
 """Seconds an unloading foot's share fades over at the slowest: the others may touch too lightly

@@ -260,13 +260,17 @@ class TransferGait(StillGait):
 
     UNLOAD, LIFT = 0.3, 0.5
 
+    def start(self, body, feet):
+        super().start(body, feet)
+        self.t0 = None
+
     def step(self, t, dt, body, world, command):
         targets = super().step(t, dt, body, world, command)
-        t = t - self.t0 if hasattr(self, "t0") else 0.0
-        self.t0 = getattr(self, "t0", targets.stamp)
-        lifting = t >= self.LIFT
+        self.t0 = t if self.t0 is None else self.t0
+        since = t - self.t0
+        lifting = since >= self.LIFT
         targets.stance = [not (lifting and leg % 2) for leg in range(len(self.feet))]
-        unloading = self.UNLOAD <= t < self.LIFT
+        unloading = self.UNLOAD <= since < self.LIFT
         targets.unload = [unloading and bool(leg % 2) for leg in range(len(self.feet))]
         return targets
 
