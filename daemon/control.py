@@ -290,7 +290,7 @@ class Controller:
             self.estimator.icp_correction(
                 np.asarray(stairs.alignment), np.asarray(stairs.constrained)
             )
-        self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t)
+        self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t, self.stance)
 
     def _read_imu(self) -> ImuSample | None:
         """The IMU's sample now, or None without an IMU or when it fails (noted in messages)."""

@@ -251,34 +251,51 @@ SLIDE = 0.02
 """Metres the sliding foot of ``_slide`` moves along x."""
 
 
-def _slide(config: EstimatorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A standing Qingzhui (body still at the origin, 0.3 m up, IMU at rest) whose tripod-A foot
-    MF slides ``SLIDE`` along x over 50 ms, unloaded to 30 N under 25 N of traction, then holds
-    again: the estimated body positions, and MF's anchor at the end and its true place."""
-    profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
-    kin = Kinematics(profile)
-    stance = np.flatnonzero(tripod_groups(profile) == 0)
-    mf = [leg.name for leg in profile.legs].index("mf")
-    others = stance[stance != mf]
-    weight = profile.mass * GRAVITY
-    body = np.array([0.0, 0.0, 0.3])
-    est = StateEstimator(profile, config, body)
-    stand = kin.stand_feet()
-    feet = stand.copy()
+def _stand(
+    config: EstimatorConfig, ticks: int, load, planned: np.ndarray | None = None
+) -> tuple[StateEstimator, np.ndarray]:
+    """A standing Qingzhui (body still at the origin, 0.3 m up, IMU at rest, tripod A carrying
+    the weight in thirds) run for ``ticks`` at 1 kHz; ``load(k, feet, force)`` may move feet
+    (body frame) and change the forces of tick ``k``; ``planned``: the gait's stance, passed on.
+    The estimator and its body positions."""
+    kin = Kinematics(QINGZHUI)
+    est = StateEstimator(QINGZHUI, config, BODY)
+    feet = kin.stand_feet()
     track = []
-    for k in range(400):
-        feet[mf, 0] = stand[mf, 0] + SLIDE * min(max(k - 100, 0), 50) / 50
+    for k in range(ticks):
         force = np.zeros((kin.n_legs, 3))
-        if 100 <= k < 150:
-            force[mf] = [25.0, 0.0, -30.0]
-            force[others, 2] = -(weight - 30.0) / 2
-        else:
-            force[stance, 2] = -weight / 3
+        force[TRIPOD_A, 2] = -WEIGHT / 3
+        load(k, feet, force)
         q, _ = kin.ik(feet)
         tau = np.einsum("lij,li->lj", kin.jacobian(q), force).reshape(-1)
-        est.update(q, tau, np.zeros(3), np.array([0.0, 0.0, GRAVITY]), 1e-3)
+        est.update(q, tau, np.zeros(3), np.array([0.0, 0.0, GRAVITY]), 1e-3, planned=planned)
         track.append(est.pose()[1].copy())
-    return np.array(track) - body, est.anchors[mf], body + feet[mf]
+    return est, np.array(track) - BODY
+
+
+QINGZHUI = profiles.load(ROOT / "robots" / "qingzhui.toml")
+WEIGHT = QINGZHUI.mass * GRAVITY
+BODY = np.array([0.0, 0.0, 0.3])
+TRIPOD_A = np.flatnonzero(tripod_groups(QINGZHUI) == 0)
+LEG = {leg.name: i for i, leg in enumerate(QINGZHUI.legs)}
+
+
+def _slide(config: EstimatorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tripod-A foot MF of a standing Qingzhui slides ``SLIDE`` along x over 50 ms, unloaded to
+    30 N under 25 N of traction, then holds again: the estimated body positions, and MF's anchor
+    at the end and its true place."""
+    mf = LEG["mf"]
+    others = TRIPOD_A[TRIPOD_A != mf]
+    stand = Kinematics(QINGZHUI).stand_feet()
+
+    def load(k: int, feet: np.ndarray, force: np.ndarray) -> None:
+        feet[mf, 0] = stand[mf, 0] + SLIDE * min(max(k - 100, 0), 50) / 50
+        if 100 <= k < 150:
+            force[mf] = [25.0, 0.0, -30.0]
+            force[others, 2] = -(WEIGHT - 30.0) / 2
+
+    est, track = _stand(config, 400, load)
+    return track, est.anchors[mf], BODY + stand[mf] + [SLIDE, 0.0, 0.0]
 
 
 def test_a_sliding_stance_foot_does_not_drag_the_estimate() -> None:
@@ -291,3 +308,22 @@ def test_a_sliding_stance_foot_does_not_drag_the_estimate() -> None:
     assert np.linalg.norm(held, axis=1).max() < 0.001, held
     assert dragged[-1, 0] < -0.2 * SLIDE, dragged[-1]
     np.testing.assert_allclose(anchor, foot, atol=0.001)
+
+
+def test_a_tripod_the_gait_lifted_does_not_take_the_stance() -> None:
+    """A near-straight swinging leg reads thousands of newtons from eq. 5 (twin, 180 mm stairs:
+    MB, 4490 N): with the gait's schedule (tripod B lifted) tripod A keeps the stance and the
+    body does not move; on the force sums alone, B takes it."""
+    mb = LEG["mb"]
+
+    def load(k: int, feet: np.ndarray, force: np.ndarray) -> None:
+        if 100 <= k < 150:
+            force[mb, 2] = -4490.0
+
+    planned = np.zeros(len(LEG), bool)
+    planned[TRIPOD_A] = True
+    est, track = _stand(EstimatorConfig(), 300, load, planned)
+    assert est.switches == 1 and est.stance_group == 0, (est.switches, est.stance_group)
+    assert np.linalg.norm(track, axis=1).max() < 0.001
+    unscheduled, _ = _stand(EstimatorConfig(), 300, load)
+    assert unscheduled.switches == 3

@@ -6,9 +6,10 @@ rule) swings while the other stands; it opens with both down (``transfer``), mar
 while the controller passes the weight feed-forward to the tripod that landed. At the start of each
 half cycle the planner (plugins/gaits/stair_plan.py) computes this step's length and height and the
 next step's length from the latest ``Stairs`` (odometry frame) and the footholds; the body advances
-half the step along its heading, its height and pitch following the terrain under it, with its
-speed at each half-cycle boundary the mean of the two planned half steps (two steps ahead keeps it
-smooth). Feet are held in the odometry frame: stance feet stay on their footholds, a swing foot
+half the step along its heading from this lift-off to the next (its half step lags the half cycle
+by the transfer, so a tripod lifts with the body where the plan put it), its height and pitch
+following the terrain under it, with its speed at each lift-off the mean of the two planned half
+steps (two steps ahead keeps it smooth). Feet are held in the odometry frame: stance feet stay on their footholds, a swing foot
 rises to its step height above lift-off, crosses, and descends onto its foothold (quintic segments,
 at rest at both ends). The plan frame is anchored on the estimated body pose at start, so the first
 targets equal the measured feet; the measured-vs-planned height and tilt fade out over the first
@@ -145,6 +146,8 @@ class StairGait(GaitPlugin):
         self.model: StairModel | None = None
         self._stairs: Stairs | None = None
         self.body_s, self.speed, self.t0 = 0.0, 0.0, None
+        # the body's half steps (start time, s0, s1, v0, v1): the last two, each from a lift-off
+        self.segments: list[tuple[float, float, float, float, float]] = []
         self.step_plan: StepPlan | None = None
         self.direction = 1.0
         self.top = np.zeros(3)
@@ -199,12 +202,22 @@ class StairGait(GaitPlugin):
         self.t0 = t
         self.body_end = self.body_s + self.direction * 0.5 * plan.length
         v_end = self.direction * 0.25 * (plan.length + plan.next_length) / self.half
-        self.speed0, self.speed1 = self.speed, v_end
+        lift = t + self.config.transfer
+        self.segments = [*self.segments[-1:], (lift, self.body_s, self.body_end, self.speed, v_end)]
         self.speed = v_end
         if plan.length > 0.0:
             self.lift_off = self.feet[group].copy()
             self.top = plan.apex
         self.next_group = 1 - self.next_group
+
+    def _body_at(self, t: float) -> float:
+        """The body's progress (m along the heading) at ``t``: on the half step begun at the
+        latest lift-off, still before the first."""
+        begun = [seg for seg in self.segments if seg[0] <= t + 1e-9]
+        if not begun:
+            return self.body_s
+        start, s0, s1, v0, v1 = begun[-1]
+        return hermite(min((t - start) / self.half, 1.0), s0, s1, v0, v1, self.half)
 
     def step(
         self,
@@ -219,7 +232,7 @@ class StairGait(GaitPlugin):
         if self.t0 is None or t - self.t0 >= self.half - 1e-9:
             self._begin(t, command)
         tau = min(max((t - self.t0) / self.half, 0.0), 1.0)
-        s = hermite(tau, self.body_s, self.body_end, self.speed0, self.speed1, self.half)
+        s = self._body_at(t)
         offset = None
         if self.offset is not None and len(self.plans) == 1:
             offset = (1.0 - float(progress(tau))) * self.offset
