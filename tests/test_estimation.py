@@ -285,7 +285,7 @@ def _slide(config: EstimatorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     30 N under 25 N of traction, then holds again: the estimated body positions, and MF's anchor
     at the end and its true place."""
     mf = LEG["mf"]
-    others = TRIPOD_A[TRIPOD_A != mf]
+    others = np.setdiff1d(TRIPOD_A, [mf])
     stand = Kinematics(QINGZHUI).stand_feet()
 
     def load(k: int, feet: np.ndarray, force: np.ndarray) -> None:

@@ -6,21 +6,22 @@ rule) swings while the other stands; it opens with both down (``transfer``), mar
 while the controller passes the weight feed-forward to the tripod that landed. At the start of each
 half cycle the planner (plugins/gaits/stair_plan.py) computes this step's length and height and the
 next step's length from the latest ``Stairs`` (odometry frame) and the footholds; the body advances
-half the step along its heading from this lift-off to the next (its half step lags the half cycle
-by the transfer, so a tripod lifts with the body where the plan put it), its height and pitch
-following the terrain under it, with its speed at each lift-off the mean of the two planned half
-steps (two steps ahead keeps it smooth). Feet are held in the odometry frame: stance feet stay on their footholds, a swing foot
-rises to its step height above lift-off, crosses, and descends onto its foothold (quintic segments,
-at rest at both ends). The plan frame is anchored on the estimated body pose at start, so the first
-targets equal the measured feet; the measured-vs-planned height and tilt fade out over the first
-half cycle. While a foot swings over the stairs it is placed from the estimated body pose instead
-(faded in as it rises and out as it descends), so the body's sag under load does not bring it down
-onto an edge. Stance footholds follow the estimated body's horizontal lead over the planned one (an
-integral action, time constant ``1 / DRIFT_GAIN``): feet roll on their spheres and slip, so the
-body runs ahead of the plan by about a centimetre a step, which would otherwise accumulate into the
-swing feet's landings the planner keeps clear of edges. The operator's ``vx`` sets the direction
-(forward or backward) and caps the step (``|vx|`` × cycle time); without a command, or when no step
-is feasible, the feet stay down. Without stairs the terrain is level at the feet."""
+half the step along its heading from this lift-off to the next (its half step lags the half cycle by
+the transfer, so a tripod lifts with the body where the plan put it), its height and pitch following
+the terrain under it, with its speed at each lift-off the mean of the two planned half steps (two
+steps ahead keeps it smooth). Feet are held in the odometry frame: stance feet stay on their
+footholds, a swing foot rises to its step height above lift-off, crosses, and descends onto its
+foothold (quintic segments, at rest at both ends). The plan frame is anchored on the estimated body
+pose at start, so the first targets equal the measured feet; the measured-vs-planned height and tilt
+fade out over the first half cycle. While a foot swings over the stairs it is placed from the
+estimated body pose instead (faded in as it rises and out as it descends), so the body's sag under
+load does not bring it down onto an edge. Stance footholds follow the estimated body's horizontal
+lead over the planned one (an integral action, time constant ``1 / DRIFT_GAIN``): feet roll on their
+spheres and slip, so the body runs ahead of the plan by about a centimetre a step, which would
+otherwise accumulate into the swing feet's landings the planner keeps clear of edges. The operator's
+``vx`` sets the direction (forward or backward) and caps the step (``|vx|`` × cycle time); without a
+command, or when no step is feasible, the feet stay down. Without stairs the terrain is level at the
+feet."""
 
 from __future__ import annotations
 
@@ -117,14 +118,14 @@ class StairGait(GaitPlugin):
         except ValueError as e:
             raise PluginError(f"gait {self.name}: groups: {e}") from None
         self.groups = [np.flatnonzero(group == 0), np.flatnonzero(group == 1)]
-        self.planner = StepPlanner(kin, c)
-        self.geometry = self.planner.geometry
         self.half = 0.5 * c.cycle_time
         if c.transfer >= self.half:
             raise PluginError(
                 f"gait {self.name}: transfer {c.transfer} s leaves no swing in the half cycle "
                 f"{self.half} s (cycle_time / 2)"
             )
+        self.planner = StepPlanner(kin, c, c.transfer / self.half)
+        self.geometry = self.planner.geometry
         self.plans: list[StepPlan] = []
         self.footholds: list[np.ndarray] = []
         # this tick's swing phase, swinging legs and their planned feet (odometry frame)

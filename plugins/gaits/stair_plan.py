@@ -27,7 +27,9 @@ from ``min_step_height`` above the highest tread the swing passes up to where th
 reachable without interference. The tripod's sections are the intersections over its three feet;
 the step after (the other tripod's) is planned at the same time, its swing included (a feasible
 step height from where the first step leaves the body), and the pair with the longest joint
-progress (then the most even) is chosen. The body advances half a step per swing.
+progress (then the most even) is chosen. The body advances half a step from one lift-off to the
+next; with a transfer (both tripods down at the half cycle's start) a swing lands that much short
+of the half step's end, and is checked there too.
 """
 
 from __future__ import annotations
@@ -403,7 +405,10 @@ class StepPlan:
 class StepPlanner:
     """Plans a tripod's next two steps over a StairModel (the paper's parameter computation)."""
 
-    def __init__(self, kin: Kinematics, geometry: StairGeometry) -> None:
+    def __init__(self, kin: Kinematics, geometry: StairGeometry, transfer: float = 0.0) -> None:
+        """``transfer``: the share of the half cycle both tripods stand at its start; the body
+        moves half a step from one lift-off to the next, so a swing lands with the body
+        ``transfer`` of that half step short of where the tripods change."""
         stand = kin.profile.stand
         height = geometry.body_height if geometry.body_height is not None else stand.body_height
         home = kin.stand_feet(height)
@@ -413,6 +418,7 @@ class StepPlanner:
         self.geometry = msgspec.structs.replace(geometry, body_height=height, window=window)
         self.home = home[:, :2]
         self.home_s = self.home[:, 0]
+        self.transfer = transfer
         self._rows: dict[bytes, Kinematics] = {}
 
     def _batched(self, legs: np.ndarray) -> Kinematics:
@@ -475,6 +481,7 @@ class StepPlanner:
         ok = ok.reshape(len(lanes), n, n)
         # swinging tripod: lands in a middle area, fine at touch-down and at its stance's end
         touch = (ok[group][:, :, 0] & middle[group]).all(0)
+        touch &= self._landing(model, feet, s_feet, lat, body_s, group, direction, lengths)
         stance_end = ok[group].all(0)
         # other tripod: holds until the body has moved L1/2, then lands after L2 with the body
         # at (L1 + L2)/2
@@ -502,6 +509,22 @@ class StepPlanner:
             sections,
             False,
         )
+
+    def _landing(self, model, feet, s_feet, lat, body_s, group, direction, lengths):
+        """Whether ``group`` lands clear with the body ``transfer`` of the half step short of
+        its end, where it is at touch-down (n,)."""
+        if self.transfer == 0.0:
+            return np.ones(len(lengths), bool)
+        g = self.geometry
+        legs = np.repeat(group, len(lengths))
+        step = np.tile(lengths, len(group))
+        s_foot = s_feet[legs] + direction * step
+        z_foot = np.where(step > 0, model.height(legs, s_foot) + g.foot_radius, feet[legs, 2])
+        at = body_s + direction * 0.5 * (1.0 - self.transfer) * step
+        pos, rot = model.body_frames(at, g)
+        foot = model.to_global(s_foot, lat[legs], z_foot)
+        ok = leg_checks(self._batched(legs), self.home[legs], foot, pos, rot, model, g, step == 0)
+        return ok.reshape(len(group), len(lengths)).all(0)
 
     def _choose(self, model, feet, s_feet, lat, body_s, other, direction, pair, score):
         """The best-scoring feasible pair (L1, L2) whose second step also has a feasible swing
