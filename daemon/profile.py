@@ -86,7 +86,9 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
     Torque legs (``kind = "torque"``) use the CAN fields, the actuator ranges, and the
     default position gains ``kp`` (N·m/rad) and ``kd`` (N·m·s/rad) for commands without gains;
-    ``can_channels`` spreads the legs over several CAN buses (leg i on channel i mod n).
+    ``can_channels`` spreads the legs over several CAN buses (leg i on channel i mod n), each
+    of which must carry its motors' command and reply every tick at ``baud`` (the serial or CAN
+    bit rate, bit/s).
     Position servos (Dynamixel) sag under load by torque / ``stiffness`` (N·m/rad, the firmware
     gain's); above 0, each stance leg's goal is offset by its share of the weight's torque over
     it, so loaded legs hold their height (0: no sag compensation).
@@ -276,6 +278,57 @@ def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     return _merge(base, data)
 
 
+MIT_FRAME_BYTES = (8, 6)
+"""Data bytes of an MIT-mode command and of the motor's reply: one of each per motor a tick."""
+
+
+def can_frame_bits(data_bytes: int) -> int:
+    """Bits a classic CAN data frame (11-bit id) holds the bus for: the 34 + 8n bits from start
+    of frame to the CRC at worst-case stuffing (a stuff bit after every 4 past the first), then
+    CRC delimiter, ACK, end of frame and the 3-bit interframe space (13)."""
+    stuffed = 34 + 8 * data_bytes
+    return stuffed + (stuffed - 1) // 4 + 13
+
+
+def can_tick_time(motors: int, baud: int) -> float:
+    """Seconds of bus time ``motors`` MIT motors take a tick on one channel at ``baud`` bit/s."""
+    return motors * sum(can_frame_bits(n) for n in MIT_FRAME_BYTES) / baud
+
+
+def _check_can_load(profile: Profile, src: str) -> None:
+    """Every CAN channel carries its motors' commands and replies within one control period:
+    18 motors on one 1 Mbit/s bus take 4.5 ms a tick, which no 1 kHz loop can run on."""
+    bus = profile.bus
+    _check(bus.baud > 0, src, "$.bus.baud", f"expected > 0 bit/s, found {bus.baud}")
+    channels = bus.can_channels or [bus.can_channel]
+    per_leg = [len(leg.joints) for leg in profile.legs]
+    motors = {c: sum(per_leg[i :: len(channels)]) for i, c in enumerate(channels)}
+    busiest = max(motors, key=motors.get)
+    need = can_tick_time(motors[busiest], bus.baud)
+    period = 1.0 / profile.rate_hz
+    if need <= period:
+        return
+    fits = [
+        n
+        for n in range(1, len(per_leg) + 1)
+        if can_tick_time(max(sum(per_leg[i::n]) for i in range(n)), bus.baud) <= period
+    ]
+    advice = (
+        f"spread the legs over {fits[0]} channels or more (leg i on channel i mod n)"
+        if fits
+        else "one leg a channel does not fit either: lower rate_hz or raise baud"
+    )
+    _check(
+        False,
+        src,
+        "$.bus.can_channels",
+        f"{motors[busiest]} motors on {busiest} need {need * 1e3:.2f} ms of bus time a tick "
+        f"(an {MIT_FRAME_BYTES[0]}-byte command and a {MIT_FRAME_BYTES[1]}-byte reply each at "
+        f"{bus.baud} bit/s), more than the {period * 1e3:g} ms period at {profile.rate_hz:g} Hz: "
+        f"{advice}",
+    )
+
+
 def _check(cond: bool, source: str, field: str, message: str) -> None:
     if not cond:
         raise ProfileError(f"{source}: {field}: {message}")
@@ -366,6 +419,8 @@ def validate(profile: Profile) -> Profile:
         "$.safety.derate_temperature",
         f"expected <= max_temperature {s.max_temperature}, found {s.derate_temperature}",
     )
+    if profile.bus.kind == "torque":
+        _check_can_load(profile, src)
     return profile
 
 

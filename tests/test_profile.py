@@ -151,6 +151,39 @@ def test_include_overrides_only_what_differs(tmp_path: Path) -> None:
     assert len(p.joints) == 18
 
 
+@pytest.mark.parametrize(
+    "bus,rate,fragments",
+    [
+        ('can_channels = ["can0"]', 1000.0, ["18 motors on can0", "4.50 ms", "6 channels"]),
+        ('can_channels = ["can0", "can1", "can2"]', 1000.0, ["6 motors on can0", "1.50 ms"]),
+        ('can_channels = ["can0", "can1", "can2"]', 500.0, []),
+        ("baud = 125000", 1000.0, ["3 motors on can0", "6.00 ms", "lower rate_hz or raise baud"]),
+    ],
+)
+def test_torque_profile_fits_its_can_traffic_in_a_tick(tmp_path: Path, bus, rate, fragments):
+    """Every CAN channel carries its motors' MIT command (8 bytes) and reply (6 bytes) within
+    one period, 250 bit times a motor at worst-case stuffing: Qingzhui's 18 motors at 1 kHz
+    need six 1 Mbit/s buses."""
+    (tmp_path / "qingzhui.toml").write_text((ROBOTS / "qingzhui.toml").read_text())
+    path = write(tmp_path, f'include = "qingzhui.toml"\nrate_hz = {rate}\n[bus]\n{bus}\n')
+    if not fragments:
+        assert profiles.load(path).rate_hz == rate
+        return
+    with pytest.raises(profiles.ProfileError) as err:
+        profiles.load(path)
+    message = str(err.value)
+    assert str(path) in message and "$.bus.can_channels" in message
+    for fragment in fragments:
+        assert fragment in message, (fragment, message)
+
+
+def test_can_frame_bits_at_worst_case_stuffing() -> None:
+    """A classic frame with 8 data bytes holds the bus for at most 135 bits, with 6 for 115."""
+    assert profiles.can_frame_bits(8) == 135
+    assert profiles.can_frame_bits(6) == 115
+    assert profiles.can_frame_bits(0) == 55
+
+
 def test_include_missing_and_cycle(tmp_path: Path) -> None:
     path = write(tmp_path, 'include = "nowhere.toml"\n', "a.toml")
     with pytest.raises(profiles.ProfileError, match="include: profile file not found"):
