@@ -15,7 +15,7 @@ from daemon import profile as profiles
 from daemon.kinematics import Kinematics
 from daemon.messages import BodyState, MotionCommand, Stair, Stairs
 from daemon.plugins import PluginError, load_class
-from plugins.gaits.stair_gait import StairGait, StairGaitConfig
+from plugins.gaits.stair_gait import StairGait, StairGaitConfig, swing_phases, swing_point
 from plugins.gaits.stair_plan import (
     StairGeometry,
     StairModel,
@@ -319,6 +319,27 @@ def test_two_steps_ahead_and_step_height_clear_the_edges() -> None:
     assert s_land > 0.62 + AREA
     assert plan.apex[0] >= 0.13 + 0.025 + planner.geometry.min_step_height - 1e-9
     assert plan.length in plan.sections
+
+
+def test_a_swing_descends_a_riser_no_faster_than_it_rises() -> None:
+    """Rise and descent share the time outside the crossing by their heights: stepping down a
+    130 mm riser (apex 50 mm over lift-off) the foot's peak vertical speed down equals its peak
+    up; level steps keep a quarter each. The path is continuous, crossing at the apex."""
+    lift_off = np.array([[0.0, 0.0, 0.415], [0.0, 0.3, 0.025]])
+    landing = np.array([[-0.3, 0.0, 0.285], [0.3, 0.3, 0.025]])
+    top = np.array([0.465, 0.075])
+    up, across = swing_phases(lift_off, landing, top)
+    np.testing.assert_allclose(up[1], 0.25)
+    np.testing.assert_allclose(across[1], 0.75)
+    tau = np.linspace(0.0, 1.0, 20001)
+    path = np.array([swing_point(t, lift_off, landing, top) for t in tau])
+    assert np.abs(np.diff(path, axis=0)).max() < 1e-3
+    np.testing.assert_allclose(path[0], lift_off, atol=1e-12)
+    np.testing.assert_allclose(path[-1], landing, atol=1e-12)
+    vz = np.diff(path[:, 0, 2]) / np.diff(tau)
+    assert -vz.min() == pytest.approx(vz.max(), rel=1e-3)
+    crossing = (tau > up[0] + 1e-9) & (tau < across[0] - 1e-9)
+    np.testing.assert_allclose(path[crossing, 0, 2], top[0])
 
 
 def test_gait_first_targets_equal_measured_feet_and_walks_on_level_ground() -> None:
