@@ -54,21 +54,23 @@ beside the stance legs' stiffness (body mode about 20 rad/s at kp 300), fast bes
 
 
 class StairGaitConfig(StairGeometry, kw_only=True):
-    """Stair gait parameters (SI): the plan's geometry (StairGeometry) plus ``cycle_time`` (s, one
-    transfer and swing of each tripod), the longest ``step_length`` (m) and the tripods by leg name
-    (``groups``; empty: the layout rule). ``landing_margin`` defaults to 1 cm here: in the twin (kp
-    300, feed-forward) feet land up to 4 mm off their planned place beside the estimate's frame, and
-    a foothold planned at exactly 5 cm landed 4.7 cm from the riser. ``roll_margin`` 1 cm: in stance
-    the sphere feet roll 1.5-1.8 cm along the walking direction (150 × 300 mm, descending: landed
-    6.4 cm from the drop edge, lifted off 4.95 cm from it). ``shin_margin`` 1 cm: the shins'
-    clearance lost to that roll and the body's lead (180 × 280 mm: planned 3.2 cm from the riser's
-    edge axis at lift-off, 1.9 cm in the twin: a contact). ``transfer`` (s) opens each half cycle
-    with both tripods down while the weight passes to the one that landed: swapping the feed-forward
-    at once dropped the body onto it (support 0-50 N of 245 N, then 460 N) and the rebound slid the
-    feet by up to 15 mm. The swing has the rest of the half cycle, 0.8 s."""
+    """Stair gait parameters (SI): the plan's geometry (StairGeometry) plus ``cycle_time`` (s,
+    one transfer and swing of each tripod), the longest ``step_length`` (m) and the tripods by
+    leg name (``groups``; empty: the layout rule). ``landing_margin`` defaults to 1 cm here: in
+    the twin (kp 300, feed-forward) feet land up to 4 mm off their planned place beside the
+    estimate's frame, and a foothold planned at exactly 5 cm landed 4.7 cm from the riser.
+    ``roll_margin`` 1.5 cm: in stance the sphere feet roll 1.5-1.8 cm along the walking
+    direction (150 × 300 mm, descending: landed 6.4 cm from the drop edge, lifted off 4.95 cm
+    from it; at 1 cm, 100 × 250 mm with stair ICP: landed 6.0 cm from the riser, lifted off 4.7
+    cm from it). ``shin_margin`` 1 cm: the shins' clearance lost to that roll and the body's
+    lead (180 × 280 mm: planned 3.2 cm from the riser's edge axis at lift-off, 1.9 cm in the
+    twin: a contact). ``transfer`` (s) opens each half cycle with both tripods down while the
+    weight passes to the one that landed: swapping the feed-forward at once dropped the body
+    onto it (support 0-50 N of 245 N, then 460 N) and the rebound slid the feet by up to 15 mm.
+    The swing has the rest of the half cycle, 0.8 s."""
 
     landing_margin: NonNegative = 0.01
-    roll_margin: NonNegative = 0.01
+    roll_margin: NonNegative = 0.015
     shin_margin: NonNegative = 0.01
     cycle_time: Positive = 2.0
     transfer: NonNegative = 0.2
@@ -91,11 +93,12 @@ def swing_phases(
     lift_off: np.ndarray, landing: np.ndarray, top: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per foot (n,), the swing phases at which it has risen to ``top`` and has crossed: rise and
-    descent share the time outside the crossing by their heights, so a foot stepping down a
-    riser descends no faster than it rises (a quarter each drove Qingzhui's front thighs past
-    their 12 rad/s stepping down 130 mm stairs; the foot lagged 17 cm at touch-down)."""
-    rise = np.maximum(top - lift_off[:, 2], 1e-3)
-    drop = np.maximum(top - landing[:, 2], 1e-3)
+    descent share the time outside the crossing by the square roots of their heights, so both
+    peak at the same vertical acceleration (a quarter each drove Qingzhui's front thighs past
+    their 12 rad/s stepping down 130 mm stairs; the foot lagged 17 cm at touch-down; shares by
+    the heights themselves made a step up's short descent land hard)."""
+    rise = np.sqrt(np.maximum(top - lift_off[:, 2], 1e-6))
+    drop = np.sqrt(np.maximum(top - landing[:, 2], 1e-6))
     up = (1.0 - CROSSING) * rise / (rise + drop)
     return up, up + CROSSING
 
