@@ -1,9 +1,10 @@
 """Paper 004 on the stairs: gait-parameter computation, stair plane extraction beside Open3D, and
 (with ``--full``) the whole stair run in the twin.
 
-- Parameters: ``StepPlanner.plan`` (this step's length and height and the next step's length)
-  at every half cycle of a planned climb of three 130 × 300 mm stairs; the paper computes its
-  parameters "in almost 100 ms", the goal is ≤ 5 ms. Same-run unit: the daemon's IK of all six
+- Parameters: ``StepPlanner.plan`` as the stair gait configures it (its margins and transfer;
+  this step's length and height and the next step's length) at every half cycle of a planned
+  climb of three 130 × 300 mm stairs; the paper computes its parameters "in almost 100 ms",
+  the goal is ≤ 5 ms. Same-run unit: the daemon's IK of all six
   legs (one control tick's IK), so the ratio says how many ticks of IK one plan costs.
 - Extraction: ``horizontal_planes`` on a noisy staircase cloud (tests/test_stairs.py's) beside
   Open3D's ``segment_plane`` run until it has found as many planes, same cloud, same run
@@ -37,7 +38,8 @@ from test_stairs import staircase  # noqa: E402
 from daemon import profile as profiles  # noqa: E402
 from daemon.estimation import GRAVITY  # noqa: E402
 from daemon.kinematics import Kinematics  # noqa: E402
-from plugins.gaits.stair_plan import StairGeometry, StairModel, StepPlanner  # noqa: E402
+from plugins.gaits.stair_gait import StairGait, StairGaitConfig  # noqa: E402
+from plugins.gaits.stair_plan import StairModel  # noqa: E402
 from plugins.perception.stairs import StairsConfig, horizontal_planes  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -56,7 +58,7 @@ def timed(fn, repeat: int) -> float:
 def parameters(repeat: int) -> None:
     profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
     kin = Kinematics(profile)
-    planner = StepPlanner(kin, StairGeometry(foot_radius=0.025))
+    planner = StairGait(StairGaitConfig(foot_radius=0.025), profile).planner  # as the gait plans
     feet = kin.stand_feet(planner.geometry.body_height)
     feet[:, 2] = 0.025
     model = StairModel(world_stairs(stair_world()), np.zeros(3), 0.0, feet[:, 1], 0.0)
