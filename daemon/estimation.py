@@ -2,14 +2,13 @@
 
 Each tick: foot forces from joint torques (eq. 5); the stance tripod is the group whose feet
 carry the larger support force (group A: MF, RB, LB; group B: MB, RF, LF), among those the gait
-has not lifted; the body pose in the
-global (odometry) frame follows from the three stance feet (eqs. 6-9), whose global positions
-are registered when their group takes the load. Filter 1 fuses that with the IMU: the gyro
-carries the rotation, gravity corrects its tilt and the stance feet its heading; the
-accelerometer predicts the position and the stance feet, fitted on that rotation, correct it
-(Kalman), each foot as far as its eq. 5 force says it holds its ground. Filter 2 holds the
-position drift that ICP of each stair cloud onto the stitched map measures, along the
-directions the stairs in view constrain (treads the height, risers the ascent).
+has not lifted; the body pose in the global (odometry) frame follows from the three stance feet
+(eqs. 6-9), whose global positions are registered when their group takes the load. Filter 1
+fuses that with the IMU: the gyro carries the rotation, gravity corrects its tilt and the stance
+feet its heading; the accelerometer predicts the position and the stance feet, fitted on that
+rotation, correct it (Kalman), each foot as far as its eq. 5 force says it holds its ground.
+Filter 2 holds the position drift that ICP of each stair cloud onto the stitched map measures,
+along the directions the stairs in view constrain (treads the height, risers the ascent).
 Pure: arrays in, BodyState out, no clock, no I/O.
 """
 

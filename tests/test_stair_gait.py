@@ -333,7 +333,7 @@ def test_a_swing_descends_a_riser_no_faster_than_it_rises() -> None:
     np.testing.assert_allclose(up[1], 0.25)
     np.testing.assert_allclose(across[1], 0.75)
     tau = np.linspace(0.0, 1.0, 20001)
-    path = np.array([swing_point(t, lift_off, landing, top) for t in tau])
+    path = np.array([swing_point(t, lift_off, landing, top, (up, across)) for t in tau])
     assert np.abs(np.diff(path, axis=0)).max() < 1e-3
     np.testing.assert_allclose(path[0], lift_off, atol=1e-12)
     np.testing.assert_allclose(path[-1], landing, atol=1e-12)

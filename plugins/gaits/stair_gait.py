@@ -103,9 +103,16 @@ def swing_phases(
     return up, up + CROSSING
 
 
-def swing_point(tau: float, lift_off: np.ndarray, landing: np.ndarray, top: np.ndarray):
-    """Swing feet (n, 3, global) at ``tau``: up to ``top`` (n,) over lift-off, across, down."""
-    up, across = swing_phases(lift_off, landing, top)
+def swing_point(
+    tau: float,
+    lift_off: np.ndarray,
+    landing: np.ndarray,
+    top: np.ndarray,
+    phases: tuple[np.ndarray, np.ndarray],
+) -> np.ndarray:
+    """Swing feet (n, 3, global) at ``tau``: up to ``top`` (n,) over lift-off, across, down, at
+    the ``phases`` of ``swing_phases``."""
+    up, across = phases
     a = progress(np.clip((tau - up) / CROSSING, 0.0, 1.0))
     out = lift_off + a[:, None] * (landing - lift_off)
     rising = lift_off[:, 2] + (top - lift_off[:, 2]) * progress(np.clip(tau / up, 0.0, 1.0))
@@ -269,10 +276,10 @@ class StairGait(GaitPlugin):
         self.swing = None
         if swinging:
             phase = min((t - self.t0 - transfer) / (self.half - transfer), 1.0)
-            swing = swing_point(phase, self.lift_off, plan.landing, self.top)
+            up, across = swing_phases(self.lift_off, plan.landing, self.top)
+            swing = swing_point(phase, self.lift_off, plan.landing, self.top, (up, across))
             self.swing = (phase, plan.group, swing)
             targets[plan.group] = (swing - pos[0]) @ rot[0]
-            up, across = swing_phases(self.lift_off, plan.landing, self.top)
             w = progress(np.minimum(phase / up, 1.0)) * (
                 1.0 - progress(np.maximum(phase - across, 0.0) / (1.0 - across))
             )
