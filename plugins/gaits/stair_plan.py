@@ -468,12 +468,9 @@ class StepPlanner:
         need[other, 0] = True
         rows = np.flatnonzero(np.repeat(need.ravel(), n))
         legs, m, j = rows // (n * n), rows // n % n, rows % n
-        s_foot = s_feet[legs] + direction * lengths[m]
-        z_foot = model.height(legs, s_foot) + g.foot_radius
-        z_foot = np.where(m > 0, z_foot, feet[legs, 2])
+        foot = self._moved(model, feet, s_feet, lat, legs, direction * lengths[m])
         pos, rot = model.body_frames(body_s + direction * 0.5 * g.resolution * np.arange(2 * n), g)
         pos, rot = pos[m + j], rot[m + j]
-        foot = model.to_global(s_foot, lat[legs], z_foot)
         ok = np.zeros(len(lanes) * n * n, bool)
         ok[rows] = leg_checks(
             self._batched(legs), self.home[legs], foot, pos, rot, model, g, (m == 0) & (j == 0)
@@ -510,6 +507,14 @@ class StepPlanner:
             False,
         )
 
+    def _moved(self, model, feet, s_feet, lat, legs, shift) -> np.ndarray:
+        """Global foot centres of rows ``legs`` moved ``shift`` along the walking line onto the
+        treads (a foot not moved stays where it stands)."""
+        s_foot = s_feet[legs] + shift
+        on_tread = model.height(legs, s_foot) + self.geometry.foot_radius
+        z_foot = np.where(shift != 0, on_tread, feet[legs, 2])
+        return model.to_global(s_foot, lat[legs], z_foot)
+
     def _landing(self, model, feet, s_feet, lat, body_s, group, direction, lengths):
         """Whether ``group`` lands clear with the body ``transfer`` of the half step short of
         its end, where it is at touch-down (n,)."""
@@ -518,11 +523,8 @@ class StepPlanner:
         g = self.geometry
         legs = np.repeat(group, len(lengths))
         step = np.tile(lengths, len(group))
-        s_foot = s_feet[legs] + direction * step
-        z_foot = np.where(step > 0, model.height(legs, s_foot) + g.foot_radius, feet[legs, 2])
-        at = body_s + direction * 0.5 * (1.0 - self.transfer) * step
-        pos, rot = model.body_frames(at, g)
-        foot = model.to_global(s_foot, lat[legs], z_foot)
+        foot = self._moved(model, feet, s_feet, lat, legs, direction * step)
+        pos, rot = model.body_frames(body_s + direction * 0.5 * (1.0 - self.transfer) * step, g)
         ok = leg_checks(self._batched(legs), self.home[legs], foot, pos, rot, model, g, step == 0)
         return ok.reshape(len(group), len(lengths)).all(0)
 
