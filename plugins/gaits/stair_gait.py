@@ -26,7 +26,7 @@ feet."""
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import msgspec
 import numpy as np
@@ -51,6 +51,17 @@ DRIFT_GAIN = 5.0
 """Rate (1/s) at which stance footholds absorb the body's horizontal drift from the plan: slow
 beside the stance legs' stiffness (body mode about 20 rad/s at kp 300), fast beside rolling
 (about 1.3 cm/s, so 2.6 mm stay)."""
+
+
+class HalfStep(NamedTuple):
+    """The body's progress along its heading from one lift-off (``start``, s) to the next: from
+    ``s0`` to ``s1`` (m), at speed ``v0`` then ``v1`` (m/s), a cubic Hermite over a half cycle."""
+
+    start: float
+    s0: float
+    s1: float
+    v0: float
+    v1: float
 
 
 class StairGaitConfig(StairGeometry, kw_only=True):
@@ -168,12 +179,12 @@ class StairGait(GaitPlugin):
         self.start_z = float(pos[2])
         self.model: StairModel | None = None
         self._stairs: Stairs | None = None
-        self.body_s, self.speed, self.t0 = 0.0, 0.0, None
-        # the body's half steps (start time, s0, s1, v0, v1): the last two, each from a lift-off
-        self.segments: list[tuple[float, float, float, float, float]] = []
+        self.body_s, self.t0 = 0.0, None
+        self.half_steps: list[HalfStep] = []  # the last two
         self.step_plan: StepPlan | None = None
         self.direction = 1.0
         self.top = np.zeros(3)
+        self.phases = (np.zeros(0), np.zeros(0))
         self.lift_off = self.feet[:0]
         self.next_group = 0
         self.offset = None
@@ -212,8 +223,8 @@ class StairGait(GaitPlugin):
         if self.step_plan is not None and self.step_plan.length > 0.0:
             self.feet[self.step_plan.group] = self.step_plan.landing
             self.footholds.append(self.step_plan.landing.copy())
-        if self.step_plan is not None:
-            self.body_s = self.body_end
+        if self.half_steps:
+            self.body_s = self.half_steps[-1].s1
         vx = float(command.vx) if command is not None and math.isfinite(command.vx) else 0.0
         if vx != 0.0:
             self.direction = math.copysign(1.0, vx)
@@ -223,24 +234,25 @@ class StairGait(GaitPlugin):
         self.plans.append(plan)
         self.step_plan = plan
         self.t0 = t
-        self.body_end = self.body_s + self.direction * 0.5 * plan.length
-        v_end = self.direction * 0.25 * (plan.length + plan.next_length) / self.half
-        lift = t + self.config.transfer
-        self.segments = [*self.segments[-1:], (lift, self.body_s, self.body_end, self.speed, v_end)]
-        self.speed = v_end
+        v0 = self.half_steps[-1].v1 if self.half_steps else 0.0
+        v1 = self.direction * 0.25 * (plan.length + plan.next_length) / self.half
+        s1 = self.body_s + self.direction * 0.5 * plan.length
+        lift = HalfStep(t + self.config.transfer, self.body_s, s1, v0, v1)
+        self.half_steps = [*self.half_steps[-1:], lift]
         if plan.length > 0.0:
             self.lift_off = self.feet[group].copy()
             self.top = plan.apex
+            self.phases = swing_phases(self.lift_off, plan.landing, self.top)
         self.next_group = 1 - self.next_group
 
     def _body_at(self, t: float) -> float:
         """The body's progress (m along the heading) at ``t``: on the half step begun at the
         latest lift-off, still before the first."""
-        begun = [seg for seg in self.segments if seg[0] <= t + 1e-9]
+        begun = [h for h in self.half_steps if h.start <= t + 1e-9]
         if not begun:
             return self.body_s
-        start, s0, s1, v0, v1 = begun[-1]
-        return hermite(min((t - start) / self.half, 1.0), s0, s1, v0, v1, self.half)
+        h = begun[-1]
+        return hermite(min((t - h.start) / self.half, 1.0), h.s0, h.s1, h.v0, h.v1, self.half)
 
     def step(
         self,
@@ -276,8 +288,8 @@ class StairGait(GaitPlugin):
         self.swing = None
         if swinging:
             phase = min((t - self.t0 - transfer) / (self.half - transfer), 1.0)
-            up, across = swing_phases(self.lift_off, plan.landing, self.top)
-            swing = swing_point(phase, self.lift_off, plan.landing, self.top, (up, across))
+            up, across = self.phases
+            swing = swing_point(phase, self.lift_off, plan.landing, self.top, self.phases)
             self.swing = (phase, plan.group, swing)
             targets[plan.group] = (swing - pos[0]) @ rot[0]
             w = progress(np.minimum(phase / up, 1.0)) * (

@@ -493,9 +493,10 @@ class StepPlanner:
             stay = feet[group].copy()
             return StepPlan(group, 0.0, g.min_step_height, 0.0, stay, stay[:, 2], sections, True)
         l1, l2 = choice
-        s_land = s_feet[group] + direction * lengths[l1]
-        z_land = model.height(group, s_land) + g.foot_radius
-        landing = feet[group].copy() if l1 == 0 else model.to_global(s_land, lat[group], z_land)
+        shift = np.full(len(group), direction * lengths[l1])
+        landing = (
+            feet[group].copy() if l1 == 0 else self._moved(model, feet, s_feet, lat, group, shift)
+        )
         return StepPlan(
             group,
             float(lengths[l1]),
