@@ -257,14 +257,15 @@ class Kinematics:
         gamma, alpha, beta = theta[:, 0], theta[:, 1], theta[:, 2]
         l2, l3 = self.l2, self.l3
         cg, sg = np.cos(gamma), np.sin(gamma)
-        r = self.l1 + l2 * np.cos(alpha) + l3 * np.cos(alpha + beta)
-        z = l2 * np.sin(alpha) + l3 * np.sin(alpha + beta)
-        dr_beta = -l3 * np.sin(alpha + beta)
-        dz_beta = l3 * np.cos(alpha + beta)
-        jac = np.empty((self.n_legs, 3, 3))
-        jac[:, 0] = np.stack([-r * sg, -z * cg, dr_beta * cg], 1)
-        jac[:, 1] = np.stack([r * cg, -z * sg, dr_beta * sg], 1)
-        jac[:, 2] = np.stack([np.zeros_like(r), l2 * np.cos(alpha) + dz_beta, dz_beta], 1)
+        ab = alpha + beta
+        r = self.l1 + l2 * np.cos(alpha) + l3 * np.cos(ab)
+        z = l2 * np.sin(alpha) + l3 * np.sin(ab)
+        dr_beta = -l3 * np.sin(ab)
+        dz_beta = l3 * np.cos(ab)
+        jac = np.zeros((self.n_legs, 3, 3))  # element by element: np.stack costs more here
+        jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 2] = -r * sg, -z * cg, dr_beta * cg
+        jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = r * cg, -z * sg, dr_beta * sg
+        jac[:, 2, 1], jac[:, 2, 2] = l2 * np.cos(alpha) + dz_beta, dz_beta
         return (jac,)
 
     def _jacobian_ats(self, theta: np.ndarray) -> tuple[np.ndarray]:
@@ -272,12 +273,13 @@ class Kinematics:
         ta, tt, ts = theta[:, 0], theta[:, 1], theta[:, 2]
         l2, l3 = self.l2, self.l3
         ca, sa = np.cos(ta), np.sin(ta)
-        rho = l2 * np.sin(tt) + l3 * np.sin(ts)
+        st, ss = l2 * np.sin(tt), l3 * np.sin(ts)
+        rho = st + ss
         tc, sc = l2 * np.cos(tt), l3 * np.cos(ts)
-        jac = np.empty((self.n_legs, 3, 3))
-        jac[:, 0] = np.stack([np.zeros_like(rho), -l2 * np.sin(tt), -l3 * np.sin(ts)], 1)
-        jac[:, 1] = np.stack([rho * ca, tc * sa, sc * sa], 1)
-        jac[:, 2] = np.stack([rho * sa, -tc * ca, -sc * ca], 1)
+        jac = np.zeros((self.n_legs, 3, 3))  # element by element: np.stack costs more here
+        jac[:, 0, 1], jac[:, 0, 2] = -st, -ss
+        jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = rho * ca, tc * sa, sc * sa
+        jac[:, 2, 0], jac[:, 2, 1], jac[:, 2, 2] = rho * sa, -tc * ca, -sc * ca
         return (jac,)
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:

@@ -4,8 +4,12 @@ motors on python-can's virtual bus, faults, and the 1 kHz control loop through t
 from __future__ import annotations
 
 import itertools
+import select
+import subprocess
+import sys
 import threading
 
+import can
 import msgspec
 import numpy as np
 import pytest
@@ -17,6 +21,7 @@ from daemon.messages import JointCommand, Mode
 from daemon.profile import ActuatorRanges
 from daemon.safety import Safety
 from drivers.base import DriverError
+from drivers.sim import mit_motors
 from drivers.sim.mit_motors import MitMotorChain
 from drivers.torque import mit
 from drivers.torque.bus import MitJointBus
@@ -27,26 +32,44 @@ _channels = itertools.count()
 
 def test_command_bytes_follow_the_published_layout() -> None:
     """p 16 bits, v 12, kp 12, kd 12, t 12, big-endian nibble packing (mini-cheetah firmware)."""
-    c = mit.Command(position=0.0, velocity=0.0, kp=0.0, kd=0.0, torque=0.0)
-    # mid-scale: p = 0x7FFF, v = 0x7FF, kp = kd = 0, t = 0x7FF
-    assert mit.pack_command(c, RANGES) == bytes([0x7F, 0xFF, 0x7F, 0xF0, 0x00, 0x00, 0x07, 0xFF])
-    top = mit.Command(position=99.0, velocity=99.0, kp=999.0, kd=99.0, torque=99.0)
-    assert mit.pack_command(top, RANGES) == bytes([0xFF] * 8)
+    # mid-scale: p = 0x7FFF, v = 0x7FF, kp = kd = 0, t = 0x7FF; then everything saturated high
+    frames = mit.pack_commands(
+        [0.0, 99.0], [0.0, 99.0], [0.0, 999.0], [0.0, 99.0], [0.0, 99.0], RANGES
+    )
+    assert frames == [bytes([0x7F, 0xFF, 0x7F, 0xF0, 0x00, 0x00, 0x07, 0xFF]), bytes([0xFF] * 8)]
     reply = mit.pack_reply(mit.Reply(7, -12.5, -45.0, -18.0), RANGES)
     assert reply == bytes([7, 0, 0, 0, 0, 0])
 
 
 def test_round_trip_within_quantisation() -> None:
+    """Commands packed together decode motor by motor; replies packed one by one decode
+    together; both within one quantisation step of the actuator's ranges."""
     rng = np.random.default_rng(1)
-    for _ in range(200):
-        p, v, t = rng.uniform(-10, 10), rng.uniform(-40, 40), rng.uniform(-17, 17)
-        kp, kd = rng.uniform(0, 500), rng.uniform(0, 5)
-        back = mit.unpack_command(mit.pack_command(mit.Command(p, v, kp, kd, t), RANGES), RANGES)
-        assert abs(back.position - p) <= 25.0 / 65535
-        assert abs(back.velocity - v) <= 90.0 / 4095 and abs(back.torque - t) <= 36.0 / 4095
-        assert abs(back.kp - kp) <= 500.0 / 4095 and abs(back.kd - kd) <= 5.0 / 4095
+    n = 200
+    p, v, t = rng.uniform(-10, 10, n), rng.uniform(-40, 40, n), rng.uniform(-17, 17, n)
+    kp, kd = rng.uniform(0, 500, n), rng.uniform(0, 5, n)
+    for i, frame in enumerate(mit.pack_commands(p, v, kp, kd, t, RANGES)):
+        back = mit.unpack_command(frame, RANGES)
+        assert abs(back.position - p[i]) <= 25.0 / 65535
+        assert abs(back.velocity - v[i]) <= 90.0 / 4095 and abs(back.torque - t[i]) <= 36.0 / 4095
+        assert abs(back.kp - kp[i]) <= 500.0 / 4095 and abs(back.kd - kd[i]) <= 5.0 / 4095
+    replies = b"".join(
+        mit.pack_reply(mit.Reply(i % 256, p[i], v[i], t[i]), RANGES) for i in range(n)
+    )
+    motor, position, velocity, torque = mit.unpack_replies(replies, RANGES)
+    assert motor.tolist() == [i % 256 for i in range(n)]
+    assert np.abs(position - p).max() <= 25.0 / 65535
+    assert np.abs(velocity - v).max() <= 90.0 / 4095 and np.abs(torque - t).max() <= 36.0 / 4095
     with pytest.raises(mit.ProtocolError, match="5 bytes, expected 6"):
-        mit.unpack_reply(b"\x01\x02\x03\x04\x05", RANGES)
+        mit.unpack_replies(b"\x01\x02\x03\x04\x05", RANGES)
+
+
+def test_a_non_finite_command_is_refused_naming_the_joint() -> None:
+    """A NaN would cast to a full-scale position: the codec refuses it before the wire."""
+    with pytest.raises(mit.ProtocolError, match="command torque of LF_femur is not finite"):
+        mit.pack_commands(
+            [0, 0], [0, 0], [5, 5], [1, 1], [0, np.nan], RANGES, ["LF_coxa", "LF_femur"]
+        )
 
 
 @pytest.fixture()
@@ -54,15 +77,30 @@ def qingzhui(robots):
     return profiles.load(robots / "qingzhui.toml")
 
 
+def patient(profile: profiles.Profile) -> profiles.Profile:
+    """The profile with a driver waiting 50 ms for replies (not 0.5 ms), so a loaded test
+    machine's late emulator is not taken for a fault."""
+    return msgspec.structs.replace(
+        profile, bus=msgspec.structs.replace(profile.bus, reply_timeout=0.05)
+    )
+
+
+def follows_goal(bus: MitJointBus) -> float:
+    """Largest joint error (rad) after commanding a spread of positions for 600 cycles."""
+    bus.torque(True)
+    goal = np.linspace(-0.4, 0.4, 18)
+    for _ in range(600):
+        bus.read()
+        bus.write(JointCommand(position=goal.tolist()))
+    return float(np.max(np.abs(np.array(bus.read().position) - goal)))
+
+
 @pytest.fixture()
 def rig(qingzhui):
-    """Emulated motors and the driver; the driver waits 50 ms for replies (not the profile's
-    0.5 ms) so a loaded test machine's late emulator thread is not taken for a fault."""
+    """Emulated motors serving in a thread and the driver, on python-can's virtual bus."""
     channel = f"qz-test-{next(_channels)}"
     chain = MitMotorChain([j.id for j in qingzhui.joints], qingzhui.bus.actuator, channel).start()
-    patient = msgspec.structs.replace(qingzhui.bus, reply_timeout=0.05)
-    profile = msgspec.structs.replace(qingzhui, bus=patient)
-    bus = MitJointBus(profile, [channel], interface="virtual")
+    bus = MitJointBus(patient(qingzhui), [channel], interface="virtual")
     yield chain, bus
     bus.close()
     chain.stop()
@@ -71,19 +109,65 @@ def rig(qingzhui):
 def test_motors_follow_impedance_commands(rig) -> None:
     chain, bus = rig
     bus.open()
-    bus.torque(True)
-    goal = np.linspace(-0.4, 0.4, 18)
-    for _ in range(600):
-        bus.read()
-        bus.write(JointCommand(position=goal.tolist()))
-    state = bus.read()
-    assert np.max(np.abs(np.array(state.position) - goal)) < 0.01
+    assert follows_goal(bus) < 0.01
     assert all(m.motor_mode for m in chain.motors.values())
     chain.motors[3].load = 2.0  # a steady load on one joint shows up as measured torque
-    for _ in range(600):
-        bus.read()
-        bus.write(JointCommand(position=goal.tolist()))
+    follows_goal(bus)
     assert bus.read().effort[2] == pytest.approx(2.0, abs=0.1)
+
+
+MULTICAST_GROUP = "239.74.163.90"
+
+
+def multicast_unavailable() -> str | None:
+    """Why this host cannot carry python-can's udp_multicast between processes, or None."""
+    try:
+        a = can.Bus(interface="udp_multicast", channel=MULTICAST_GROUP)
+    except (can.CanError, OSError) as e:
+        return f"udp_multicast does not open here: {e}"
+    try:
+        b = can.Bus(interface="udp_multicast", channel=MULTICAST_GROUP)
+        try:
+            a.send(can.Message(arbitration_id=0x7FF, data=b"probe", is_extended_id=False))
+            heard = b.recv(0.5)
+        except (can.CanError, OSError) as e:
+            return f"udp_multicast does not deliver here: {e}"
+        finally:
+            b.shutdown()
+    finally:
+        a.shutdown()
+    return None if heard is not None else "udp_multicast delivers nothing on this host"
+
+
+def test_motors_in_their_own_process_follow_the_driver(qingzhui, robots) -> None:
+    """``python -m drivers.sim.mit_motors`` serves the profile's motors from a process of its own
+    (the bench's setup: no emulator in the driver's interpreter); the driver opens them, drives
+    them to a goal, and the emulator exits cleanly on SIGTERM."""
+    reason = multicast_unavailable()
+    if reason:
+        pytest.skip(reason)
+    motors = subprocess.Popen(
+        [sys.executable, "-m", "drivers.sim.mit_motors", "--profile", str(robots / "qingzhui.toml")]
+        + ["--channel", MULTICAST_GROUP],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    bus = MitJointBus(patient(qingzhui), [MULTICAST_GROUP], interface="udp_multicast")
+    try:
+        ready, _, _ = select.select([motors.stdout], [], [], 30)
+        assert ready and motors.stdout.readline().strip() == MULTICAST_GROUP
+        bus.open()
+        assert follows_goal(bus) < 0.01
+        bus.torque(False)
+    finally:
+        bus.close()
+        motors.terminate()
+        assert motors.wait(10) == 0
+
+
+def test_the_motor_emulator_names_a_bad_profile(tmp_path, capsys) -> None:
+    assert mit_motors.main(["--profile", str(tmp_path / "none.toml"), "--channel", "x"]) == 2
+    assert "none.toml" in capsys.readouterr().err
 
 
 def test_torque_off_leaves_motor_mode_and_still_reads(rig) -> None:
@@ -139,6 +223,21 @@ def test_out_of_range_reply_is_flagged(rig) -> None:
     chain.set_state(1, position=30.0, velocity=0.0, torque=0.0)
     bus.read()
     assert bus.health()[0].errors == ["range"]
+
+
+def test_a_nan_command_never_reaches_the_motors(rig) -> None:
+    """The write fails naming the joint and puts no frame on the bus; the motors keep the
+    last command they had."""
+    chain, bus = rig
+    bus.open()
+    bus.torque(True)
+    bus.read()
+    sent = bus.sent
+    goal = [0.1] * 18
+    goal[4] = float("nan")
+    with pytest.raises(DriverError, match="command position of lf_thigh is not finite"):
+        bus.write(JointCommand(position=goal))
+    assert bus.sent == sent
 
 
 def test_bad_channel_is_a_clear_error(qingzhui) -> None:

@@ -11,17 +11,25 @@ between frames unless an external model (the physics twin) sets their state inst
     chain.set_state(1, position=.., velocity=.., torque=..)  # from the twin, each step
     chain.silence(2); chain.corrupt(3); chain.bus_off()      # fault injection
     chain.stop()
+
+``python -m drivers.sim.mit_motors --profile robots/qingzhui.toml --channel 239.74.163.2``
+serves a profile's motors from a process of their own (python-can's ``udp_multicast``, CAN
+between processes, by default; ``--interface socketcan --channel vcan0`` where there is vcan),
+so a driver is measured without emulated motors taking its interpreter's time.
 """
 
 from __future__ import annotations
 
+import argparse
+import signal
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
 
 import can
 
-from daemon.profile import ActuatorRanges
+from daemon.profile import ActuatorRanges, ProfileError, load
 from drivers.torque.mit import (
     CAN_ERR_BUSOFF,
     ENTER_MOTOR_MODE,
@@ -163,3 +171,33 @@ class MitMotorChain:
         if not known or m.silent:
             return None
         return reply[:5] if m.corrupt else reply
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Serve a profile's motors on one CAN channel until SIGTERM/SIGINT; the channel's name
+    on stdout once they answer."""
+    parser = argparse.ArgumentParser(prog="python -m drivers.sim.mit_motors", description=__doc__)
+    parser.add_argument("--profile", required=True, help="robot profile (robots/*.toml)")
+    parser.add_argument("--channel", required=True, help="CAN channel (multicast group, vcan0)")
+    parser.add_argument("--interface", default="udp_multicast", help="python-can interface")
+    args = parser.parse_args(argv)
+    try:
+        profile = load(args.profile)
+        ids = [j.id for j in profile.joints]
+        chain = MitMotorChain(
+            ids, profile.bus.actuator, args.channel, args.interface, profile.bus.master_id
+        ).start()
+    except (ProfileError, can.CanError, OSError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    print(args.channel, flush=True)
+    done.wait()
+    chain.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -23,10 +23,9 @@ from drivers.torque.mit import (
     CAN_ERR_BUSOFF,
     ENTER_MOTOR_MODE,
     EXIT_MOTOR_MODE,
-    Command,
     ProtocolError,
-    pack_command,
-    unpack_reply,
+    pack_commands,
+    unpack_replies,
 )
 
 log = logging.getLogger("climbd.torque")
@@ -88,7 +87,7 @@ class MitJointBus:
                 raise DriverError(
                     f"cannot open CAN {self.interface} channel {channel!r}: {e}"
                 ) from e
-        self._send_all([self._zero_gain(i) for i in range(len(self.names))])
+        self._send_all(self._zero_gain())
         self._collect(OPEN_TIMEOUT)
         self._expecting = False
         if not self._answered.all():
@@ -113,8 +112,10 @@ class MitJointBus:
 
     # --- cycle ------------------------------------------------------------------------
 
-    def _zero_gain(self, i: int) -> bytes:
-        return pack_command(Command(position=float(self.position[i])), self.ranges)
+    def _zero_gain(self) -> list[bytes]:
+        """Frames that ask every motor for its state and, in motor mode, hold it limp."""
+        zero = np.zeros(len(self.names))
+        return pack_commands(self.position, zero, zero, zero, zero, self.ranges)
 
     def write(self, command: JointCommand) -> None:
         n = len(self.names)
@@ -125,9 +126,10 @@ class MitJointBus:
         t = np.asarray(command.effort, float) if command.effort else np.zeros(n)
         kp = np.asarray(command.kp, float) if command.kp else np.full(n, self.kp)
         kd = np.asarray(command.kd, float) if command.kd else np.full(n, self.kd)
-        frames = [
-            pack_command(Command(p[i], v[i], kp[i], kd[i], t[i]), self.ranges) for i in range(n)
-        ]
+        try:
+            frames = pack_commands(p, v, kp, kd, t, self.ranges, self.names)
+        except ProtocolError as e:
+            raise DriverError(f"torque joint bus: {e}") from e
         self._send_all(frames)
         self._last_frames = frames
 
@@ -136,7 +138,7 @@ class MitJointBus:
             raise DriverError("torque joint bus: read before open()")
         if not self._expecting:
             frames = self._last_frames if self.torque_on and self._last_frames else None
-            self._send_all(frames or [self._zero_gain(i) for i in range(len(self.names))])
+            self._send_all(frames or self._zero_gain())
         self._collect(self.reply_timeout)
         self.missed = np.where(self._answered, 0, self.missed + 1)
         self._expecting = False
@@ -175,17 +177,22 @@ class MitJointBus:
         self._expecting = True
 
     def _collect(self, timeout: float) -> None:
-        """Take every reply waiting, then wait up to ``timeout`` for the missing ones."""
+        """Take every reply waiting, then wait up to ``timeout`` for the missing ones; decode
+        the replies together."""
         deadline = time.monotonic() + timeout
+        replies: dict[int, bytes] = {}
         for channel, bus in self.buses.items():
             while True:
                 wait = 0.0 if self._answered.all() else max(0.0, deadline - time.monotonic())
                 msg = bus.recv(timeout=wait)
                 if msg is None:
                     break
-                self._take(channel, msg)
+                self._take(channel, msg, replies)
+        if replies:
+            self._decode(replies)
 
-    def _take(self, channel: str, msg: can.Message) -> None:
+    def _take(self, channel: str, msg: can.Message, replies: dict[int, bytes]) -> None:
+        """File one frame: a bus-off raises, a reply of a known motor is kept by joint."""
         if msg.is_error_frame:
             if msg.arbitration_id & CAN_ERR_BUSOFF:
                 raise DriverError(f"CAN bus-off on {self.interface} channel {channel!r}")
@@ -197,15 +204,20 @@ class MitJointBus:
         if i is None:
             log.warning("reply from unknown motor %s on %s", data[:1].hex(), channel)
             return
-        try:
-            reply = unpack_reply(data, self.ranges)
-        except ProtocolError as e:
-            self.errors[i] = [f"bad reply: {e}"]
+        if len(data) != 6:
+            self.errors[i] = [f"bad reply: {len(data)} bytes, expected 6: {data.hex()}"]
             return
-        r = self.ranges
-        saturated = abs(reply.position) >= r.position or abs(reply.velocity) >= r.velocity
-        self.errors[i] = ["range"] if saturated else []
-        self.position[i] = reply.position
-        self.velocity[i] = reply.velocity
-        self.effort[i] = reply.torque
+        replies[i] = data
         self._answered[i] = True
+
+    def _decode(self, replies: dict[int, bytes]) -> None:
+        """The state of every joint that answered; a reply at the end of a range is flagged."""
+        joints = np.fromiter(replies, int, len(replies))
+        _, position, velocity, torque = unpack_replies(b"".join(replies.values()), self.ranges)
+        r = self.ranges
+        saturated = (np.abs(position) >= r.position) | (np.abs(velocity) >= r.velocity)
+        for i, flagged in zip(joints.tolist(), saturated.tolist(), strict=True):
+            self.errors[i] = ["range"] if flagged else []
+        self.position[joints] = position
+        self.velocity[joints] = velocity
+        self.effort[joints] = torque

@@ -10,7 +10,11 @@ linearly onto its configured range; the motor applies
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
 
 from daemon.profile import ActuatorRanges
 
@@ -25,15 +29,14 @@ class ProtocolError(ValueError):
     """A frame that does not decode: wrong length or a value outside the actuator's range."""
 
 
-def to_uint(x: float, lo: float, hi: float, bits: int) -> int:
-    """Map ``x`` in [lo, hi] onto an unsigned ``bits`` integer, saturating outside."""
-    x = min(max(x, lo), hi)
-    return int((x - lo) * ((1 << bits) - 1) / (hi - lo))
+def to_uint(x: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray:
+    """Map ``x`` in [lo, hi] onto unsigned ``bits`` integers, saturating outside (any shape)."""
+    return ((np.clip(x, lo, hi) - lo) * ((1 << bits) - 1) / (hi - lo)).astype(np.int64)
 
 
-def to_float(u: int, lo: float, hi: float, bits: int) -> float:
+def to_float(u: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray:
     """Inverse of ``to_uint``."""
-    return u * (hi - lo) / ((1 << bits) - 1) + lo
+    return np.asarray(u) * (hi - lo) / ((1 << bits) - 1) + lo
 
 
 @dataclass(frozen=True)
@@ -57,25 +60,35 @@ class Reply:
     torque: float
 
 
-def pack_command(c: Command, r: ActuatorRanges) -> bytes:
-    """The 8 data bytes of a command; out-of-range values saturate as the firmware does."""
-    p = to_uint(c.position, -r.position, r.position, 16)
-    v = to_uint(c.velocity, -r.velocity, r.velocity, 12)
-    kp = to_uint(c.kp, 0.0, r.kp, 12)
-    kd = to_uint(c.kd, 0.0, r.kd, 12)
-    t = to_uint(c.torque, -r.torque, r.torque, 12)
-    return bytes(
-        [
-            p >> 8,
-            p & 0xFF,
-            v >> 4,
-            ((v & 0xF) << 4) | (kp >> 8),
-            kp & 0xFF,
-            kd >> 4,
-            ((kd & 0xF) << 4) | (t >> 8),
-            t & 0xFF,
-        ]
-    )
+def pack_commands(
+    position: ArrayLike,
+    velocity: ArrayLike,
+    kp: ArrayLike,
+    kd: ArrayLike,
+    torque: ArrayLike,
+    r: ActuatorRanges,
+    labels: Sequence[str] = (),
+) -> list[bytes]:
+    """The 8 data bytes of each motor's command, one value per motor in every argument, all
+    packed at once; out-of-range values saturate as the firmware does, non-finite ones raise,
+    naming the motor by ``labels`` or index (a NaN would cast to a full-scale command)."""
+    fields = {"position": position, "velocity": velocity, "kp": kp, "kd": kd, "torque": torque}
+    for name, values in fields.items():
+        bad = np.flatnonzero(~np.isfinite(np.asarray(values, float)))
+        if bad.size:
+            i = int(bad[0])
+            motor = labels[i] if labels else f"motor index {i}"
+            raise ProtocolError(f"command {name} of {motor} is not finite")
+    p = to_uint(position, -r.position, r.position, 16)
+    v = to_uint(velocity, -r.velocity, r.velocity, 12)
+    kp_ = to_uint(kp, 0.0, r.kp, 12)
+    kd_ = to_uint(kd, 0.0, r.kd, 12)
+    t = to_uint(torque, -r.torque, r.torque, 12)
+    frames = np.stack(
+        [p >> 8, p, v >> 4, (v << 4) | (kp_ >> 8), kp_, kd_ >> 4, (kd_ << 4) | (t >> 8), t], 1
+    ).astype(np.uint8)  # the cast keeps each byte's low 8 bits
+    raw = frames.tobytes()
+    return [raw[i : i + 8] for i in range(0, len(raw), 8)]
 
 
 def unpack_command(data: bytes, r: ActuatorRanges) -> Command:
@@ -104,16 +117,18 @@ def pack_reply(s: Reply, r: ActuatorRanges) -> bytes:
     return bytes([s.motor & 0xFF, p >> 8, p & 0xFF, v >> 4, ((v & 0xF) << 4) | (t >> 8), t & 0xFF])
 
 
-def unpack_reply(data: bytes, r: ActuatorRanges) -> Reply:
-    """Decode a reply; a wrong length is a ProtocolError naming what arrived."""
-    if len(data) != 6:
+def unpack_replies(data: bytes, r: ActuatorRanges) -> tuple[np.ndarray, ...]:
+    """Decode replies laid end to end (6 bytes each) at once: motor ids, positions (rad),
+    velocities (rad/s) and torques (N·m); a length not a multiple of 6 is a ProtocolError."""
+    if len(data) % 6:
         raise ProtocolError(f"reply frame has {len(data)} bytes, expected 6: {data.hex()}")
-    p = (data[1] << 8) | data[2]
-    v = (data[3] << 4) | (data[4] >> 4)
-    t = ((data[4] & 0xF) << 8) | data[5]
-    return Reply(
-        motor=data[0],
-        position=to_float(p, -r.position, r.position, 16),
-        velocity=to_float(v, -r.velocity, r.velocity, 12),
-        torque=to_float(t, -r.torque, r.torque, 12),
+    b = np.frombuffer(data, np.uint8).reshape(-1, 6).astype(np.int64)
+    p = (b[:, 1] << 8) | b[:, 2]
+    v = (b[:, 3] << 4) | (b[:, 4] >> 4)
+    t = ((b[:, 4] & 0xF) << 8) | b[:, 5]
+    return (
+        b[:, 0],
+        to_float(p, -r.position, r.position, 16),
+        to_float(v, -r.velocity, r.velocity, 12),
+        to_float(t, -r.torque, r.torque, 12),
     )
