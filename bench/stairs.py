@@ -154,7 +154,8 @@ def full_run(rise: float, tread: float, icp: bool) -> None:
     print(
         f"shin contacts {len(run.log.shin_hits)} ticks (shank end cap inside the foot sphere: "
         f"{len(run.log.cap_hits)} ticks, counted as the foot's), foot-edge contacts "
-        f"{len(run.log.foot_edge_hits)} ticks, smallest touch-down margin {margins.min():.3f} m, "
+        f"{len(run.log.foot_edge_hits)} ticks, smallest touch-down margin {margins.min():.3f} m "
+        f"({len(margins)} touch-downs; {len(run.log.scuffs)} lift-off re-contacts), "
         f"estimate error max {pos_err.max() * 100:.1f} cm / {rot_err.max():.1f} deg "
         f"(stance feet alone {legs_pos.max() * 100:.1f} cm / {legs_rot.max():.1f} deg)"
         + f", feet's support {support.min():.0f}-{support.max():.0f} N (weight {weight:.0f} N)"

@@ -1,14 +1,16 @@
 """Qingzhui's 1 kHz control loop through the torque-leg driver, beside bench/loop.py's C loop.
 
 The real ``ControlLoop`` on ``MonotonicClock`` runs ``Controller.tick`` as ``climbd run`` builds
-it for the Qingzhui profile (paper 004's estimator, gravity feed-forward, tripod gait walking
-ACTIVE, heartbeats and motion commands arriving from another thread) over three joint buses:
-``MitJointBus`` to 18 emulated MIT motors in a process of their own (python-can's
-``udp_multicast``: a frame a datagram, as SocketCAN is a frame a syscall; this VM has no vcan),
-the same driver to motors serving in a thread of this process (python-can's ``virtual`` bus,
-the motors then take this interpreter's time), and ``FakeJointBus`` (no driver: the controller's
-own compute). The C ``clock_nanosleep`` loop runs in the same run, so the p99 lateness ratio
-means something on a loaded machine. Goal (issue 2's): ratio <= 1.5.
+it for the Qingzhui profile (paper 004's estimator with its IMU filter on a level, still IMU,
+gravity feed-forward, tripod gait walking ACTIVE, heartbeats and motion commands arriving from
+another thread) over three joint buses: ``MitJointBus`` to 18 emulated MIT motors in a process
+of their own (python-can's ``udp_multicast``: a frame a datagram, as SocketCAN is a frame a
+syscall; this VM has no vcan), the same driver to motors serving in a thread of this process
+(python-can's ``virtual`` bus: the motors then take this interpreter's time), and
+``FakeJointBus`` (no driver: the controller's own compute). The C ``clock_nanosleep`` loop runs
+in the same run, so the p99 lateness ratio means something on a loaded machine. Goal (issue
+2's): ratio <= 1.5, with overruns under 1 % of ticks (an overrun skips its deadline, so
+lateness alone hides a slow tick).
 
     .venv/bin/python bench/torque_loop.py [--seconds 20] [--buses multicast,virtual,fake]
 """
@@ -40,6 +42,8 @@ BUSES = {
     "virtual": "MitJointBus, motors in this process (virtual CAN)",
     "fake": "FakeJointBus (no driver)",
 }
+GOAL_RATIO = 1.5
+GOAL_OVERRUNS = 0.01
 _channels = itertools.count()
 
 
@@ -97,6 +101,7 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int]
     from daemon.messages import Heartbeat, Mode, MotionCommand
     from daemon.plugins import Isolated
     from daemon.safety import Safety
+    from drivers.base import FakeImu
     from plugins.gaits.periodic import Tripod
 
     profile = profiles.load(PROFILE)
@@ -110,6 +115,7 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int]
             safety,
             clock.now,
             gait,
+            imu=FakeImu(clock.now),
             estimator=StateEstimator(profile, EstimatorConfig()),
             feed_forward=True,
         )
@@ -151,25 +157,30 @@ def report(seconds: float, kinds: list[str]) -> dict:
         c = c_loop(1000.0, seconds, Path(tmp))
     c_p = pct(c) if c is not None else None
     print(f"## Qingzhui's 1 kHz loop ({seconds:g} s each; times in µs)")
-    print("| loop | lateness p50 | p99 | p99.9 | compute p50 | compute p99 | overruns | ratio |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| loop | lateness p50 | p99 | p99.9 | compute p50 | p99 | overruns | ratio | goal |")
+    print("|---|---|---|---|---|---|---|---|---|")
     if c_p is None:
-        print("| C clock_nanosleep | skipped: no C compiler | | | | | | |")
+        print("| C clock_nanosleep | skipped: no C compiler | | | | | | | |")
     else:
-        print(
-            f"| C clock_nanosleep | {c_p[0]:.0f} | {c_p[1]:.0f} | {c_p[2]:.0f} | – | – | – | 1.00 |"
-        )
+        c_row = f"{c_p[0]:.0f} | {c_p[1]:.0f} | {c_p[2]:.0f}"
+        print(f"| C clock_nanosleep | {c_row} | – | – | – | 1.00 | |")
     figures = {}
     for kind in kinds:
         late, compute, overruns = torque_loop(seconds, kind)
         lp, cp = pct(late), pct(compute)
         ratio = lp[1] / c_p[1] if c_p is not None else float("nan")
+        met = ratio <= GOAL_RATIO and overruns <= GOAL_OVERRUNS * len(late)
         print(
             f"| Qingzhui tick, {BUSES[kind]} | {lp[0]:.0f} | {lp[1]:.0f} | {lp[2]:.0f} | "
-            f"{cp[0]:.0f} | {cp[1]:.0f} | {overruns} of {len(late)} | {ratio:.2f} |"
+            f"{cp[0]:.0f} | {cp[1]:.0f} | {overruns} of {len(late)} | {ratio:.2f} | "
+            f"{'met' if met else 'not met'} |"
         )
         figures[kind] = {"lateness_us": lp, "compute_us": cp, "ratio": ratio, "overruns": overruns}
-    print("\nratio: p99 lateness over the C loop's. Goal: <= 1.5 through the driver.")
+    print(
+        f"\nratio: p99 lateness over the C loop's. Goal: ratio <= {GOAL_RATIO} and overruns <= "
+        f"{GOAL_OVERRUNS:.0%} of ticks (a loop that overruns skips ahead, so its lateness alone "
+        "stays under a period however long its ticks take)."
+    )
     return figures
 
 

@@ -33,6 +33,9 @@ CLOUD_VOXEL = 0.02
 """Voxel (m) the clouds are thinned to: the treads' planes, at a cost the run can afford."""
 EDGE_NORMAL = 0.95
 """A foot contact whose normal is tilted more than this cosine allows touches an edge or riser."""
+LIFTING = 0.5
+"""Swing phase before which a foot's new contact is its lift-off's (it rolled back onto its
+tread), not a foothold: footholds are where swings come down."""
 
 
 def stair_world(rise: float = 0.13, tread: float = 0.30, count: int = 3, landing: float = 1.6):
@@ -98,6 +101,7 @@ class RunLog:
     foot_edge_hits: list = field(default_factory=list)
     cap_hits: list = field(default_factory=list)  # (t, leg): shank end cap inside the foot sphere
     touchdowns: list = field(default_factory=list)  # (t, leg, foot centre) while walking
+    scuffs: list = field(default_factory=list)  # (t, leg, foot centre): back down while lifting
     tracking: list = field(default_factory=list)  # (phase, foot error, joint-level error) (m)
     support: list = field(default_factory=list)  # the feet's total upward contact force (N)
     seconds: float = 0.0
@@ -176,12 +180,14 @@ class StairRun:
                 touching[leg] = True
                 if abs(c.frame[2]) < EDGE_NORMAL:
                     self.log.foot_edge_hits.append((t, leg))
+        swing = self.gait.swing if self.walking else None
+        lifting = swing[1] if swing is not None and swing[0] < LIFTING else ()
         for leg in np.flatnonzero(touching & ~self._down & self.walking):
-            self.log.touchdowns.append((t, int(leg), feet[leg].copy()))
+            record = self.log.scuffs if leg in lifting else self.log.touchdowns
+            record.append((t, int(leg), feet[leg].copy()))
         self._down = touching
         if self.walking:
             self.log.support.append(float(contact_forces(twin)[:, 2].sum()))
-        swing = self.gait.swing if self.walking else None
         if swing is not None:
             tau, legs, planned = swing
             kin, c = rig.controller.kinematics, rig.controller
@@ -199,7 +205,7 @@ class StairRun:
             self.log.est_pos.append(p)
             self.log.est_rot.append(rot)
             measured = rig.controller.measured
-            self.plain.update(measured.position, measured.effort)
+            self.plain.update(measured.position, measured.effort, planned=rig.controller.stance)
             rot, p = self.plain.pose()
             self.log.plain_pos.append(p)
             self.log.plain_rot.append(rot)

@@ -29,14 +29,18 @@ class ProtocolError(ValueError):
     """A frame that does not decode: wrong length or a value outside the actuator's range."""
 
 
-def to_uint(x: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray:
-    """Map ``x`` in [lo, hi] onto unsigned ``bits`` integers, saturating outside (any shape)."""
+def to_uint(x: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray | int:
+    """Map ``x`` in [lo, hi] onto unsigned ``bits`` integers, saturating outside: an int for a
+    float (a motor's one frame, where numpy's call costs more than the arithmetic), else an
+    array."""
+    if isinstance(x, float):
+        return int((min(max(x, lo), hi) - lo) * ((1 << bits) - 1) / (hi - lo))
     return ((np.clip(x, lo, hi) - lo) * ((1 << bits) - 1) / (hi - lo)).astype(np.int64)
 
 
-def to_float(u: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray:
-    """Inverse of ``to_uint``."""
-    return np.asarray(u) * (hi - lo) / ((1 << bits) - 1) + lo
+def to_float(u: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray | float:
+    """Inverse of ``to_uint`` (an int gives a float, an array an array)."""
+    return u * (hi - lo) / ((1 << bits) - 1) + lo
 
 
 @dataclass(frozen=True)
