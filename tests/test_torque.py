@@ -141,21 +141,22 @@ def multicast_unavailable() -> str | None:
 
 def test_motors_in_their_own_process_follow_the_driver(qingzhui, robots) -> None:
     """``python -m drivers.sim.mit_motors`` serves the profile's motors from a process of its own
-    (the bench's setup: no emulator in the driver's interpreter); the driver opens them, drives
-    them to a goal, and the emulator exits cleanly on SIGTERM."""
+    on two channels (legs alternating, as the driver spreads them); the driver opens them,
+    drives them to a goal, and the emulator exits cleanly on SIGTERM."""
     reason = multicast_unavailable()
     if reason:
         pytest.skip(reason)
+    channels = [MULTICAST_GROUP, "239.74.163.91"]
     motors = subprocess.Popen(
         [sys.executable, "-m", "drivers.sim.mit_motors", "--profile", str(robots / "qingzhui.toml")]
-        + ["--channel", MULTICAST_GROUP],
+        + ["--channel", *channels],
         stdout=subprocess.PIPE,
         text=True,
     )
-    bus = MitJointBus(patient(qingzhui), [MULTICAST_GROUP], interface="udp_multicast")
+    bus = MitJointBus(patient(qingzhui), channels, interface="udp_multicast")
     try:
         ready, _, _ = select.select([motors.stdout], [], [], 30)
-        assert ready and motors.stdout.readline().strip() == MULTICAST_GROUP
+        assert ready and motors.stdout.readline().split() == channels
         bus.open()
         assert follows_goal(bus) < 0.01
         bus.torque(False)

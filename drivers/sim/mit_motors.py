@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import can
 
 from daemon.profile import ActuatorRanges, ProfileError, load
+from drivers.torque.bus import joint_channels
 from drivers.torque.mit import (
     CAN_ERR_BUSOFF,
     ENTER_MOTOR_MODE,
@@ -174,28 +175,39 @@ class MitMotorChain:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Serve a profile's motors on one CAN channel until SIGTERM/SIGINT; the channel's name
+    """Serve a profile's motors on its CAN channels until SIGTERM/SIGINT; the channels' names
     on stdout once they answer."""
     parser = argparse.ArgumentParser(prog="python -m drivers.sim.mit_motors", description=__doc__)
     parser.add_argument("--profile", required=True, help="robot profile (robots/*.toml)")
-    parser.add_argument("--channel", required=True, help="CAN channel (multicast group, vcan0)")
+    parser.add_argument(
+        "--channel",
+        nargs="+",
+        required=True,
+        help="CAN channels (multicast groups, vcan0 ...): leg i's motors on channel i mod n",
+    )
     parser.add_argument("--interface", default="udp_multicast", help="python-can interface")
     args = parser.parse_args(argv)
+    chains: list[MitMotorChain] = []
     try:
         profile = load(args.profile)
-        ids = [j.id for j in profile.joints]
-        chain = MitMotorChain(
-            ids, profile.bus.actuator, args.channel, args.interface, profile.bus.master_id
-        ).start()
+        placed = joint_channels(profile, args.channel)
+        for channel in args.channel:
+            ids = [j.id for j, c in zip(profile.joints, placed, strict=True) if c == channel]
+            bus = profile.bus
+            chain = MitMotorChain(ids, bus.actuator, channel, args.interface, bus.master_id)
+            chains.append(chain.start())
     except (ProfileError, can.CanError, OSError, ValueError) as e:
+        for chain in chains:
+            chain.stop()
         print(f"error: {e}", file=sys.stderr)
         return 2
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
-    print(args.channel, flush=True)
+    print(" ".join(args.channel), flush=True)
     done.wait()
-    chain.stop()
+    for chain in chains:
+        chain.stop()
     return 0
 
 

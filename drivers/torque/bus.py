@@ -34,6 +34,11 @@ OPEN_TIMEOUT = 0.1
 """Seconds every motor has to answer at open() before it is reported missing."""
 
 
+def joint_channels(profile: Profile, channels: list[str]) -> list[str]:
+    """The CAN channel of every joint, in joint order: leg i's joints on channel i mod n."""
+    return [channels[i % len(channels)] for i, leg in enumerate(profile.legs) for _ in leg.joints]
+
+
 class MitJointBus:
     """The joints of a torque-controlled robot, behind MIT-mode actuators on CAN."""
 
@@ -51,7 +56,7 @@ class MitJointBus:
         joints = profile.joints
         self.names = [j.name for j in joints]
         self.ids = np.array([j.id for j in joints])
-        self.channel_of = [legs_channels[i // 3 % len(legs_channels)] for i in range(len(joints))]
+        self.channel_of = joint_channels(profile, legs_channels)
         self.index = {int(m): i for i, m in enumerate(self.ids)}
         n = len(joints)
         self.position = np.zeros(n)
