@@ -338,6 +338,26 @@ class Stairs(Message):
     constrained: list[list[float]] = []
 
 
+class StairStep(Message):
+    """The stair gait's plan at a half cycle's start (paper 004 section 3.3): tripod ``legs``
+    (profile order) steps ``length`` (m along the heading) with swing ``height`` (m, apex over
+    the highest tread under a foot's path), then the other tripod ``next_length``; ``feasible``:
+    the step lengths (m) all three feet allow; ``limit``: the longest the command asks for;
+    ``body``: the body's progress (m) along the flight. A zero ``length`` under a nonzero
+    ``limit`` means the robot waits: no longer step is feasible (``blocked``: not even this)."""
+
+    TOPIC: ClassVar[str] = "state/stair_step"
+    RATE: ClassVar[str] = "every half cycle of the stair gait"
+    body: float = 0.0
+    legs: list[int] = []
+    length: float = 0.0
+    height: float = 0.0
+    next_length: float = 0.0
+    limit: float = 0.0
+    feasible: list[float] = []
+    blocked: bool = False
+
+
 class DepthImage(Message):
     """A simulated depth frame (``climbd run --sim``): the twin's camera, on its way to the
     perception role's software device. uint16 little-endian, row-major; ``stamp`` is sim time."""
@@ -367,6 +387,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     Joists,
     GraspablePoints,
     Stability,
+    StairStep,
     DepthImage,
     TrussMembers,
     Stairs,

@@ -400,5 +400,39 @@ def test_each_half_cycle_opens_with_both_tripods_down_the_lifting_one_unloading(
         StairGait(StairGaitConfig(transfer=half), profile)
 
 
+def test_each_half_cycle_reports_its_step_and_a_wall_the_wait() -> None:
+    """Every half cycle's plan goes out as a StairStep (the control role publishes the gait's
+    telemetry): paper 004's step length and height, the tripods in turn, the command's limit.
+    Before a 0.6 m riser, which no leg reaches over, the steps shorten to nothing under that
+    limit: the reports say the robot waits, and where."""
+    profile = qingzhui()
+    gait = StairGait(StairGaitConfig(), profile)
+    gait.start(BodyState(), Kinematics(profile).stand_feet(0.29))
+    top = 0.6 - 0.29 - gait.geometry.foot_radius  # the floor under the feet, 0.6 m down
+    edge = [[0.8, 0.6, top], [0.8, -0.6, top]]
+    world = {Stairs.TOPIC: Stairs(steps=[Stair(height=top, rise=0.6, depth=1.0, edge=edge)])}
+    reports, dt = [], 1e-3
+    for k in range(int(14.0 / dt)):
+        gait.step(k * dt, dt, BodyState(), world, MotionCommand(vx=0.1))
+        if k % 10 == 0:
+            reports += gait.telemetry()
+    assert len(reports) == len(gait.plans) == 14
+    for report, plan in zip(reports, gait.plans, strict=True):
+        assert report.legs == plan.group.tolist()
+        assert (report.length, report.height) == (plan.length, plan.height)
+        assert report.length in report.feasible
+    assert [r.legs for r in reports[:2]] == [g.tolist() for g in gait.groups]
+    assert all(r.limit == pytest.approx(0.2) for r in reports)  # 0.1 m/s over a 2 s cycle
+    assert reports[0].length > 0 and reports[1].length > 0
+    # a tripod may wait a half cycle for the other; the robot waits once both do in turn
+    lengths = [r.length for r in reports]
+    both = [k for k in range(1, len(reports)) if lengths[k] == lengths[k - 1] == 0.0]
+    assert both == list(range(both[0], len(reports))) and len(both) >= 4, lengths
+    assert {r.body for r in reports[both[0] :]} == {gait.body_s}
+    assert not any(r.blocked for r in reports)
+    front = gait.feet[:, 0].max() + gait.geometry.foot_radius
+    assert 0.8 - 0.1 < front < 0.8, front
+
+
 def test_entry_point_is_registered() -> None:
     assert load_class("climbd.gaits", "stairs") is StairGait

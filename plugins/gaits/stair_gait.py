@@ -26,6 +26,7 @@ feet."""
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import ClassVar, NamedTuple
 
 import msgspec
@@ -33,7 +34,7 @@ import numpy as np
 
 from daemon.estimation import rotation, tripod_groups
 from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, FootTargets, Message, MotionCommand, Stairs
+from daemon.messages import BodyState, FootTargets, Message, MotionCommand, Stairs, StairStep
 from daemon.plugins import GaitPlugin, PluginError
 from plugins.gaits.stair_plan import (
     NonNegative,
@@ -51,6 +52,9 @@ DRIFT_GAIN = 5.0
 """Rate (1/s) at which stance footholds absorb the body's horizontal drift from the plan: slow
 beside the stance legs' stiffness (body mode about 20 rad/s at kp 300), fast beside rolling
 (about 1.3 cm/s, so 2.6 mm stay)."""
+REPORTS = 8
+"""StairStep reports kept for the next telemetry call (the control role takes them every
+few ticks; a gait run without one keeps only the latest)."""
 
 
 class HalfStep(NamedTuple):
@@ -190,6 +194,7 @@ class StairGait(GaitPlugin):
         self.offset = None
         self.plans.clear()
         self.footholds.clear()
+        self.reports: deque[StairStep] = deque(maxlen=REPORTS)
         self.done = False
 
     # --- the model ------------------------------------------------------------------------
@@ -232,6 +237,19 @@ class StairGait(GaitPlugin):
         group = self.groups[self.next_group]
         plan = self.planner.plan(self.model, self.feet, self.body_s, group, self.direction, limit)
         self.plans.append(plan)
+        self.reports.append(
+            StairStep(
+                stamp=t,
+                body=self.body_s,
+                legs=group.tolist(),
+                length=plan.length,
+                height=plan.height,
+                next_length=plan.next_length,
+                limit=limit,
+                feasible=plan.sections.tolist(),
+                blocked=plan.blocked,
+            )
+        )
         self.step_plan = plan
         self.t0 = t
         v0 = self.half_steps[-1].v1 if self.half_steps else 0.0
@@ -244,6 +262,13 @@ class StairGait(GaitPlugin):
             self.top = plan.apex
             self.phases = swing_phases(self.lift_off, plan.landing, self.top)
         self.next_group = 1 - self.next_group
+
+    def telemetry(self) -> list[Message]:
+        """The StairStep of every half cycle begun since the last call, for the control role
+        to publish: the paper's step parameters, and why the robot waits when it does."""
+        reports = list(self.reports)
+        self.reports.clear()
+        return reports
 
     def _body_at(self, t: float) -> float:
         """The body's progress (m along the heading) at ``t``: on the half step begun at the
