@@ -115,6 +115,10 @@ def target_surface(target: np.ndarray) -> tuple[cKDTree, np.ndarray]:
     return tree, normals(target, tree)
 
 
+SCORED = 32
+"""RANSAC hypotheses scored against the cloud at once (a points × SCORED distance block)."""
+
+
 def horizontal_planes(points: np.ndarray, config: StairsConfig) -> list[np.ndarray]:
     """Point sets of horizontal planes in ``points`` (global frame) by RANSAC, largest first."""
     rng = np.random.default_rng(config.seed)
@@ -122,17 +126,7 @@ def horizontal_planes(points: np.ndarray, config: StairsConfig) -> list[np.ndarr
     rest = points
     planes = []
     while len(rest) >= config.min_points:
-        best = None
-        for _ in range(config.iterations):
-            p = rest[rng.choice(len(rest), 3, replace=False)]
-            n = np.cross(p[1] - p[0], p[2] - p[0])
-            norm = np.linalg.norm(n)
-            if norm < 1e-12 or abs(n[2]) / norm < cos_tilt:
-                continue
-            n /= norm
-            inliers = np.abs((rest - p[0]) @ n) < config.inlier
-            if best is None or inliers.sum() > best.sum():
-                best = inliers
+        best = best_horizontal_plane(rest, rng, config.iterations, cos_tilt, config.inlier)
         if best is None or best.sum() < config.min_points:
             break
         z = np.median(rest[best, 2])
@@ -141,6 +135,38 @@ def horizontal_planes(points: np.ndarray, config: StairsConfig) -> list[np.ndarr
             planes.append(rest[member])
         rest = rest[~(member | best)]
     return planes
+
+
+def best_horizontal_plane(
+    points: np.ndarray, rng: np.random.Generator, iterations: int, cos_tilt: float, inlier: float
+) -> np.ndarray | None:
+    """Inlier mask of the best of ``iterations`` RANSAC hypotheses (planes through three random
+    points) tilted from horizontal by at most acos(``cos_tilt``); None when none is. All are
+    drawn at once and scored in blocks: a hypothesis at a time spent most of its time in
+    numpy's per-call overhead on three points."""
+    p = points[rng.integers(len(points), size=(iterations, 3))]
+    u, v = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    n = np.stack(
+        [
+            u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1],
+            u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+            u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0],
+        ],
+        1,
+    )
+    norm = np.linalg.norm(n, axis=1)
+    level = (norm > 1e-12) & (np.abs(n[:, 2]) >= cos_tilt * norm)  # repeated points: norm 0
+    if not level.any():
+        return None
+    n = n[level] / norm[level, None]
+    offset = np.einsum("ij,ij->i", p[level, 0], n)
+    best, most = 0, -1
+    for k in range(0, len(n), SCORED):
+        counts = (np.abs(points @ n[k : k + SCORED].T - offset[k : k + SCORED]) < inlier).sum(0)
+        j = int(np.argmax(counts))
+        if counts[j] > most:
+            best, most = k + j, counts[j]
+    return np.abs(points @ n[best] - offset[best]) < inlier
 
 
 def stairs_from_planes(
