@@ -29,13 +29,14 @@ class ProtocolError(ValueError):
     """A frame that does not decode: wrong length or a value outside the actuator's range."""
 
 
-def to_uint(x: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray | int:
+def to_uint(x: ArrayLike, lo: ArrayLike, hi: ArrayLike, bits: ArrayLike) -> np.ndarray | int:
     """Map ``x`` in [lo, hi] onto unsigned ``bits`` integers, saturating outside: an int for a
     float (a motor's one frame, where numpy's call costs more than the arithmetic), else an
-    array."""
+    array (``lo``, ``hi`` and ``bits`` broadcast against ``x``)."""
     if isinstance(x, float):
         return int((min(max(x, lo), hi) - lo) * ((1 << bits) - 1) / (hi - lo))
-    return ((np.clip(x, lo, hi) - lo) * ((1 << bits) - 1) / (hi - lo)).astype(np.int64)
+    full = np.left_shift(1, bits) - 1
+    return ((np.clip(x, lo, hi) - lo) * full / (np.subtract(hi, lo))).astype(np.int64)
 
 
 def to_float(u: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray | float:
@@ -64,6 +65,11 @@ class Reply:
     torque: float
 
 
+COMMAND_FIELDS = ("position", "velocity", "kp", "kd", "torque")
+COMMAND_BITS = np.array([[16], [12], [12], [12], [12]])
+"""Width of each command field on the wire, in ``COMMAND_FIELDS`` order."""
+
+
 def pack_commands(
     position: ArrayLike,
     velocity: ArrayLike,
@@ -76,18 +82,15 @@ def pack_commands(
     """The 8 data bytes of each motor's command, one value per motor in every argument, all
     packed at once; out-of-range values saturate as the firmware does, non-finite ones raise,
     naming the motor by ``labels`` or index (a NaN would cast to a full-scale command)."""
-    fields = {"position": position, "velocity": velocity, "kp": kp, "kd": kd, "torque": torque}
-    for name, values in fields.items():
-        bad = np.flatnonzero(~np.isfinite(np.asarray(values, float)))
-        if bad.size:
-            i = int(bad[0])
-            motor = labels[i] if labels else f"motor index {i}"
-            raise ProtocolError(f"command {name} of {motor} is not finite")
-    p = to_uint(position, -r.position, r.position, 16)
-    v = to_uint(velocity, -r.velocity, r.velocity, 12)
-    kp_ = to_uint(kp, 0.0, r.kp, 12)
-    kd_ = to_uint(kd, 0.0, r.kd, 12)
-    t = to_uint(torque, -r.torque, r.torque, 12)
+    values = np.array([position, velocity, kp, kd, torque], float)
+    bad = np.argwhere(~np.isfinite(values))
+    if len(bad):
+        field, i = bad[0]
+        motor = labels[i] if labels else f"motor index {i}"
+        raise ProtocolError(f"command {COMMAND_FIELDS[field]} of {motor} is not finite")
+    lo = np.array([[-r.position], [-r.velocity], [0.0], [0.0], [-r.torque]])
+    hi = np.array([[r.position], [r.velocity], [r.kp], [r.kd], [r.torque]])
+    p, v, kp_, kd_, t = to_uint(values, lo, hi, COMMAND_BITS)
     frames = np.stack(
         [p >> 8, p, v >> 4, (v << 4) | (kp_ >> 8), kp_, kd_ >> 4, (kd_ << 4) | (t >> 8), t], 1
     ).astype(np.uint8)  # the cast keeps each byte's low 8 bits
