@@ -165,6 +165,7 @@ class StairGait(GaitPlugin):
         self.geometry = self.planner.geometry
         self.plans: list[StepPlan] = []
         self.footholds: list[np.ndarray] = []
+        self.reports: deque[StairStep] = deque(maxlen=REPORTS)
         # this tick's swing phase, swinging legs and their planned feet (odometry frame)
         self.swing: tuple[float, np.ndarray, np.ndarray] | None = None
 
@@ -194,7 +195,7 @@ class StairGait(GaitPlugin):
         self.offset = None
         self.plans.clear()
         self.footholds.clear()
-        self.reports: deque[StairStep] = deque(maxlen=REPORTS)
+        self.reports.clear()
         self.done = False
 
     # --- the model ------------------------------------------------------------------------
