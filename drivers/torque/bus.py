@@ -24,6 +24,7 @@ from drivers.torque.mit import (
     ENTER_MOTOR_MODE,
     EXIT_MOTOR_MODE,
     ProtocolError,
+    check_reply,
     pack_commands,
     unpack_replies,
 )
@@ -209,8 +210,10 @@ class MitJointBus:
         if i is None:
             log.warning("reply from unknown motor %s on %s", data[:1].hex(), channel)
             return
-        if len(data) != 6:
-            self.errors[i] = [f"bad reply: {len(data)} bytes, expected 6: {data.hex()}"]
+        try:
+            check_reply(data)
+        except ProtocolError as e:
+            self.errors[i] = [f"bad reply: {e}"]
             return
         replies[i] = data
         self._answered[i] = True

@@ -16,11 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from daemon.profile import ActuatorRanges
+from daemon.profile import MIT_FRAME_BYTES, ActuatorRanges
 
 ENTER_MOTOR_MODE = bytes([0xFF] * 7 + [0xFC])
 EXIT_MOTOR_MODE = bytes([0xFF] * 7 + [0xFD])
 SET_ZERO = bytes([0xFF] * 7 + [0xFE])
+COMMAND_BYTES, REPLY_BYTES = MIT_FRAME_BYTES
 CAN_ERR_BUSOFF = 0x40
 """Error-frame class bit of Linux SocketCAN for bus-off (linux/can/error.h)."""
 
@@ -95,13 +96,13 @@ def pack_commands(
         [p >> 8, p, v >> 4, (v << 4) | (kp_ >> 8), kp_, kd_ >> 4, (kd_ << 4) | (t >> 8), t], 1
     ).astype(np.uint8)  # the cast keeps each byte's low 8 bits
     raw = frames.tobytes()
-    return [raw[i : i + 8] for i in range(0, len(raw), 8)]
+    return [raw[i : i + COMMAND_BYTES] for i in range(0, len(raw), COMMAND_BYTES)]
 
 
 def unpack_command(data: bytes, r: ActuatorRanges) -> Command:
     """Decode a command frame (what a motor does with what it receives)."""
-    if len(data) != 8:
-        raise ProtocolError(f"command frame has {len(data)} bytes, expected 8")
+    if len(data) != COMMAND_BYTES:
+        raise ProtocolError(f"command frame has {len(data)} bytes, expected {COMMAND_BYTES}")
     p = (data[0] << 8) | data[1]
     v = (data[2] << 4) | (data[3] >> 4)
     kp = ((data[3] & 0xF) << 8) | data[4]
@@ -124,12 +125,20 @@ def pack_reply(s: Reply, r: ActuatorRanges) -> bytes:
     return bytes([s.motor & 0xFF, p >> 8, p & 0xFF, v >> 4, ((v & 0xF) << 4) | (t >> 8), t & 0xFF])
 
 
+def check_reply(data: bytes) -> None:
+    """A ProtocolError naming what arrived unless ``data`` is one reply's length."""
+    if len(data) != REPLY_BYTES:
+        raise ProtocolError(
+            f"reply frame has {len(data)} bytes, expected {REPLY_BYTES}: {data.hex()}"
+        )
+
+
 def unpack_replies(data: bytes, r: ActuatorRanges) -> tuple[np.ndarray, ...]:
-    """Decode replies laid end to end (6 bytes each) at once: motor ids, positions (rad),
-    velocities (rad/s) and torques (N·m); a length not a multiple of 6 is a ProtocolError."""
-    if len(data) % 6:
-        raise ProtocolError(f"reply frame has {len(data)} bytes, expected 6: {data.hex()}")
-    b = np.frombuffer(data, np.uint8).reshape(-1, 6).astype(np.int64)
+    """Decode replies laid end to end at once: motor ids, positions (rad), velocities (rad/s)
+    and torques (N·m); a buffer that does not split into replies is a ProtocolError."""
+    if len(data) % REPLY_BYTES:
+        check_reply(data)  # not a whole number of replies, so not one either: name what arrived
+    b = np.frombuffer(data, np.uint8).reshape(-1, REPLY_BYTES).astype(np.int64)
     p = (b[:, 1] << 8) | b[:, 2]
     v = (b[:, 3] << 4) | (b[:, 4] >> 4)
     t = ((b[:, 4] & 0xF) << 8) | b[:, 5]
