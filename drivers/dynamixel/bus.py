@@ -270,7 +270,9 @@ class DynamixelBus:
                     self.ph.read1ByteTxRx, ident, self.model.status_return_level.address
                 )
                 if result == sdk.COMM_SUCCESS and level >= STATUS_RETURN_ALL:
-                    self._patient(self.ph.write1ByteTxRx, ident, item.address, value)
+                    written = self._patient(self.ph.write1ByteTxRx, ident, item.address, value)
+                    if written == (sdk.COMM_SUCCESS, 0):
+                        continue  # answered: no late status to drain, read it back now
                 else:
                     self.ph.write1ByteTxOnly(self.port, ident, item.address, value)
                 time.sleep(self.port.packet_timeout / 1000.0)  # let a late status drain
