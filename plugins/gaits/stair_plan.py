@@ -122,6 +122,7 @@ class StairModel:
             self.edge_point = np.zeros((0, 3))
             self.edge_dir = np.zeros((0, 3))
             self.edge_half = np.zeros(0)
+            self.edge_axes, self.edge_coords = np.zeros((3, 0)), np.zeros(0)
             return
         ends = np.array([s.edge for s in steps], float)  # (K, 2, 3): left, right end
         heights = np.array([s.height for s in steps], float)
@@ -132,6 +133,7 @@ class StairModel:
         self.edge_point = 0.5 * (ends[:, 0] + ends[:, 1])
         self.edge_dir = side
         self.edge_half = 0.5 * np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1)
+        self.edge_axes, self.edge_coords = edge_frames(self.edge_point, self.edge_dir)
         # crossing of each edge line with each lane, in s
         rel = self.edge_point - self.origin
         ps, pl = rel @ self.u, rel @ self.v
@@ -267,33 +269,45 @@ def rotations(yaw: float, roll: np.ndarray, pitch: np.ndarray) -> np.ndarray:
 # --- the interference model (eqs. 11-12) -----------------------------------------------------
 
 
+def edge_frames(edge_point: np.ndarray, edge_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per edge two unit normals a, b and its direction e as the columns of one (3, 3E) matrix
+    [a_1..a_E | b_1..b_E | e_1..e_E], and the edge centres' coordinates on them (3E,): a point
+    projected by one matrix product lands in every edge's frame at once."""
+    e = edge_dir / np.linalg.norm(edge_dir, axis=1, keepdims=True)
+    ref = np.where(np.abs(e[:, 2:3]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    a = np.cross(e, ref)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(e, a)
+    axes = np.concatenate([a, b, e]).T
+    coords = np.concatenate(
+        [(a * edge_point).sum(1), (b * edge_point).sum(1), (e * edge_point).sum(1)]
+    )
+    return axes, coords
+
+
 def axis_distance(
-    knee: np.ndarray, foot: np.ndarray, edge_point: np.ndarray, edge_dir: np.ndarray
+    knee: np.ndarray, foot: np.ndarray, axes: np.ndarray, coords: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distance (n, E) between each shin axis (knee → foot) and each edge axis (eq. 11), and
-    the position of the closest point along each edge from its centre (n, E).
+    the position of the closest point along each edge from its centre (n, E); edges as
+    ``edge_frames`` gives them.
 
-    d = |(s × e) · OP| / |s × e| where the common perpendicular meets the shin; past the shin's
-    ends, the distance from the nearer end to the edge line. Computed per coordinate over
-    (n, E) arrays: the plan calls this on thousands of configurations.
+    Seen along an edge, its axis is a point and the shin a segment: the distance between the
+    axes is the point's distance to the segment's line where the common perpendicular meets
+    the shin, and to the nearer shin end past it. Computed over (n, E) arrays: the plan calls
+    this on thousands of configurations.
     """
-    sx, sy, sz = (foot - knee).T[:, :, None]
-    ex, ey, ez = edge_dir.T[:, None, :]
-    ox, oy, oz = edge_point.T[:, None, :] - knee.T[:, :, None]
-    nx, ny, nz = sy * ez - sz * ey, sz * ex - sx * ez, sx * ey - sy * ex
-    nn = nx * nx + ny * ny + nz * nz
-    parallel = nn < 1e-12
-    safe = np.where(parallel, 1.0, nn)
-    cx, cy, cz = oy * ez - oz * ey, oz * ex - ox * ez, ox * ey - oy * ex
-    t = np.where(parallel, 0.5, (cx * nx + cy * ny + cz * nz) / safe)
-    inside = (t >= 0.0) & (t <= 1.0) & ~parallel
-    d_axes = np.abs(nx * ox + ny * oy + nz * oz) / np.sqrt(safe)
+    n_edges = len(coords) // 3
+    shin = (foot - knee) @ axes
+    rel = knee @ axes - coords
+    sa, sb, se = shin[:, :n_edges], shin[:, n_edges : 2 * n_edges], shin[:, 2 * n_edges :]
+    ra, rb, re = rel[:, :n_edges], rel[:, n_edges : 2 * n_edges], rel[:, 2 * n_edges :]
+    ss = sa * sa + sb * sb
+    parallel = ss < 1e-12
+    t = np.where(parallel, 0.5, -(sa * ra + sb * rb) / np.where(parallel, 1.0, ss))
     t = np.clip(t, 0.0, 1.0)
-    rx, ry, rz = t * sx - ox, t * sy - oy, t * sz - oz  # closest shin point from the edge centre
-    along = rx * ex + ry * ey + rz * ez
-    fx, fy, fz = rx - along * ex, ry - along * ey, rz - along * ez
-    d_end = np.sqrt(fx * fx + fy * fy + fz * fz)
-    return np.where(inside, d_axes, d_end), along
+    da, db = ra + t * sa, rb + t * sb
+    return np.sqrt(da * da + db * db), re + t * se
 
 
 def interferes(
@@ -303,15 +317,13 @@ def interferes(
     sphere meets an edge cylinder."""
     if len(model.edge_point) == 0:
         return np.zeros(len(knee), bool)
-    d, along = axis_distance(knee, foot, model.edge_point, model.edge_dir)
+    d, along = axis_distance(knee, foot, model.edge_axes, model.edge_coords)
     within = np.abs(along) <= model.edge_half[None] + geometry.shin_radius
     shin = (d < geometry.shin_radius + geometry.edge_radius + geometry.shin_margin) & within
-    ex, ey, ez = model.edge_dir.T[:, None, :]
-    rx, ry, rz = foot.T[:, :, None] - model.edge_point.T[:, None, :]
-    on = rx * ex + ry * ey + rz * ez
-    fx, fy, fz = rx - on * ex, ry - on * ey, rz - on * ez
-    d_foot = np.sqrt(fx * fx + fy * fy + fz * fz)
-    foot_hit = (d_foot < geometry.foot_radius + geometry.edge_radius) & (
+    n_edges = len(model.edge_half)
+    rel = foot @ model.edge_axes - model.edge_coords
+    fa, fb, on = rel[:, :n_edges], rel[:, n_edges : 2 * n_edges], rel[:, 2 * n_edges :]
+    foot_hit = (np.sqrt(fa * fa + fb * fb) < geometry.foot_radius + geometry.edge_radius) & (
         np.abs(on) <= model.edge_half[None] + geometry.foot_radius
     )
     return (shin | foot_hit).any(1)
