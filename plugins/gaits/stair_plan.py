@@ -351,14 +351,16 @@ def batched(kin: Kinematics, legs: np.ndarray) -> Kinematics:
 def knees(kin: Kinematics, theta: np.ndarray) -> np.ndarray:
     """Knee positions (n, 3) in the body frame from kinematic angles (n, 3)."""
     a, b = theta[:, 0], theta[:, 1]
-    cft = kin.cft
-    r = np.where(cft, kin.l1 + kin.l2 * np.cos(b), 0.0)
-    rho = kin.l2 * np.sin(b)
-    leg = np.empty_like(theta)
-    leg[:, 0] = np.where(cft, r * np.cos(a), kin.l1 + kin.l2 * np.cos(b))
-    leg[:, 1] = np.where(cft, r * np.sin(a), rho * np.sin(a))
-    leg[:, 2] = np.where(cft, kin.l2 * np.sin(b), -rho * np.cos(a))
-    return kin.to_body(leg)
+    r, rise = kin.l1 + kin.l2 * np.cos(b), kin.l2 * np.sin(b)
+    cos_a, sin_a = np.cos(a), np.sin(a)
+    forms = []  # (x, y, z) of coxa-femur-tibia legs, then of abduction-thigh-shank legs
+    if kin.cft.any():
+        forms.append((r * cos_a, r * sin_a, rise))
+    if not kin.all_cft:
+        forms.append((r, rise * sin_a, -rise * cos_a))
+    if len(forms) == 2:
+        forms = [[np.where(kin.cft, c, t) for c, t in zip(*forms, strict=True)]]
+    return kin.to_body(np.column_stack(forms[0]))
 
 
 def leg_checks(
@@ -468,8 +470,10 @@ class StepPlanner:
         half_roll = 0.5 * g.roll_margin
         middle = model.margin(lanes[:, None], s_feet[:, None] + direction * (lengths + half_roll))
         middle = middle >= g.area + g.landing_margin + half_roll
+        # the body every quarter step along the walk: where each of this plan's checks puts it
+        quarter = model.body_frames(body_s + direction * 0.25 * g.resolution * np.arange(4 * n), g)
         heights, apex, lift_ok = self._heights(
-            model, feet, s_feet, lat, body_s, group, direction, middle[group].all(0)
+            model, feet, s_feet, lat, quarter, group, direction, middle[group].all(0)
         )
         # T[leg, m, j]: the leg's foot moved by lengths[m], the body by (m + j) half-steps;
         # checked only where it can matter: the swinging tripod's steps that land in middle
@@ -481,8 +485,7 @@ class StepPlanner:
         rows = np.flatnonzero(np.repeat(need.ravel(), n))
         legs, m, j = rows // (n * n), rows // n % n, rows % n
         foot = self._moved(model, feet, s_feet, lat, legs, direction * lengths[m])
-        pos, rot = model.body_frames(body_s + direction * 0.5 * g.resolution * np.arange(2 * n), g)
-        pos, rot = pos[m + j], rot[m + j]
+        pos, rot = quarter[0][2 * (m + j)], quarter[1][2 * (m + j)]
         ok = np.zeros(len(lanes) * n * n, bool)
         ok[rows] = leg_checks(
             self._batched(legs), self.home[legs], foot, pos, rot, model, g, (m == 0) & (j == 0)
@@ -500,7 +503,7 @@ class StepPlanner:
         pair &= lift_ok[:, None]
         sections = lengths[pair.any(1)]
         score = self._score(s_feet, body_s, group, other, direction, lengths)
-        choice = self._choose(model, feet, s_feet, lat, body_s, other, direction, pair, score)
+        choice = self._choose(model, feet, s_feet, lat, quarter, other, direction, pair, score)
         if choice is None:
             stay = feet[group].copy()
             return StepPlan(group, 0.0, g.min_step_height, 0.0, stay, stay[:, 2], sections, True)
@@ -541,7 +544,7 @@ class StepPlanner:
         ok = leg_checks(self._batched(legs), self.home[legs], foot, pos, rot, model, g, step == 0)
         return ok.reshape(len(group), len(lengths)).all(0)
 
-    def _choose(self, model, feet, s_feet, lat, body_s, other, direction, pair, score):
+    def _choose(self, model, feet, s_feet, lat, quarter, other, direction, pair, score):
         """The best-scoring feasible pair (L1, L2) whose second step also has a feasible swing
         (a step height from where the first step leaves the body): without that check, walks
         dead-locked with both tripods' swings beyond their joint limits. Candidates are checked
@@ -550,16 +553,17 @@ class StepPlanner:
         order = np.argsort(-flat, kind="stable")[: int(pair.sum())]
         for start in range(0, len(order), CANDIDATES):
             l1, l2 = np.unravel_index(order[start : start + CANDIDATES], pair.shape)
-            ok = self._second_swing(model, feet, s_feet, lat, body_s, other, direction, l1, l2)
+            ok = self._second_swing(model, feet, s_feet, lat, quarter, other, direction, l1, l2)
             if ok.any():
                 first = int(np.argmax(ok))
                 return int(l1[first]), int(l2[first])
         return None
 
-    def _second_swing(self, model, feet, s_feet, lat, body_s, group, direction, l1, l2):
+    def _second_swing(self, model, feet, s_feet, lat, quarter, group, direction, l1, l2):
         """Whether ``group``'s step of index ``l2`` after the other's of index ``l1`` has a step
         height feasible for its three feet at lift-off, mid-crossing and touch-down, the body
-        having moved half the first step (c,); a step of length 0 does not swing."""
+        having moved half the first step (c,); a step of length 0 does not swing. ``quarter``:
+        the body frames every quarter step from the plan's start."""
         g = self.geometry
         lengths = np.arange(max(l1.max(), l2.max()) + 1) * g.resolution
         steps = np.arange(g.min_step_height, g.max_step_height + 1e-9, g.height_resolution)
@@ -576,8 +580,9 @@ class StepPlanner:
         top = np.maximum(top, feet[legs, 2])
         s_apex = s0 + direction * 0.5 * step * end
         apex = model.to_global(s_apex, lat[legs], top + steps[hi])
-        at = body_s + direction * (0.5 * lengths[l1[cand]] + 0.25 * step * end)
-        pos, rot = model.body_frames(at, g)
+        # the body half the first step on, then a quarter of the second per half crossing
+        frame = 2 * l1[cand] + l2[cand] * end
+        pos, rot = quarter[0][frame], quarter[1][frame]
         ok = leg_checks(self._batched(legs), self.home[legs], apex, pos, rot, model, g)
         return ok.reshape(c, 3, 3, k).all(2).all(1).any(-1) | (l2 == 0)
 
@@ -598,7 +603,7 @@ class StepPlanner:
             dev = dev + (off - quarter) ** 2
         return l1 + l2 - 1.0 * np.sqrt(dev / len(self.home))
 
-    def _heights(self, model, feet, s_feet, lat, body_s, group, direction, wanted):
+    def _heights(self, model, feet, s_feet, lat, quarter, group, direction, wanted):
         """Step height per step length (the lowest in every swinging foot's feasible section of
         step height: the apex above the highest tread under its path, reachable and free of
         interference over lift-off, mid-crossing and touch-down), apex heights, and whether
@@ -621,8 +626,7 @@ class StepPlanner:
         z_apex = top[np.repeat(np.arange(len(group)), 3 * w * k), li] + steps[hi]
         apex = model.to_global(s_apex, lat[legs], z_apex)
         # the body at a quarter of the step per half of the swing's crossing
-        pos, rot = model.body_frames(body_s + direction * 0.25 * np.arange(2 * n) * g.resolution, g)
-        pos, rot = pos[li * end], rot[li * end]
+        pos, rot = quarter[0][li * end], quarter[1][li * end]
         ok = np.zeros((n, k), bool)
         if w:
             checked = leg_checks(
