@@ -23,6 +23,7 @@ from plugins.gaits.stair_plan import (
     axis_distance,
     batched,
     edge_frames,
+    in_edge_frames,
     interferes,
     knees,
     leg_checks,
@@ -68,15 +69,15 @@ def flight(rise, tread, count=3, start=0.8, landing=1.6, width=1.2) -> Stairs:
 def test_axis_distance_is_eq_11_between_skew_lines() -> None:
     """Shin along z through (0, 0), edge along y at height 0.1, 0.3 m away in x: d = 0.3."""
     knee, foot = np.array([[0.0, 0.0, 0.5]]), np.array([[0.0, 0.0, -0.2]])
-    edge = edge_frames(np.array([[0.3, 2.0, 0.1]]), np.array([[0, 1.0, 0]]))
-    d, along = axis_distance(knee, foot, *edge)
-    assert d[0, 0] == pytest.approx(0.3)
-    assert along[0, 0] == pytest.approx(-2.0)
+
+    def distance(point: list[float]) -> tuple[float, float]:
+        edge = edge_frames(np.array([point]), np.array([[0, 1.0, 0]]))
+        d, along = axis_distance(in_edge_frames(knee, *edge), in_edge_frames(foot, *edge))
+        return d[0, 0], along[0, 0]
+
+    assert distance([0.3, 2.0, 0.1]) == pytest.approx((0.3, -2.0))
     # the perpendicular's foot beyond the shin (the edge passes below the foot): end distance
-    d, _ = axis_distance(
-        knee, foot, *edge_frames(np.array([[0.0, 0.0, -0.5]]), np.array([[0, 1.0, 0]]))
-    )
-    assert d[0, 0] == pytest.approx(0.3)
+    assert distance([0.0, 0.0, -0.5])[0] == pytest.approx(0.3)
 
 
 def test_interference_is_eq_12_sum_of_radii() -> None:

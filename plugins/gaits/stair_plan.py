@@ -285,29 +285,29 @@ def edge_frames(edge_point: np.ndarray, edge_dir: np.ndarray) -> tuple[np.ndarra
     return axes, coords
 
 
-def axis_distance(
-    knee: np.ndarray, foot: np.ndarray, axes: np.ndarray, coords: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Distance (n, E) between each shin axis (knee → foot) and each edge axis (eq. 11), and
-    the position of the closest point along each edge from its centre (n, E); edges as
-    ``edge_frames`` gives them.
+def in_edge_frames(points: np.ndarray, axes: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """Coordinates (3, E, n) of points (n, 3) from every edge's centre on its normals a, b and
+    its direction e (``edge_frames``); edge-major, so each (E, n) block is contiguous."""
+    return (axes.T @ points.T - coords[:, None]).reshape(3, len(coords) // 3, -1)
+
+
+def axis_distance(knee: np.ndarray, foot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (E, n) between each shin axis (knee → foot) and each edge axis (eq. 11), and
+    the position of the closest point along each edge from its centre (E, n); knee and foot
+    as ``in_edge_frames`` gives them.
 
     Seen along an edge, its axis is a point and the shin a segment: the distance between the
     axes is the point's distance to the segment's line where the common perpendicular meets
-    the shin, and to the nearer shin end past it. Computed over (n, E) arrays: the plan calls
+    the shin, and to the nearer shin end past it. Computed over (E, n) arrays: the plan calls
     this on thousands of configurations.
     """
-    n_edges = len(coords) // 3
-    shin = (foot - knee) @ axes
-    rel = knee @ axes - coords
-    sa, sb, se = shin[:, :n_edges], shin[:, n_edges : 2 * n_edges], shin[:, 2 * n_edges :]
-    ra, rb, re = rel[:, :n_edges], rel[:, n_edges : 2 * n_edges], rel[:, 2 * n_edges :]
+    (ka, kb, ke), (sa, sb, se) = knee, foot - knee
     ss = sa * sa + sb * sb
     parallel = ss < 1e-12
-    t = np.where(parallel, 0.5, -(sa * ra + sb * rb) / np.where(parallel, 1.0, ss))
-    t = np.clip(t, 0.0, 1.0)
-    da, db = ra + t * sa, rb + t * sb
-    return np.sqrt(da * da + db * db), re + t * se
+    t = np.where(parallel, 0.5, -(sa * ka + sb * kb) / np.where(parallel, 1.0, ss))
+    t = np.minimum(np.maximum(t, 0.0), 1.0)
+    da, db = ka + t * sa, kb + t * sb
+    return np.sqrt(da * da + db * db), ke + t * se
 
 
 def interferes(
@@ -317,16 +317,17 @@ def interferes(
     sphere meets an edge cylinder."""
     if len(model.edge_point) == 0:
         return np.zeros(len(knee), bool)
-    d, along = axis_distance(knee, foot, model.edge_axes, model.edge_coords)
-    within = np.abs(along) <= model.edge_half[None] + geometry.shin_radius
-    shin = (d < geometry.shin_radius + geometry.edge_radius + geometry.shin_margin) & within
-    n_edges = len(model.edge_half)
-    rel = foot @ model.edge_axes - model.edge_coords
-    fa, fb, on = rel[:, :n_edges], rel[:, n_edges : 2 * n_edges], rel[:, 2 * n_edges :]
+    knee = in_edge_frames(knee, model.edge_axes, model.edge_coords)
+    foot = in_edge_frames(foot, model.edge_axes, model.edge_coords)
+    dist, along = axis_distance(knee, foot)
+    half = model.edge_half[:, None]
+    shin_reach = geometry.shin_radius + geometry.edge_radius + geometry.shin_margin
+    shin = (dist < shin_reach) & (np.abs(along) <= half + geometry.shin_radius)
+    fa, fb, on = foot
     foot_hit = (np.sqrt(fa * fa + fb * fb) < geometry.foot_radius + geometry.edge_radius) & (
-        np.abs(on) <= model.edge_half[None] + geometry.foot_radius
+        np.abs(on) <= half + geometry.foot_radius
     )
-    return (shin | foot_hit).any(1)
+    return (shin | foot_hit).any(0)
 
 
 # --- batched leg kinematics ------------------------------------------------------------------
