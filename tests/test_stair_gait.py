@@ -110,7 +110,8 @@ def shin_clear(kin, planner, model, feet, body_s, legs) -> bool:
     b = batched(kin, legs)
     body = np.einsum("nji,nj->ni", rot, feet[legs] - pos)
     theta, ok = b.ik_leg(b.to_leg(body))
-    assert ok.all()
+    if not ok.all():
+        return False
     knee = pos + np.einsum("nij,nj->ni", rot, knees(b, theta))
     t = np.linspace(0.0, 1.0, 200)[:, None, None]
     pts = knee[None] + t * (feet[legs] - knee)[None]
@@ -228,9 +229,11 @@ def test_planned_climb_lands_in_middle_areas_without_shin_interference(knee, ris
     assert (on_top[:, 2] > rise).all()
 
 
-def test_planned_descent_backward():
-    """Knee a; knee b cannot pass this flight's body positions (the test below)."""
-    body, footholds, stairs, clear = walk("a", 0.13, 0.30, -1.0)
+@pytest.mark.parametrize("rise,tread", [(0.13, 0.30), (0.18, 0.28), (0.18, 0.32)])
+def test_planned_descent_backward(rise, tread):
+    """Knee a; knee b cannot pass this flight's body positions (the test below). 180 mm rises
+    descend only with swings leaving the apex past the drop's edge (``clear_of_drop``)."""
+    body, footholds, stairs, clear = walk("a", rise, tread, -1.0)
     m = margins(stairs, footholds)
     assert (m >= AREA - 1e-9).all(), m.min()
     assert clear
@@ -347,6 +350,47 @@ def test_a_swing_descends_a_riser_no_faster_than_it_rises() -> None:
     assert np.abs(az[falling]).max() == pytest.approx(np.abs(az[rising]).max(), rel=1e-2)
     crossing = (tau > up[0] + 1e-9) & (tau < across[0] - 1e-9)
     np.testing.assert_allclose(path[crossing, 0, 2], top[0])
+
+
+def test_a_swing_stepping_down_may_descend_from_past_the_edge_it_leaves() -> None:
+    """Treads [0.8, 1.1) at 0.13 m and [1.1, 1.4) at 0.26 m: a step down may leave the apex once
+    past the last edge above its landing by the clearance (at most at the landing), backward
+    and forward; steps up and along a tread cross over their landing."""
+    stairs = flight(0.13, 0.30)
+    c = 0.055
+    lane = np.zeros(1)
+    back = StairModel(stairs, np.zeros(3), 0.0, lane, 0.0)
+    s0 = np.array([0.9, 1.15, 0.9, 0.5, 0.85])
+    s1 = np.array([0.6, 0.7, 0.77, 0.95, 1.0])
+    np.testing.assert_allclose(back.clear_of_drop(0, s0, s1, c), [0.745, 0.745, 0.77, 0.95, 1.0])
+    ahead = StairModel(stairs, np.array([2.5, 0.0, 0.0]), np.pi, lane, 0.0)
+    s0, s1 = 2.5 - np.array([0.9, 1.15]), 2.5 - np.array([0.6, 0.6])
+    np.testing.assert_allclose(ahead.clear_of_drop(0, s0, s1, c), 2.5 - np.array([0.745] * 2))
+
+
+def test_a_swing_crosses_its_share_at_the_apex_then_descends_to_the_landing() -> None:
+    """Stepping down a 180 mm riser with 40 % of the travel crossed at the apex: the foot holds
+    the apex height until then, descends while it covers the rest, touches down at rest, and its
+    sphere never comes within the edge cylinder of the riser it leaves."""
+    lift_off = np.array([[1.0, 0.0, 0.205]])
+    landing = np.array([[0.7, 0.0, 0.025]])
+    top = np.array([0.265])
+    edge = np.array([0.9, 0.18])  # (x, z) of the riser's edge axis
+    phases = swing_phases(lift_off, landing, top)
+    up, across = phases
+    tau = np.linspace(0.0, 1.0, 20001)
+    path = np.array([swing_point(t, lift_off, landing, top, phases, 0.4)[0] for t in tau])
+    np.testing.assert_allclose(path[0], lift_off[0], atol=1e-12)
+    np.testing.assert_allclose(path[-1], landing[0], atol=1e-12)
+    assert np.abs(np.diff(path, axis=0)).max() < 1e-3
+    crossing = (tau >= up[0]) & (tau <= across[0])
+    np.testing.assert_allclose(path[crossing, 2], top[0])
+    at_end = path[np.searchsorted(tau, across[0])]
+    assert at_end[0] == pytest.approx(1.0 - 0.4 * 0.3, abs=1e-4)
+    falling = tau > across[0]
+    assert (np.diff(path[falling, 0]) <= 1e-12).all() and (np.diff(path[falling, 2]) <= 1e-12).all()
+    gap = np.hypot(path[:, 0] - edge[0], path[:, 2] - edge[1])
+    assert gap.min() >= 0.025 + 0.01, gap.min()
 
 
 def test_gait_first_targets_equal_measured_feet_and_walks_on_level_ground() -> None:

@@ -124,14 +124,17 @@ def swing_point(
     landing: np.ndarray,
     top: np.ndarray,
     phases: tuple[np.ndarray, np.ndarray],
+    crossed: np.ndarray | float = 1.0,
 ) -> np.ndarray:
-    """Swing feet (n, 3, global) at ``tau``: up to ``top`` (n,) over lift-off, across, down, at
-    the ``phases`` of ``swing_phases``."""
+    """Swing feet (n, 3, global) at ``tau``: up to ``top`` (n,) over lift-off, across the share
+    ``crossed`` (n,) of the travel, down over the rest, at the ``phases`` of ``swing_phases``
+    (a foot stepping down descends from past the drop's edge, not straight down over its
+    landing: there, the apex of a step down a 180 mm riser lay above the leg's hip)."""
     up, across = phases
-    a = progress(np.clip((tau - up) / CROSSING, 0.0, 1.0))
+    down = progress(np.clip((tau - across) / (1.0 - across), 0.0, 1.0))
+    a = crossed * progress(np.clip((tau - up) / CROSSING, 0.0, 1.0)) + (1.0 - crossed) * down
     out = lift_off + a[:, None] * (landing - lift_off)
     rising = lift_off[:, 2] + (top - lift_off[:, 2]) * progress(np.clip(tau / up, 0.0, 1.0))
-    down = progress(np.clip((tau - across) / (1.0 - across), 0.0, 1.0))
     out[:, 2] = np.where(
         tau < up, rising, np.where(tau < across, top, top + (landing[:, 2] - top) * down)
     )
@@ -315,7 +318,9 @@ class StairGait(GaitPlugin):
         if swinging:
             phase = min((t - self.t0 - transfer) / (self.half - transfer), 1.0)
             up, across = self.phases
-            swing = swing_point(phase, self.lift_off, plan.landing, self.top, self.phases)
+            swing = swing_point(
+                phase, self.lift_off, plan.landing, self.top, self.phases, plan.crossed
+            )
             self.swing = (phase, plan.group, swing)
             targets[plan.group] = (swing - pos[0]) @ rot[0]
             w = progress(np.minimum(phase / up, 1.0)) * (

@@ -188,6 +188,28 @@ class StairModel:
             top = np.where(inside, np.maximum(top, self.levels[k]), top)
         return top
 
+    def clear_of_drop(
+        self, lane: np.ndarray, s0: np.ndarray, s1: np.ndarray, clearance: float
+    ) -> np.ndarray:
+        """Where a swing from ``s0`` to ``s1`` on ``lane`` has passed the end of the last tread
+        above its landing by ``clearance`` (at most ``s1``): a foot stepping down may descend
+        from there, not only over its landing. ``s1`` where no tread on the path is higher
+        (steps up or along a tread)."""
+        lane, s0, s1 = np.broadcast_arrays(np.asarray(lane), s0, s1)
+        a, b = self.segment(lane, s0), self.segment(lane, s1)
+        landing = self.levels[b]
+        forward = s1 >= s0
+        bounds = np.pad(self.bounds, ((0, 0), (1, 1)), constant_values=(-np.inf, np.inf))
+        edge = np.where(forward, -np.inf, np.inf)
+        for k in range(len(self.levels)):
+            above = self.levels[k] > landing
+            ahead = above & forward & (a <= k) & (k < b)
+            behind = above & ~forward & (b < k) & (k <= a)
+            edge = np.where(ahead, np.maximum(edge, bounds[lane, k + 1]), edge)
+            edge = np.where(behind, np.minimum(edge, bounds[lane, k]), edge)
+        past = np.where(forward, np.minimum(edge + clearance, s1), np.maximum(edge - clearance, s1))
+        return np.where(np.isfinite(edge), past, s1)
+
     def areas(self, lane: int, direction: float, area: float) -> list[tuple[float, float, float]]:
         """Known treads on ``lane`` as (start, end, level), start/end along the walking
         ``direction`` (+1/-1); each has a near and a far area of ``area`` at its ends."""
@@ -405,7 +427,9 @@ class StepPlan:
     """The next two steps: tripod ``group`` steps ``length`` with step ``height`` (the swing
     apex above the highest tread under each foot's path), then the other tripod steps
     ``next_length``; ``landing`` are the swinging feet's new foot centres (global), ``apex``
-    their swing apex heights (z), ``sections`` the feasible step lengths (m) of the tripod."""
+    their swing apex heights (z), ``crossed`` the share of each foot's travel made at the apex
+    (the rest descends to the landing: steps down leave the apex once past the drop's edge),
+    ``sections`` the feasible step lengths (m) of the tripod."""
 
     group: np.ndarray
     length: float
@@ -413,6 +437,7 @@ class StepPlan:
     next_length: float
     landing: np.ndarray
     apex: np.ndarray
+    crossed: np.ndarray
     sections: np.ndarray
     blocked: bool
 
@@ -434,6 +459,8 @@ class StepPlanner:
         self.home = home[:, :2]
         self.home_s = self.home[:, 0]
         self.transfer = transfer
+        self.clearance = self.geometry.foot_radius + self.geometry.edge_radius
+        self.clearance += self.geometry.shin_radius
         self._rows: dict[bytes, Kinematics] = {}
 
     def _batched(self, legs: np.ndarray) -> Kinematics:
@@ -473,7 +500,7 @@ class StepPlanner:
         middle = middle >= g.area + g.landing_margin + half_roll
         # the body every quarter step along the walk: where each of this plan's checks puts it
         quarter = model.body_frames(body_s + direction * 0.25 * g.resolution * np.arange(4 * n), g)
-        heights, apex, lift_ok = self._heights(
+        heights, apex, crossed, lift_ok = self._heights(
             model, feet, s_feet, lat, quarter, group, direction, middle[group].all(0)
         )
         # T[leg, m, j]: the leg's foot moved by lengths[m], the body by (m + j) half-steps;
@@ -506,8 +533,10 @@ class StepPlanner:
         score = self._score(s_feet, body_s, group, other, direction, lengths)
         choice = self._choose(model, feet, s_feet, lat, quarter, other, direction, pair, score)
         if choice is None:
-            stay = feet[group].copy()
-            return StepPlan(group, 0.0, g.min_step_height, 0.0, stay, stay[:, 2], sections, True)
+            stay, whole = feet[group].copy(), np.ones(len(group))
+            return StepPlan(
+                group, 0.0, g.min_step_height, 0.0, stay, stay[:, 2], whole, sections, True
+            )
         l1, l2 = choice
         shift = np.full(len(group), direction * lengths[l1])
         landing = (
@@ -520,6 +549,7 @@ class StepPlanner:
             float(lengths[l2]),
             landing,
             apex[:, l1],
+            crossed[:, l1],
             sections,
             False,
         )
@@ -562,7 +592,8 @@ class StepPlanner:
 
     def _second_swing(self, model, feet, s_feet, lat, quarter, group, direction, l1, l2):
         """Whether ``group``'s step of index ``l2`` after the other's of index ``l1`` has a step
-        height feasible for its three feet at lift-off, mid-crossing and touch-down, the body
+        height feasible for its three feet at lift-off, mid-crossing and where the crossing ends
+        (over the landing, or past the drop's edge stepping down), the body
         having moved half the first step (c,); a step of length 0 does not swing. ``quarter``:
         the body frames every quarter step from the plan's start."""
         g = self.geometry
@@ -579,7 +610,8 @@ class StepPlanner:
         s0 = s_feet[legs]
         top = model.swept_top(legs, s0, s0 + direction * step) + g.foot_radius
         top = np.maximum(top, feet[legs, 2])
-        s_apex = s0 + direction * 0.5 * step * end
+        s_clear = model.clear_of_drop(legs, s0, s0 + direction * step, self.clearance)
+        s_apex = s0 + 0.5 * (s_clear - s0) * end
         apex = model.to_global(s_apex, lat[legs], top + steps[hi])
         # the body half the first step on, then a quarter of the second per half crossing
         frame = 2 * l1[cand] + l2[cand] * end
@@ -607,8 +639,10 @@ class StepPlanner:
     def _heights(self, model, feet, s_feet, lat, quarter, group, direction, wanted):
         """Step height per step length (the lowest in every swinging foot's feasible section of
         step height: the apex above the highest tread under its path, reachable and free of
-        interference over lift-off, mid-crossing and touch-down), apex heights, and whether
-        one exists; computed for the ``wanted`` step lengths (n,) only (others: none)."""
+        interference over lift-off, mid-crossing and where the crossing ends: over the landing,
+        or past the drop's edge stepping down), apex heights, the share of each foot's travel
+        crossed at the apex (3, n), and whether one exists; computed for the ``wanted`` step
+        lengths (n,) only (others: none)."""
         g = self.geometry
         n = len(wanted)
         lengths = np.arange(n) * g.resolution
@@ -616,6 +650,10 @@ class StepPlanner:
         s1 = s_feet[group][:, None] + direction * lengths
         top = model.swept_top(group[:, None], s0, s1) + g.foot_radius  # (3, n)
         top = np.maximum(top, feet[group, 2][:, None])
+        s_clear = model.clear_of_drop(group[:, None], s0, s1, self.clearance)
+        travel = s1 - s0
+        moving = travel != 0.0
+        crossed = np.where(moving, (s_clear - s0) / np.where(moving, travel, 1.0), 1.0)
         steps = np.arange(g.min_step_height, g.max_step_height + 1e-9, g.height_resolution)
         k, idx = len(steps), np.flatnonzero(wanted)
         w = len(idx)
@@ -623,8 +661,9 @@ class StepPlanner:
         end = np.tile(np.repeat([0, 1, 2], w * k), len(group))
         li = idx[np.tile(np.repeat(np.arange(w), k), 3 * len(group))]
         hi = np.tile(np.arange(k), 3 * w * len(group))
-        s_apex = s_feet[legs] + direction * 0.5 * lengths[li] * end
-        z_apex = top[np.repeat(np.arange(len(group)), 3 * w * k), li] + steps[hi]
+        foot = np.repeat(np.arange(len(group)), 3 * w * k)
+        s_apex = s_feet[legs] + 0.5 * (s_clear - s0)[foot, li] * end
+        z_apex = top[foot, li] + steps[hi]
         apex = model.to_global(s_apex, lat[legs], z_apex)
         # the body at a quarter of the step per half of the swing's crossing
         pos, rot = quarter[0][li * end], quarter[1][li * end]
@@ -635,4 +674,4 @@ class StepPlanner:
             )
             ok[idx] = checked.reshape(len(group), 3, w, k).all(1).all(0)  # every foot, 3 points
         first = np.argmax(ok, axis=1)
-        return steps[first], top + steps[first], ok.any(1)
+        return steps[first], top + steps[first], crossed, ok.any(1)
