@@ -316,7 +316,8 @@ class Controller:
         else:
             self.landed = self.stance
         self._transfer_load()
-        tau = self.support(q, self.load, rot)
+        legs = self.estimator.legs if self.estimator is not None else None
+        tau = self.support(q, self.load, rot, legs)
         if self.feed_forward:
             command.effort = tau.tolist()
         else:

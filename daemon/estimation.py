@@ -14,8 +14,9 @@ Pure: arrays in, BodyState out, no clock, no I/O.
 
 from __future__ import annotations
 
-import copy
 import math
+from collections.abc import Sequence
+from operator import mul
 from typing import Annotated
 
 import msgspec
@@ -24,6 +25,7 @@ import numpy as np
 from daemon.kinematics import Kinematics
 from daemon.messages import BodyState
 from daemon.profile import Profile
+from daemon.statics import LegStatics, Statics, Vector
 
 GRAVITY = 9.80665
 ICP_GATE = 3.0
@@ -78,29 +80,37 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix of rotation vector ``w`` (Rodrigues)."""
-    angle = float(np.linalg.norm(w))
+def exp_so3(w: Sequence[float]) -> np.ndarray:
+    """Rotation matrix of rotation vector ``w`` (Rodrigues: I + sin|w|/|w| W + (1 - cos|w|)/|w|²
+    W², W = skew(w), written out: a tick has several and numpy's per-call cost is most of one)."""
+    x, y, z = map(float, w)
+    angle = math.sqrt(x * x + y * y + z * z)
     if angle < 1e-12:
-        return np.eye(3) + skew(w)
-    k = skew(w / angle)
-    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+        return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
+    a = math.sin(angle) / angle
+    b = (1.0 - math.cos(angle)) / (angle * angle)
+    return np.array(
+        [
+            [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
+            [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
+            [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
+        ]
+    )
 
 
 def log_so3(r: np.ndarray) -> np.ndarray:
     """Rotation vector of rotation matrix ``r``."""
-    c = min(max((r[0, 0] + r[1, 1] + r[2, 2] - 1.0) / 2.0, -1.0), 1.0)
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(r, float).tolist()
+    c = min(max((r00 + r11 + r22 - 1.0) / 2.0, -1.0), 1.0)
     angle = math.acos(c)
-    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    if angle < 1e-9:
-        return 0.5 * v
     if math.pi - angle < 1e-6:
-        w, vec = np.linalg.eigh((r + r.T) / 2.0)
+        w, vec = np.linalg.eigh((r + np.transpose(r)) / 2.0)
         return angle * vec[:, np.argmax(w)]
-    return angle / (2.0 * math.sin(angle)) * v
+    scale = 0.5 if angle < 1e-9 else angle / (2.0 * math.sin(angle))
+    return np.array([scale * (r21 - r12), scale * (r02 - r20), scale * (r10 - r01)])
 
 
-def cross_up(v: np.ndarray) -> np.ndarray:
+def cross_up(v: Sequence[float]) -> np.ndarray:
     """v × z (z up), written out: numpy's cross costs tens of µs on one 3-vector."""
     return np.array([v[1], -v[0], 0.0])
 
@@ -114,15 +124,17 @@ def orthonormalised(m: np.ndarray) -> np.ndarray:
 
 def quaternion(r: np.ndarray) -> list[float]:
     """Unit quaternion (w, x, y, z) of rotation matrix ``r``."""
-    w = log_so3(r)
-    angle = float(np.linalg.norm(w))
-    axis = w / angle if angle > 1e-12 else np.zeros(3)
-    return [math.cos(angle / 2), *(math.sin(angle / 2) * axis).tolist()]
+    x, y, z = log_so3(r).tolist()
+    angle = math.sqrt(x * x + y * y + z * z)
+    scale = math.sin(angle / 2) / angle if angle > 1e-12 else 0.0
+    return [math.cos(angle / 2), scale * x, scale * y, scale * z]
 
 
-def rotation(q: np.ndarray) -> np.ndarray:
+def rotation(q: Sequence[float]) -> np.ndarray:
     """Rotation matrix of quaternion (w, x, y, z)."""
-    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    w, x, y, z = map(float, q)
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -154,7 +166,9 @@ def stance_pose(feet_body: np.ndarray, feet_global: np.ndarray) -> tuple[np.ndar
     if s[1] < 1e-12:  # rank < 2: the feet are collinear (or coincide)
         raise EstimationError("stance feet are collinear: no pose")
     rot = u @ vt
-    if np.linalg.det(rot) < 0:  # a reflection: the proper rotation flips the weakest direction
+    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
+    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
+        # a reflection: the proper rotation flips the weakest direction
         u[:, 2] = -u[:, 2]
         rot = u @ vt
     origin = cg - rot @ cb
@@ -197,57 +211,32 @@ def support_forces(forces_body: np.ndarray, rot: np.ndarray) -> np.ndarray:
     return -(np.asarray(forces_body) @ rot.T)[:, 2]
 
 
-def foot_link_rotations(kin: Kinematics, q: np.ndarray) -> np.ndarray:
-    """Orientation (n_legs, 3, 3) in the body frame of each leg's last link (the foot's)."""
-    th = kin.to_theta(q)
-    a, b, c = th[:, 0], th[:, 1], th[:, 2]
-    ca, sa = np.cos(a), np.sin(a)
-    pitch = np.where(kin.cft, -(b + c), c)
-    cp, sp = np.cos(pitch), np.sin(pitch)
-    ry = np.zeros((kin.n_legs, 3, 3))
-    ry[:, 0, 0], ry[:, 0, 2], ry[:, 1, 1], ry[:, 2, 0], ry[:, 2, 2] = cp, sp, 1.0, -sp, cp
-    first = np.zeros((kin.n_legs, 3, 3))
-    # coxa-femur-tibia: yaw about z; abduction-thigh-shank: roll about x
-    first[:, 0, 0] = np.where(kin.cft, ca, 1.0)
-    first[:, 0, 1] = np.where(kin.cft, -sa, 0.0)
-    first[:, 1, 0] = np.where(kin.cft, sa, 0.0)
-    first[:, 1, 1] = ca
-    first[:, 1, 2] = np.where(kin.cft, 0.0, -sa)
-    first[:, 2, 1] = np.where(kin.cft, 0.0, sa)
-    first[:, 2, 2] = np.where(kin.cft, 1.0, ca)
-    return kin.rot @ first @ ry
+Rows = tuple[Vector, Vector, Vector]
 
 
-class FootForces:
-    """Eq. 5 with the legs' own weight removed: F = (J^T)^-1 (tau + sum_i J_i^T m_i g).
-
-    ``J_i`` is the Jacobian of link i's centre, i.e. the foot Jacobian of the same leg with
-    its links cut at that centre. F is the force each foot exerts on its contact (body frame).
-    """
-
-    def __init__(self, kin: Kinematics, link_masses: list[float]) -> None:
-        if link_masses and len(link_masses) != 3:
-            raise ValueError(f"estimator link_masses: expected 3 values, found {link_masses}")
-        self.kin = kin
-        self.weighted: Kinematics | None = None
-        if link_masses:
-            # the foot Jacobian is linear in the link lengths, so sum_i m_i J_i is the Jacobian
-            # of one leg whose link j is l_j x (half its own mass + the masses beyond it)
-            m1, m2, m3 = link_masses
-            self.weighted = copy.copy(kin)
-            w = self.weighted
-            w.l1, w.l2, w.l3 = kin.l1 * (m1 / 2 + m2 + m3), kin.l2 * (m2 / 2 + m3), kin.l3 * m3 / 2
-
-    def link_gravity(self, q: np.ndarray, rot: np.ndarray) -> np.ndarray:
-        """sum_i J_i^T m_i g (n_legs, 3): the joint torques the legs' own weight asks for."""
-        if self.weighted is None:
-            return np.zeros((self.kin.n_legs, 3))
-        g = rot.T @ np.array([0.0, 0.0, -GRAVITY])
-        return np.einsum("lij,i->lj", self.weighted.jacobian(q), g)
-
-    def __call__(self, q: np.ndarray, tau: np.ndarray, rot: np.ndarray) -> np.ndarray:
-        tau = np.asarray(tau, float).reshape(self.kin.n_legs, 3)
-        return self.kin.foot_forces(q, tau + self.link_gravity(q, rot))
+def foot_link_rotations(kin: Kinematics, q: np.ndarray) -> list[Rows]:
+    """Orientation in the body frame of each leg's last link (the foot's), as rows: the first
+    joint turns about z (coxa-femur-tibia: yaw) or x (abduction-thigh-shank: roll), then the
+    link pitches about y by -(femur + tibia) or by the shank angle."""
+    frames = zip(kin.to_theta(q).tolist(), kin.cft.tolist(), kin.cos_yaw, kin.sin_yaw, strict=True)
+    links = []
+    for (a, b, c), cft, cy, sy in frames:
+        ca, sa = math.cos(a), math.sin(a)
+        pitch = -(b + c) if cft else c
+        cp, sp = math.cos(pitch), math.sin(pitch)
+        if cft:
+            r0, r1, r2 = (ca * cp, -sa, ca * sp), (sa * cp, ca, sa * sp), (-sp, 0.0, cp)
+        else:
+            r0, r1, r2 = (cp, 0.0, sp), (sa * sp, ca, -sa * cp), (-ca * sp, sa, ca * cp)
+        cy, sy = float(cy), float(sy)
+        links.append(
+            (
+                tuple(cy * x - sy * y for x, y in zip(r0, r1, strict=True)),
+                tuple(sy * x + cy * y for x, y in zip(r0, r1, strict=True)),
+                r2,
+            )
+        )
+    return links
 
 
 class SupportTorques:
@@ -259,7 +248,7 @@ class SupportTorques:
     """
 
     def __init__(self, kin: Kinematics, mass: float, link_masses: list[float]) -> None:
-        self.forces = FootForces(kin, link_masses)
+        self.statics = Statics(kin, link_masses)
         self.link_masses = list(link_masses)
         self.weight = mass * GRAVITY
         self.carriers = max(kin.n_legs // 2, 1)
@@ -271,13 +260,18 @@ class SupportTorques:
         load = np.asarray(load, float)
         return load * (self.weight / max(load.sum(), self.carriers))
 
-    def __call__(self, q: np.ndarray, load: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    def __call__(
+        self, q: np.ndarray, load: np.ndarray, rot: np.ndarray, legs: LegStatics | None = None
+    ) -> np.ndarray:
         """Joint torques (n_joints,) for joints ``q``, body ``rot`` and each leg's ``load``
-        (n_legs,): 1 a stance foot's full share, 0 swing, between while a foot takes its share."""
-        kin = self.forces.kin
-        push = np.outer(self.shares(load), rot.T @ np.array([0.0, 0.0, -1.0]))
-        tau = np.einsum("lij,li->lj", kin.jacobian(q), push)
-        return (tau - self.forces.link_gravity(q, rot)).reshape(-1)
+        (n_legs,): 1 a stance foot's full share, 0 swing, between while a foot takes its share.
+        ``legs``: the statics at ``q`` where the tick has them already (the estimator's)."""
+        if legs is None:
+            legs = self.statics.at(np.asarray(q, float).tolist())
+        ux, uy, uz = rot[2].tolist()  # world up in the body frame
+        pushes = [(-f * ux, -f * uy, -f * uz) for f in self.shares(load).tolist()]
+        gravity = (-GRAVITY * ux, -GRAVITY * uy, -GRAVITY * uz)
+        return np.array(self.statics.torques(legs, pushes, gravity))
 
 
 # --- the estimator -------------------------------------------------------------------------
@@ -289,6 +283,8 @@ class StateEstimator:
     ``update(q, tau, gyro, accel, dt)`` returns the BodyState; without ``gyro``/``accel`` the
     pose is the kinematic one. ``icp_correction(translation, directions)`` feeds filter 2 with
     the shift that aligns the latest stair cloud (placed with this estimate) onto the map.
+    A step runs every 1 ms tick on a few 3-vectors, so its filter arithmetic is written out on
+    floats: numpy's per-call overhead would cost several times the arithmetic.
     """
 
     def __init__(
@@ -300,75 +296,91 @@ class StateEstimator:
     ) -> None:
         self.config = config or EstimatorConfig()
         self.kin = Kinematics(profile)
-        self.foot_forces = FootForces(self.kin, self.config.link_masses)
+        self.statics = Statics(self.kin, self.config.link_masses)
+        self.legs: LegStatics | None = None
+        """The statics of the latest step's joints (the gravity feed-forward reuses them)."""
         self.group = tripod_groups(profile, self.config.groups)
+        self._members = [np.flatnonzero(self.group == g) for g in (0, 1)]
         self.weight = profile.mass * GRAVITY
         n = self.kin.n_legs
         self.anchors = np.zeros((n, 3))
         self.forces = np.zeros((n, 3))
         self.support = np.zeros(n)
         self.stance_group = -1
-        self.touched = np.zeros(n, bool)
-        self.holding = np.zeros(n, bool)
+        self.touched = [False] * n
+        self.holding = [False] * n
         self.switches = 0
-        self._link_rot = np.zeros((n, 3, 3))
-        # filter 1: heading variance and per-axis position/velocity
+        self._links: list[Rows] = []
+        # filter 1: heading variance and per axis the position/velocity covariance (pp, pv, vv)
         self.rot = np.eye(3) if orientation is None else rotation(orientation)
         self.pos = np.zeros(3) if position is None else np.asarray(position, float).copy()
         self.vel = np.zeros(3)
         self.omega = np.zeros(3)
         self.p_heading = 1e-4
-        self.p_pv = np.tile(np.diag([1e-4, 1e-2]), (3, 1, 1))
+        self.p_pv = [[1e-4, 0.0, 1e-2] for _ in range(3)]
         # filter 2: translation drift correction applied on top of filter 1, its covariance
         self.drift_pos = np.zeros(3)
         self.p_drift = np.zeros((3, 3))
         self.icp_rejected = 0
-        self._lowpass: np.ndarray | None = None
-        self.kinematic: tuple[np.ndarray, np.ndarray] | None = None
+        self._lowpass: list[list[float]] | None = None
 
     # --- filter 1 -------------------------------------------------------------------------
 
-    def _predict(self, gyro: np.ndarray, accel: np.ndarray, dt: float) -> None:
+    def _predict(self, gyro: Vector, accel: Vector, dt: float) -> None:
+        """The gyro turns the body, the accelerometer (less gravity) moves it; each axis's
+        position/velocity covariance grows by F P Fᵀ + Q (constant acceleration noise)."""
         c = self.config
         self.omega = self.rot @ gyro
-        self.rot = self.rot @ exp_so3(gyro * dt)
+        self.rot = self.rot @ exp_so3((gyro[0] * dt, gyro[1] * dt, gyro[2] * dt))
         self.p_heading += c.gyro_noise**2 * dt
-        acc = self.rot @ accel - np.array([0.0, 0.0, GRAVITY])
-        f = np.array([[1.0, dt], [0.0, 1.0]])
-        self.pos += self.vel * dt + 0.5 * acc * dt * dt
-        self.vel += acc * dt
-        q = np.diag([0.25 * dt**4, dt * dt]) * c.accel_noise**2 + np.diag([0.0, dt]) * (
-            c.velocity_walk**2
-        )
-        self.p_pv = f @ self.p_pv @ f.T + q
+        r = self.rot.tolist()
+        acc = [row[0] * accel[0] + row[1] * accel[1] + row[2] * accel[2] for row in r]
+        acc[2] -= GRAVITY
+        pos, vel = self.pos.tolist(), self.vel.tolist()
+        for k in range(3):
+            pos[k] += vel[k] * dt + 0.5 * acc[k] * dt * dt
+            vel[k] += acc[k] * dt
+        self.pos, self.vel = np.array(pos), np.array(vel)
+        q_pp = 0.25 * dt**4 * c.accel_noise**2
+        q_vv = dt * dt * c.accel_noise**2 + dt * c.velocity_walk**2
+        for p in self.p_pv:
+            pp, pv, vv = p
+            p[0] = pp + 2.0 * dt * pv + dt * dt * vv + q_pp
+            p[1] = pv + dt * vv
+            p[2] = vv + q_vv
 
-    def _rotate(self, delta: np.ndarray) -> None:
+    def _rotate(self, delta: Sequence[float]) -> None:
         self.rot = orthonormalised(exp_so3(delta) @ self.rot)
 
-    def _tilt(self, accel: np.ndarray, pos_kin: np.ndarray, dt: float) -> np.ndarray:
+    def _tilt(self, accel: Vector, pos_kin: list[float], dt: float) -> list[float]:
         """The turn pulling the tilt toward gravity: specific force (world) = acceleration + g·z,
         with the force low-passed twice (f1, f2) and the acceleration the same filter's second
         derivative of the stance feet's position, (p - 2·p1 + p2) / T² (T = ``gravity_time``)."""
         c = self.config
-        force = self.rot @ accel
+        force = [
+            row[0] * accel[0] + row[1] * accel[1] + row[2] * accel[2] for row in self.rot.tolist()
+        ]
         if self._lowpass is None:
-            self._lowpass = np.array([force, force, pos_kin, pos_kin])
+            self._lowpass = [list(force), list(force), list(pos_kin), list(pos_kin)]
         a = min(1.0, dt / c.gravity_time)
         f1, f2, p1, p2 = self._lowpass
-        f1 += a * (force - f1)
-        f2 += a * (f1 - f2)
-        p1 += a * (pos_kin - p1)
-        p2 += a * (p1 - p2)
-        up = f2 - (pos_kin - 2.0 * p1 + p2) / c.gravity_time**2
-        return cross_up(up / np.linalg.norm(up)) * min(1.0, dt / c.tilt_time)
+        up = [0.0, 0.0, 0.0]
+        for k in range(3):
+            f1[k] += a * (force[k] - f1[k])
+            f2[k] += a * (f1[k] - f2[k])
+            p1[k] += a * (pos_kin[k] - p1[k])
+            p2[k] += a * (p1[k] - p2[k])
+            up[k] = f2[k] - (pos_kin[k] - 2.0 * p1[k] + p2[k]) / c.gravity_time**2
+        scale = min(1.0, dt / c.tilt_time) / math.sqrt(up[0] ** 2 + up[1] ** 2 + up[2] ** 2)
+        return [up[1] * scale, -up[0] * scale, 0.0]
 
     def _correct(
         self,
         rot_kin: np.ndarray,
-        feet: np.ndarray,
-        touching: np.ndarray,
-        holding: np.ndarray,
-        accel: np.ndarray,
+        feet: list[Vector],
+        touching: list[int],
+        holding: list[int],
+        accel: Vector,
         dt: float,
     ) -> None:
         """Heading from the stance feet's rotation, tilt from gravity, then position from the
@@ -376,60 +388,91 @@ class StateEstimator:
         a slide keeps a foot on its tread, the rest from the holding ones; where none are, the
         IMU's prediction stands."""
         c = self.config
-        heading = log_so3(rot_kin @ self.rot.T)[2]
+        heading = float(log_so3(rot_kin @ self.rot.T)[2])
         gain = self.p_heading / (self.p_heading + c.kinematic_rotation_noise**2)
         self.p_heading *= 1.0 - gain
-        origins = self.anchors - feet @ self.rot.T
-        measured = np.array([len(holding), len(holding), len(touching)]) > 0
-        pos_kin = self.pos.copy()
-        if len(holding):
-            pos_kin[:2] = origins[holding, :2].mean(0)
-        if len(touching):
-            pos_kin[2] = origins[touching, 2].mean()
+        r = self.rot.tolist()
+        anchors = self.anchors.tolist()
+
+        def origin(leg: int, axis: int) -> float:
+            """Where the body is if foot ``leg`` is at its anchor: anchor - R · foot."""
+            f = feet[leg]
+            row = r[axis]
+            return anchors[leg][axis] - (row[0] * f[0] + row[1] * f[1] + row[2] * f[2])
+
+        pos = self.pos.tolist()
+        pos_kin = list(pos)
+        if holding:
+            pos_kin[0] = sum(origin(leg, 0) for leg in holding) / len(holding)
+            pos_kin[1] = sum(origin(leg, 1) for leg in holding) / len(holding)
+        if touching:
+            pos_kin[2] = sum(origin(leg, 2) for leg in touching) / len(touching)
         turn = self._tilt(accel, pos_kin, dt)
         turn[2] = gain * heading
         self._rotate(turn)
-        h = np.array([1.0, 0.0])
-        s = self.p_pv[:, 0, 0] + c.kinematic_position_noise**2
-        k = self.p_pv[:, :, 0] / s[:, None] * measured[:, None]
-        innov = pos_kin - self.pos
-        self.pos += k[:, 0] * innov
-        self.vel += k[:, 1] * innov
-        self.p_pv -= k[:, :, None] * (h @ self.p_pv)[:, None, :]
+        vel = self.vel.tolist()
+        noise = c.kinematic_position_noise**2
+        for axis, measured in enumerate((bool(holding), bool(holding), bool(touching))):
+            if not measured:
+                continue
+            p = self.p_pv[axis]
+            pp, pv, vv = p
+            k_pos, k_vel = pp / (pp + noise), pv / (pp + noise)
+            innovation = pos_kin[axis] - pos[axis]
+            pos[axis] += k_pos * innovation
+            vel[axis] += k_vel * innovation
+            p[0], p[1], p[2] = pp - k_pos * pp, pv - k_pos * pv, vv - k_vel * pv
+        self.pos, self.vel = np.array(pos), np.array(vel)
 
     # --- leg odometry (eqs. 5-9) ------------------------------------------------------------
 
-    def _register(self, legs: np.ndarray, feet: np.ndarray) -> None:
+    def _register(self, legs: Sequence[int], feet: np.ndarray) -> None:
         """Global positions of feet that just took the load, from the current estimate."""
         self.anchors[legs] = self.pos + feet[legs] @ self.rot.T
 
-    def _roll(self, legs: np.ndarray, link_rot: np.ndarray) -> None:
-        """Move the anchors of rolling stance feet: the centre moves by dθ × (r·up)."""
+    def _roll(self, legs: np.ndarray, links: list[Rows]) -> None:
+        """Move the anchors of rolling stance feet: the centre moves by dθ × (r·up), dθ the
+        foot link's turn since the last step (body frame, R·log(L Lprevᵀ) in the world)."""
         r = self.config.foot_radius
-        if r <= 0.0:
-            return
-        turns = self.rot @ link_rot[legs] @ np.swapaxes(self._link_rot[legs], 1, 2) @ self.rot.T
-        for leg, turn in zip(legs, turns, strict=True):
-            self.anchors[leg] += r * cross_up(log_so3(turn))
+        rot = self.rot.tolist()
+        for leg in legs.tolist():
+            new, old = links[leg], self._links[leg]
+            turn = log_so3([[sum(map(mul, a, b)) for b in old] for a in new])
+            x, y = (sum(map(mul, row, turn.tolist())) for row in rot[:2])
+            self.anchors[leg, 0] += r * y
+            self.anchors[leg, 1] -= r * x
 
-    def _footing(self, stance: np.ndarray, feet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _footing(
+        self, stance: np.ndarray, feet: np.ndarray, forces: list[Vector]
+    ) -> tuple[list[int], list[int]]:
         """Stance feet that touch (support above ``slip_load``) and those that also hold
         (traction inside ``slip_ratio``). A foot's first touch since its touchdown registers it
         where it is; one holding again after a slide is moved there along the ground only."""
         c = self.config
-        force = self.forces[stance] @ self.rot.T
-        support = -force[:, 2]
-        touches = support > c.slip_load * self.weight / len(stance)
-        holds = touches & (np.hypot(force[:, 0], force[:, 1]) < c.slip_ratio * support)
-        first = stance[touches & ~self.touched[stance]]
-        slid = stance[holds & ~self.holding[stance] & self.touched[stance]]
-        height = self.anchors[slid, 2]
-        self._register(np.concatenate([first, slid]), feet)
-        self.anchors[slid, 2] = height
-        self.touched[stance] |= touches
-        self.holding[:] = False
-        self.holding[stance] = holds
-        return stance[touches], stance[holds]
+        r = self.rot.tolist()
+        load = c.slip_load * self.weight / len(stance)
+        touching, holding, first, slid = [], [], [], []
+        for leg in stance.tolist():
+            f = forces[leg]
+            x, y, z = (row[0] * f[0] + row[1] * f[1] + row[2] * f[2] for row in r)
+            if not -z > load:
+                self.holding[leg] = False
+                continue
+            touching.append(leg)
+            if not self.touched[leg]:
+                first.append(leg)
+            holds = math.hypot(x, y) < -c.slip_ratio * z
+            if holds:
+                holding.append(leg)
+                if not self.holding[leg] and self.touched[leg]:
+                    slid.append(leg)
+            self.touched[leg] = True
+            self.holding[leg] = holds
+        if first or slid:
+            height = self.anchors[slid, 2]
+            self._register(first + slid, feet)
+            self.anchors[slid, 2] = height
+        return touching, holding
 
     def update(
         self,
@@ -447,39 +490,48 @@ class StateEstimator:
         torque error into thousands of newtons (twin, 180 mm stairs: MB read 4490 N in swing,
         the swinging tripod took the stance and the height jumped 18 mm)."""
         q = np.asarray(q, float)
-        feet = self.kin.fk(q)
-        link_rot = foot_link_rotations(self.kin, q)
+        self.legs = legs = self.statics.at(q.tolist())
+        feet = np.array(legs.feet)
         imu = gyro is not None and accel is not None and dt > 0
         if imu:
-            self._predict(np.asarray(gyro, float), np.asarray(accel, float), dt)
-        self.forces = self.foot_forces(q, tau, self.rot)
-        if self.stance_group >= 0:
-            self._roll(np.flatnonzero(self.group == self.stance_group), link_rot)
-        self._link_rot = link_rot
-        support = support_forces(self.forces, self.rot)
-        self.support = np.where(np.isnan(support), 0.0, support)
-        sums = np.array([self.support[self.group == g].sum() for g in (0, 1)])
+            gyro, accel = tuple(map(float, gyro)), tuple(map(float, accel))
+            self._predict(gyro, accel, dt)
+        ux, uy, uz = self.rot[2].tolist()  # world up in the body frame
+        gravity = (-GRAVITY * ux, -GRAVITY * uy, -GRAVITY * uz)
+        forces = self.statics.foot_forces(legs, np.asarray(tau, float).tolist(), gravity)
+        self.forces = np.array(forces)
+        if self.config.foot_radius > 0.0:
+            links = foot_link_rotations(self.kin, q)
+            if self.stance_group >= 0:
+                self._roll(self._members[self.stance_group], links)
+            self._links = links
+        support = [-(f[0] * ux + f[1] * uy + f[2] * uz) for f in forces]
+        support = [0.0 if math.isnan(s) else s for s in support]
+        self.support = np.array(support)
+        sums = [sum(support[leg] for leg in members) for members in self._members]
         if planned is not None:
-            down = np.asarray(planned, bool)
-            sums = np.where([down[self.group == g].any() for g in (0, 1)], sums, -np.inf)
-        leading = int(np.argmax(sums))
+            down = np.asarray(planned, bool).tolist()
+            for g, members in enumerate(self._members):
+                if not any(down[leg] for leg in members):
+                    sums[g] = -math.inf
+        leading = 0 if sums[0] >= sums[1] else 1
         margin = self.config.switch_margin * self.weight
         if self.stance_group < 0 or (
             leading != self.stance_group and sums[leading] > sums[1 - leading] + margin
         ):
             self.stance_group = leading
             self.switches += 1
-            self._register(np.flatnonzero(self.group == leading), feet)
-            self.touched[self.group == leading] = False
-        stance = np.flatnonzero(self.group == self.stance_group)
+            self._register(self._members[leading], feet)
+            for leg in self._members[leading]:
+                self.touched[leg] = False
+        stance = self._members[self.stance_group]
         try:
             rot_kin, pos_kin = stance_pose(feet[stance], self.anchors[stance])
         except EstimationError:
             rot_kin, pos_kin = self.rot, self.pos
-        self.kinematic = (rot_kin, pos_kin)
         if imu:
-            touching, holding = self._footing(stance, feet)
-            self._correct(rot_kin, feet, touching, holding, np.asarray(accel, float), dt)
+            touching, holding = self._footing(stance, feet, forces)
+            self._correct(rot_kin, legs.feet, touching, holding, accel, dt)
         else:
             if dt > 0:
                 self.vel = (pos_kin - self.pos) / dt
