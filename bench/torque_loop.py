@@ -10,7 +10,10 @@ syscall; this VM has no vcan), the same driver to motors serving in a thread of 
 ``FakeJointBus`` (no driver: the controller's own compute). The C ``clock_nanosleep`` loop runs
 in the same run, so the p99 lateness ratio means something on a loaded machine. Goal (issue
 2's): ratio <= 1.5, with overruns under 1 % of ticks (an overrun skips its deadline, so
-lateness alone hides a slow tick).
+lateness alone hides a slow tick). First, the tick's eq. 5 both ways (feet, foot forces from
+torques for the estimator, feed-forward torques from forces) as the tick computes it,
+``daemon.statics`` on floats, beside the same quantities from ``Kinematics``'s vectorised
+numpy forms, checked equal in the same run.
 
     .venv/bin/python bench/torque_loop.py [--seconds 20] [--buses multicast,virtual,fake]
 """
@@ -150,6 +153,61 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int]
     return timing.lateness[:count].copy(), timing.compute[:count].copy(), timing.overruns
 
 
+def statics_table(calls: int = 2000) -> None:
+    """Eq. 5 both ways for one tick: floats (daemon.statics) against numpy over the legs."""
+    import copy
+    import timeit
+
+    from daemon import profile as profiles
+    from daemon.estimation import GRAVITY
+    from daemon.kinematics import Kinematics
+    from daemon.statics import Statics
+
+    masses = [0.58, 0.51, 0.37]  # the twin's links (kg)
+    kin = Kinematics(profiles.load(PROFILE))
+    rng = np.random.default_rng(0)
+    q = kin.stand_joints() + rng.normal(0.0, 0.05, kin.n_joints)
+    tau = rng.normal(0.0, 5.0, kin.n_joints)
+    gravity = np.array([0.05, -0.03, -1.0]) * GRAVITY
+    push = rng.normal(0.0, 40.0, (kin.n_legs, 3))
+    statics = Statics(kin, masses)
+    weighted = copy.copy(kin)
+    m1, m2, m3 = masses
+    weighted.l1, weighted.l2, weighted.l3 = (
+        kin.l1 * (m1 / 2 + m2 + m3),
+        kin.l2 * (m2 / 2 + m3),
+        kin.l3 * m3 / 2,
+    )
+
+    def floats() -> tuple:
+        legs = statics.at(q.tolist())
+        g = tuple(gravity.tolist())
+        return (
+            legs.feet,
+            statics.foot_forces(legs, tau.tolist(), g),
+            statics.torques(legs, [tuple(p) for p in push.tolist()], g),
+        )
+
+    def vectorised() -> tuple:
+        jac, weight = kin.jacobian(q), np.einsum("lij,i->lj", weighted.jacobian(q), gravity)
+        forces = np.linalg.solve(np.swapaxes(jac, 1, 2), (tau.reshape(-1, 3) + weight)[..., None])
+        torques = np.einsum("lij,li->lj", jac, push) - weight
+        return kin.fk(q), forces[..., 0], torques.reshape(-1)
+
+    got, want = floats(), vectorised()
+    diff = max(float(np.max(np.abs(np.array(a) - b))) for a, b in zip(got, want, strict=True))
+    times = {}
+    for name, f in (("floats", floats), ("numpy", vectorised)):
+        times[name] = min(timeit.repeat(f, number=calls, repeat=5)) / calls * 1e6
+    print("## eq. 5 both ways, one tick (feet, foot forces from torques, feed-forward torques)")
+    print("| daemon.statics (floats) | Kinematics (numpy over legs) | numpy / floats | max diff |")
+    print("|---|---|---|---|")
+    print(
+        f"| {times['floats']:.1f} us | {times['numpy']:.1f} us | "
+        f"{times['numpy'] / times['floats']:.2f} | {diff:.1e} |\n"
+    )
+
+
 def report(seconds: float, kinds: list[str]) -> dict:
     """Run the C loop and the Qingzhui loop on each joint bus, print the table, return the
     figures (µs) by bus."""
@@ -193,6 +251,7 @@ def main() -> None:
     unknown = [k for k in kinds if k not in BUSES]
     if unknown:
         parser.error(f"--buses: unknown {unknown} (known: {', '.join(BUSES)})")
+    statics_table()
     report(args.seconds, kinds)
 
 
