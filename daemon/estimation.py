@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from operator import mul
 from typing import Annotated
 
 import msgspec
@@ -25,7 +24,7 @@ import numpy as np
 from daemon.kinematics import Kinematics
 from daemon.messages import BodyState
 from daemon.profile import Profile
-from daemon.statics import LegStatics, Statics, Vector
+from daemon.statics import LegStatics, Statics, Vector, dot, rotate
 
 GRAVITY = 9.80665
 ICP_GATE = 3.0
@@ -75,14 +74,10 @@ class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 # --- rotations ----------------------------------------------------------------------------
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrix of a 3-vector."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def exp_so3(w: Sequence[float]) -> np.ndarray:
     """Rotation matrix of rotation vector ``w`` (Rodrigues: I + sin|w|/|w| W + (1 - cos|w|)/|w|²
-    W², W = skew(w), written out: a tick has several and numpy's per-call cost is most of one)."""
+    W², W the cross-product matrix of w), written out: a tick has several and numpy's per-call
+    cost is most of one."""
     x, y, z = map(float, w)
     angle = math.sqrt(x * x + y * y + z * z)
     if angle < 1e-12:
@@ -108,11 +103,6 @@ def log_so3(r: np.ndarray) -> np.ndarray:
         return angle * vec[:, np.argmax(w)]
     scale = 0.5 if angle < 1e-9 else angle / (2.0 * math.sin(angle))
     return np.array([scale * (r21 - r12), scale * (r02 - r20), scale * (r10 - r01)])
-
-
-def cross_up(v: Sequence[float]) -> np.ndarray:
-    """v × z (z up), written out: numpy's cross costs tens of µs on one 3-vector."""
-    return np.array([v[1], -v[0], 0.0])
 
 
 def orthonormalised(m: np.ndarray) -> np.ndarray:
@@ -334,7 +324,7 @@ class StateEstimator:
         self.rot = self.rot @ exp_so3((gyro[0] * dt, gyro[1] * dt, gyro[2] * dt))
         self.p_heading += c.gyro_noise**2 * dt
         r = self.rot.tolist()
-        acc = [row[0] * accel[0] + row[1] * accel[1] + row[2] * accel[2] for row in r]
+        acc = rotate(r, accel)
         acc[2] -= GRAVITY
         pos, vel = self.pos.tolist(), self.vel.tolist()
         for k in range(3):
@@ -357,9 +347,7 @@ class StateEstimator:
         with the force low-passed twice (f1, f2) and the acceleration the same filter's second
         derivative of the stance feet's position, (p - 2·p1 + p2) / T² (T = ``gravity_time``)."""
         c = self.config
-        force = [
-            row[0] * accel[0] + row[1] * accel[1] + row[2] * accel[2] for row in self.rot.tolist()
-        ]
+        force = rotate(self.rot.tolist(), accel)
         if self._lowpass is None:
             self._lowpass = [list(force), list(force), list(pos_kin), list(pos_kin)]
         a = min(1.0, dt / c.gravity_time)
@@ -396,9 +384,7 @@ class StateEstimator:
 
         def origin(leg: int, axis: int) -> float:
             """Where the body is if foot ``leg`` is at its anchor: anchor - R · foot."""
-            f = feet[leg]
-            row = r[axis]
-            return anchors[leg][axis] - (row[0] * f[0] + row[1] * f[1] + row[2] * f[2])
+            return anchors[leg][axis] - dot(r[axis], feet[leg])
 
         pos = self.pos.tolist()
         pos_kin = list(pos)
@@ -437,8 +423,8 @@ class StateEstimator:
         rot = self.rot.tolist()
         for leg in legs.tolist():
             new, old = links[leg], self._links[leg]
-            turn = log_so3([[sum(map(mul, a, b)) for b in old] for a in new])
-            x, y = (sum(map(mul, row, turn.tolist())) for row in rot[:2])
+            turn = log_so3([[dot(a, b) for b in old] for a in new]).tolist()
+            x, y = dot(rot[0], turn), dot(rot[1], turn)
             self.anchors[leg, 0] += r * y
             self.anchors[leg, 1] -= r * x
 
@@ -453,8 +439,7 @@ class StateEstimator:
         load = c.slip_load * self.weight / len(stance)
         touching, holding, first, slid = [], [], [], []
         for leg in stance.tolist():
-            f = forces[leg]
-            x, y, z = (row[0] * f[0] + row[1] * f[1] + row[2] * f[2] for row in r)
+            x, y, z = rotate(r, forces[leg])
             if not -z > load:
                 self.holding[leg] = False
                 continue
@@ -496,8 +481,8 @@ class StateEstimator:
         if imu:
             gyro, accel = tuple(map(float, gyro)), tuple(map(float, accel))
             self._predict(gyro, accel, dt)
-        ux, uy, uz = self.rot[2].tolist()  # world up in the body frame
-        gravity = (-GRAVITY * ux, -GRAVITY * uy, -GRAVITY * uz)
+        up = self.rot[2].tolist()  # world up in the body frame
+        gravity = (-GRAVITY * up[0], -GRAVITY * up[1], -GRAVITY * up[2])
         forces = self.statics.foot_forces(legs, np.asarray(tau, float).tolist(), gravity)
         self.forces = np.array(forces)
         if self.config.foot_radius > 0.0:
@@ -505,7 +490,7 @@ class StateEstimator:
             if self.stance_group >= 0:
                 self._roll(self._members[self.stance_group], links)
             self._links = links
-        support = [-(f[0] * ux + f[1] * uy + f[2] * uz) for f in forces]
+        support = [-dot(f, up) for f in forces]
         support = [0.0 if math.isnan(s) else s for s in support]
         self.support = np.array(support)
         sums = [sum(support[leg] for leg in members) for members in self._members]

@@ -62,6 +62,16 @@ def _jacobian(cft: bool, trig: Vector, lengths: Vector, frame: Vector) -> Matrix
     )
 
 
+def dot(a: Sequence[float], b: Sequence[float]) -> float:
+    """a · b of two 3-vectors."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def rotate(rows: Sequence[Sequence[float]], v: Sequence[float]) -> list[float]:
+    """R v for R given by its rows."""
+    return [row[0] * v[0] + row[1] * v[1] + row[2] * v[2] for row in rows]
+
+
 def transpose_times(m: Matrix, v: Vector) -> Vector:
     """mᵀ v."""
     return (
