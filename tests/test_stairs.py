@@ -17,6 +17,7 @@ from plugins.perception.stairs import (
 )
 
 RISE, TREAD, COUNT, START = 0.13, 0.30, 3, 0.8
+VARIATION = StairsConfig().icp_max_variation
 
 
 def staircase(rng, rise=RISE, tread=TREAD, count=COUNT, noise=0.003, x_max=2.4) -> np.ndarray:
@@ -68,14 +69,46 @@ def test_icp_recovers_a_position_error_along_what_the_stairs_constrain() -> None
     target = staircase(rng, noise=0.002)
     shift = np.array([0.02, -0.015, 0.01])
     source = staircase(rng, noise=0.002) - shift  # the same stairs seen with a position error
-    t, dirs = icp_translation(source, target, target_surface(target))
+    t, dirs = icp_translation(source, target, target_surface(target, VARIATION))
     np.testing.assert_allclose(t, [shift[0], 0.0, shift[2]], atol=0.003)
     np.testing.assert_allclose(np.abs(dirs @ dirs.T), np.eye(2), atol=1e-9)
     np.testing.assert_allclose(np.abs(dirs[:, [0, 2]]).max(0), 1.0, atol=0.01)
     treads = source[np.abs(source[:, 0] - START - TREAD * np.arange(COUNT)[:, None]).min(0) > 0.05]
-    t, dirs = icp_translation(treads, target, target_surface(target))
+    t, dirs = icp_translation(treads, target, target_surface(target, VARIATION))
     np.testing.assert_allclose(dirs, [[0.0, 0.0, 1.0]])
     np.testing.assert_allclose(t, [0.0, 0.0, shift[2]], atol=0.003)
+
+
+def far_floor(rng, points: int = 3000, noise: float = 0.015) -> np.ndarray:
+    """Floor seen 2 m off beyond the flight: as noisy as it is sparse (1.8 cm apart, 1.5 cm
+    noise), so its neighbourhoods are blobs whose normals point anywhere (300 of them within
+    60 degrees of horizontal here)."""
+    patch = rng.uniform([2.6, -0.5], [3.6, 0.5], (points, 2))
+    return np.column_stack([patch, np.zeros(points)]) + rng.normal(0, noise, (points, 3))
+
+
+@pytest.mark.parametrize(
+    "max_variation",
+    [
+        VARIATION,
+        pytest.param(
+            1.0,
+            marks=pytest.mark.xfail(
+                strict=True, reason="every normal taken: the noisy floor's make false risers"
+            ),
+        ),
+    ],
+)
+def test_icp_takes_no_constraint_from_a_noisy_far_floor(max_variation: float) -> None:
+    """The far floor's random normals are not risers: the alignment stays the stairs' (x and z
+    recovered, y neither solved nor reported)."""
+    rng = np.random.default_rng(4)
+    shift = np.array([0.015, -0.01, 0.01])
+    target = np.vstack([staircase(rng, noise=0.002), far_floor(rng)])
+    source = np.vstack([staircase(rng, noise=0.002), far_floor(rng)]) - shift
+    t, dirs = icp_translation(source, target, target_surface(target, max_variation))
+    assert sorted(np.abs(dirs).argmax(1)) == [0, 2]
+    np.testing.assert_allclose(t, [shift[0], 0.0, shift[2]], atol=0.003)
 
 
 def test_stitching_corrects_a_drifted_body_pose() -> None:

@@ -8,7 +8,7 @@ pose (eq. 10); the stitched map is the union of aligned clouds, voxel-thinned.
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar
+from typing import Annotated, ClassVar, NamedTuple
 
 import msgspec
 import numpy as np
@@ -33,6 +33,10 @@ class StairsConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     this much matched surface faces it, counted in points of ``voxel`` (see
     ``constrained_directions``; on the recorded stair run at 2 cm voxels a riser coming into
     view is ~100 points, stray normals on the top landing at most 41).
+    ``icp_max_variation``: a map point takes part in ICP only where its neighbourhood is a
+    surface, its variation λ0 / (λ0 + λ1 + λ2) below this (risers 0.007 median; floor seen
+    2 m off, as noisy as it is sampled, 0.10-0.25: normals at random, which on the 180 mm
+    flight's top landing made 500 points of false risers and pulled the estimate 6 cm).
     """
 
     inlier: Positive = 0.01
@@ -47,15 +51,28 @@ class StairsConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     icp_max_distance: Positive = 0.05
     icp_max_shift: Positive = 0.05
     icp_min_area: Positive = 0.024
+    icp_max_variation: Positive = 0.05
     seed: int = 0
 
 
-def normals(points: np.ndarray, tree: cKDTree, k: int = 12) -> np.ndarray:
-    """Unit normals of a cloud from the smallest principal axis of each point's k neighbours."""
+class Surface(NamedTuple):
+    """An ICP target: its KD-tree, each point's normal, and which normals are a surface's."""
+
+    tree: cKDTree
+    normals: np.ndarray
+    flat: np.ndarray
+
+
+def normals(points: np.ndarray, tree: cKDTree, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals of a cloud from the smallest principal axis of each point's k neighbours,
+    and each neighbourhood's surface variation λ0 / (λ0 + λ1 + λ2): 0 on a plane, 1/3 for a
+    blob without one (Pauly et al. 2002), where the normal is noise."""
     _, idx = tree.query(points, k=k)
     nb = points[idx] - points[idx].mean(1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
-    return vecs[:, :, 0]
+    vals, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    total = vals.sum(1)
+    variation = np.divide(vals[:, 0], total, out=np.ones(len(total)), where=total > 0)
+    return vecs[:, :, 0], variation
 
 
 def constrained_directions(n: np.ndarray, min_points: int) -> np.ndarray:
@@ -77,7 +94,7 @@ def constrained_directions(n: np.ndarray, min_points: int) -> np.ndarray:
 def icp_translation(
     source: np.ndarray,
     target: np.ndarray,
-    surface: tuple[cKDTree, np.ndarray],
+    surface: Surface,
     iterations: int = 30,
     max_distance: float = 0.05,
     min_points: int = 60,
@@ -89,13 +106,15 @@ def icp_translation(
     point-to-point fit lets two samplings of a plane slide); pairs farther apart than
     ``max_distance`` are left out. The rotation stays the estimate's (gravity-tilted, within
     0.3 deg on the recorded stair run): a rotation solved about the map origin, metres from
-    the body, moves the body by its lever arm. ``surface``: the target's tree and normals.
+    the body, moves the body by its lever arm. ``surface``: the target's (``target_surface``);
+    only its points with a surface's normal are matched.
     """
-    tree, tn = surface
+    tree, tn, flat = surface
     shift, dirs = np.zeros(3), np.zeros((0, 3))
     for _ in range(iterations):
         dist, idx = tree.query(source + shift, distance_upper_bound=max_distance)
-        keep = np.isfinite(dist)
+        keep = np.flatnonzero(np.isfinite(dist))
+        keep = keep[flat[idx[keep]]]
         n = tn[idx[keep]]
         dirs = constrained_directions(n, min_points)
         if not len(dirs):
@@ -109,10 +128,12 @@ def icp_translation(
     return shift, dirs
 
 
-def target_surface(target: np.ndarray) -> tuple[cKDTree, np.ndarray]:
-    """KD-tree and normals of an ICP target, built once per map."""
+def target_surface(target: np.ndarray, max_variation: float) -> Surface:
+    """KD-tree and normals of an ICP target, built once per map; normals whose neighbourhood
+    varies by ``max_variation`` or more are not a surface's and take no part."""
     tree = cKDTree(target)
-    return tree, normals(target, tree)
+    n, variation = normals(target, tree)
+    return Surface(tree, n, variation < max_variation)
 
 
 SCORED = 32
@@ -223,7 +244,7 @@ class StairPerception(PerceptionPlugin):
     def __init__(self, config: StairsConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
         self.map: np.ndarray | None = None
-        self._surface: tuple[cKDTree, np.ndarray] | None = None
+        self._surface: Surface | None = None
         self.last_correction: tuple[np.ndarray, np.ndarray] | None = None
         self.rejected = 0
 
@@ -240,7 +261,7 @@ class StairPerception(PerceptionPlugin):
         world = voxel_thin(np.asarray(points, float), c.voxel) @ rot.T + body.position
         if self.map is None:
             self.map = world
-            self._surface = target_surface(world)
+            self._surface = target_surface(world, c.icp_max_variation)
             self.last_correction = None
             return world
         shift, dirs = icp_translation(
@@ -258,7 +279,7 @@ class StairPerception(PerceptionPlugin):
         self.last_correction = (shift, dirs)
         aligned = world + shift
         self.map = voxel_thin(np.vstack([self.map, aligned]), c.voxel)
-        self._surface = target_surface(self.map)
+        self._surface = target_surface(self.map, c.icp_max_variation)
         return aligned
 
     def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> Stairs:
