@@ -1,5 +1,7 @@
-"""Paper 004 on the stairs: gait-parameter computation, stair plane extraction beside Open3D, and
-(with ``--full``) the whole stair run in the twin.
+"""Paper 004 on the stairs: gait parameters, stair planes beside Open3D, the whole stair run.
+
+Gait-parameter computation, stair plane extraction beside Open3D, and (with ``--full``) the
+whole stair run in the twin.
 
 - Parameters: ``StepPlanner.plan`` as the stair gait configures it (its margins and transfer;
   this step's length and height and the next step's length) at every half cycle of a planned
