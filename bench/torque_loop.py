@@ -161,7 +161,7 @@ def statics_table(calls: int = 2000) -> None:
     from daemon import profile as profiles
     from daemon.estimation import GRAVITY
     from daemon.kinematics import Kinematics
-    from daemon.statics import Statics
+    from daemon.statics import Statics, link_weights
 
     masses = [0.58, 0.51, 0.37]  # the twin's links (kg)
     kin = Kinematics(profiles.load(PROFILE))
@@ -172,12 +172,8 @@ def statics_table(calls: int = 2000) -> None:
     push = rng.normal(0.0, 40.0, (kin.n_legs, 3))
     statics = Statics(kin, masses)
     weighted = copy.copy(kin)
-    m1, m2, m3 = masses
-    weighted.l1, weighted.l2, weighted.l3 = (
-        kin.l1 * (m1 / 2 + m2 + m3),
-        kin.l2 * (m2 / 2 + m3),
-        kin.l3 * m3 / 2,
-    )
+    w1, w2, w3 = link_weights(masses)
+    weighted.l1, weighted.l2, weighted.l3 = kin.l1 * w1, kin.l2 * w2, kin.l3 * w3
 
     def floats() -> tuple:
         legs = statics.at(q.tolist())

@@ -316,16 +316,16 @@ class StateEstimator:
 
     # --- filter 1 -------------------------------------------------------------------------
 
-    def _predict(self, gyro: Vector, accel: Vector, dt: float) -> None:
+    def _predict(self, gyro: Vector, accel: Vector, dt: float) -> list[float]:
         """The gyro turns the body, the accelerometer (less gravity) moves it; each axis's
-        position/velocity covariance grows by F P Fᵀ + Q (constant acceleration noise)."""
+        position/velocity covariance grows by F P Fᵀ + Q (constant acceleration noise).
+        Returns the specific force in the world frame, which ``_tilt`` low-passes."""
         c = self.config
         self.omega = self.rot @ gyro
         self.rot = self.rot @ exp_so3((gyro[0] * dt, gyro[1] * dt, gyro[2] * dt))
         self.p_heading += c.gyro_noise**2 * dt
-        r = self.rot.tolist()
-        acc = rotate(r, accel)
-        acc[2] -= GRAVITY
+        force = rotate(self.rot.tolist(), accel)
+        acc = [force[0], force[1], force[2] - GRAVITY]
         pos, vel = self.pos.tolist(), self.vel.tolist()
         for k in range(3):
             pos[k] += vel[k] * dt + 0.5 * acc[k] * dt * dt
@@ -338,16 +338,16 @@ class StateEstimator:
             p[0] = pp + 2.0 * dt * pv + dt * dt * vv + q_pp
             p[1] = pv + dt * vv
             p[2] = vv + q_vv
+        return force
 
     def _rotate(self, delta: Sequence[float]) -> None:
         self.rot = orthonormalised(exp_so3(delta) @ self.rot)
 
-    def _tilt(self, accel: Vector, pos_kin: list[float], dt: float) -> list[float]:
+    def _tilt(self, force: list[float], pos_kin: list[float], dt: float) -> list[float]:
         """The turn pulling the tilt toward gravity: specific force (world) = acceleration + g·z,
         with the force low-passed twice (f1, f2) and the acceleration the same filter's second
         derivative of the stance feet's position, (p - 2·p1 + p2) / T² (T = ``gravity_time``)."""
         c = self.config
-        force = rotate(self.rot.tolist(), accel)
         if self._lowpass is None:
             self._lowpass = [list(force), list(force), list(pos_kin), list(pos_kin)]
         a = min(1.0, dt / c.gravity_time)
@@ -368,7 +368,7 @@ class StateEstimator:
         feet: list[Vector],
         touching: list[int],
         holding: list[int],
-        accel: Vector,
+        force: list[float],
         dt: float,
     ) -> None:
         """Heading from the stance feet's rotation, tilt from gravity, then position from the
@@ -393,7 +393,7 @@ class StateEstimator:
             pos_kin[1] = sum(origin(leg, 1) for leg in holding) / len(holding)
         if touching:
             pos_kin[2] = sum(origin(leg, 2) for leg in touching) / len(touching)
-        turn = self._tilt(accel, pos_kin, dt)
+        turn = self._tilt(force, pos_kin, dt)
         turn[2] = gain * heading
         self._rotate(turn)
         vel = self.vel.tolist()
@@ -480,7 +480,7 @@ class StateEstimator:
         imu = gyro is not None and accel is not None and dt > 0
         if imu:
             gyro, accel = tuple(map(float, gyro)), tuple(map(float, accel))
-            self._predict(gyro, accel, dt)
+            force = self._predict(gyro, accel, dt)
         up = self.rot[2].tolist()  # world up in the body frame
         gravity = (-GRAVITY * up[0], -GRAVITY * up[1], -GRAVITY * up[2])
         forces = self.statics.foot_forces(legs, np.asarray(tau, float).tolist(), gravity)
@@ -516,7 +516,7 @@ class StateEstimator:
             rot_kin, pos_kin = self.rot, self.pos
         if imu:
             touching, holding = self._footing(stance, feet, forces)
-            self._correct(rot_kin, legs.feet, touching, holding, accel, dt)
+            self._correct(rot_kin, legs.feet, touching, holding, force, dt)
         else:
             if dt > 0:
                 self.vel = (pos_kin - self.pos) / dt

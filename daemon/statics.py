@@ -69,7 +69,7 @@ def dot(a: Sequence[float], b: Sequence[float]) -> float:
 
 def rotate(rows: Sequence[Sequence[float]], v: Sequence[float]) -> list[float]:
     """R v for R given by its rows."""
-    return [row[0] * v[0] + row[1] * v[1] + row[2] * v[2] for row in rows]
+    return [dot(row, v) for row in rows]
 
 
 def transpose_times(m: Matrix, v: Vector) -> Vector:
@@ -99,6 +99,13 @@ def solve_transposed(m: Matrix, b: Vector, min_det: float) -> Vector:
     )
 
 
+def link_weights(link_masses: Sequence[float]) -> Vector:
+    """Per link, half its own mass plus the masses beyond it: the Jacobian is linear in the
+    link lengths, so sum_i m_i J_i is the Jacobian of the leg with link j scaled by weight j."""
+    m1, m2, m3 = link_masses
+    return (m1 / 2 + m2 + m3, m2 / 2 + m3, m3 / 2)
+
+
 class Statics:
     """Eq. 5 for every leg of ``kin``'s profile, with links of ``link_masses`` (kg, centres at
     mid-link; empty: massless legs)."""
@@ -106,18 +113,14 @@ class Statics:
     def __init__(self, kin: Kinematics, link_masses: Sequence[float] = ()) -> None:
         if link_masses and len(link_masses) != 3:
             raise ValueError(f"estimator link_masses: expected 3 values, found {link_masses}")
-        self.kin = kin
         self.link_masses = list(link_masses)
         self._legs = []
         for i, leg in enumerate(kin.profile.legs):
             d = kin.direction[3 * i : 3 * i + 3].tolist()
             lengths = (float(kin.l1[i]), float(kin.l2[i]), float(kin.l3[i]))
-            # the Jacobian is linear in the link lengths, so sum_i m_i J_i is the Jacobian of
-            # one leg whose link j is l_j x (half its own mass + the masses beyond it)
             weighted = None
             if link_masses:
-                m1, m2, m3 = link_masses
-                weights = (m1 / 2 + m2 + m3, m2 / 2 + m3, m3 / 2)
+                weights = link_weights(link_masses)
                 weighted = tuple(w * x for w, x in zip(weights, lengths, strict=True))
             frame = (float(kin.cos_yaw[i]), float(kin.sin_yaw[i]), *d)
             mount = tuple(kin.mount[i].tolist())
