@@ -3,19 +3,21 @@
 The real ``ControlLoop`` on ``MonotonicClock`` runs ``Controller.tick`` as ``climbd run`` builds
 it for the Qingzhui profile (paper 004's estimator with its IMU filter on a level, still IMU,
 gravity feed-forward, tripod gait walking ACTIVE, heartbeats and motion commands arriving from
-another thread) over three joint buses: ``MitJointBus`` to 18 emulated MIT motors in a process
-of their own (python-can's ``udp_multicast``: a frame a datagram, as SocketCAN is a frame a
-syscall; this VM has no vcan), the same driver to motors serving in a thread of this process
-(python-can's ``virtual`` bus: the motors then take this interpreter's time), and
-``FakeJointBus`` (no driver: the controller's own compute). The C ``clock_nanosleep`` loop runs
-in the same run, so the p99 lateness ratio means something on a loaded machine. Goal (issue
-2's): ratio <= 1.5, with overruns under 1 % of ticks (an overrun skips its deadline, so
-lateness alone hides a slow tick). First, the tick's eq. 5 both ways (feet, foot forces from
-torques for the estimator, feed-forward torques from forces) as the tick computes it,
-``daemon.statics`` on floats, beside the same quantities from ``Kinematics``'s vectorised
-numpy forms, checked equal in the same run.
+another thread) over four joint buses: ``MitJointBus`` to 18 emulated MIT motors in a process
+of their own over ``udp_can`` (SocketCAN's can_frame, a datagram a frame, as SocketCAN is a
+syscall a frame; this VM has no vcan) and over python-can's ``udp_multicast`` (msgpack per
+frame, each frame echoed to its sender), both with the profile's reply timeout (0: a read takes
+the replies that have arrived); the same driver to motors serving in a thread of this process
+(python-can's ``virtual`` bus: the motors then take this interpreter's time, and the read waits
+the twin's ``THREAD_REPLY_TIMEOUT`` for them); and ``FakeJointBus`` (no driver: the controller's
+own compute). The C ``clock_nanosleep`` loop runs in the same run, so the p99 lateness ratio
+means something on a loaded machine. Goal (issue 2's): ratio <= 1.5, with overruns under 1 %
+of ticks (an overrun skips its deadline, so lateness alone hides a slow tick). First, the
+tick's eq. 5 both ways (feet, foot forces from torques for the estimator, feed-forward torques
+from forces) as the tick computes it, ``daemon.statics`` on floats, beside the same quantities
+from ``Kinematics``'s vectorised numpy forms, checked equal in the same run.
 
-    .venv/bin/python bench/torque_loop.py [--seconds 20] [--buses multicast,virtual,fake]
+    .venv/bin/python bench/torque_loop.py [--seconds 20] [--buses udp,multicast,virtual,fake]
 """
 
 from __future__ import annotations
@@ -40,7 +42,9 @@ ROOT = Path(__file__).resolve().parent.parent
 PROFILE = ROOT / "robots" / "qingzhui.toml"
 SESSION = "bench"
 GROUP = "239.74.163.2"
+UDP_CHANNEL = "127.0.0.1:47163/127.0.0.1:47164"
 BUSES = {
+    "udp": "MitJointBus, motors in another process (udp_can: SocketCAN's frames)",
     "multicast": "MitJointBus, motors in another process (udp_multicast)",
     "virtual": "MitJointBus, motors in this process (virtual CAN)",
     "fake": "FakeJointBus (no driver)",
@@ -53,9 +57,13 @@ _channels = itertools.count()
 @contextlib.contextmanager
 def joint_bus(kind: str, profile) -> Iterator[object]:
     """An open joint bus of ``kind`` for the profile, its motors serving; closed on exit."""
+    import msgspec
+
+    from daemon.sim_host import THREAD_REPLY_TIMEOUT
     from drivers.base import FakeJointBus
     from drivers.sim.mit_motors import MitMotorChain
     from drivers.torque.bus import MitJointBus
+    from drivers.torque.links import peer_channel
 
     if kind == "fake":
         bus = FakeJointBus(profile)
@@ -66,7 +74,10 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
         channel = f"bench-torque-{next(_channels)}"
         ids = [j.id for j in profile.joints]
         chain = MitMotorChain(ids, profile.bus.actuator, channel).start()
-        bus = MitJointBus(profile, [channel], interface="virtual")
+        waiting = msgspec.structs.replace(profile.bus, reply_timeout=THREAD_REPLY_TIMEOUT)
+        bus = MitJointBus(
+            msgspec.structs.replace(profile, bus=waiting), [channel], interface="virtual"
+        )
         try:
             bus.open()
             yield bus
@@ -74,17 +85,21 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
             bus.close()
             chain.stop()
         return
+    interface, channel, theirs = "udp_multicast", GROUP, GROUP
+    if kind == "udp":
+        interface, channel = "udp_can", UDP_CHANNEL
+        theirs = peer_channel(channel)
     motors = subprocess.Popen(
         [sys.executable, "-m", "drivers.sim.mit_motors", "--profile", str(PROFILE)]
-        + ["--channel", GROUP],
+        + ["--interface", interface, "--channel", theirs],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         text=True,
     )
     try:
-        if motors.stdout.readline().strip() != GROUP:
+        if motors.stdout.readline().strip() != theirs:
             raise RuntimeError(f"the motor emulator did not start (exit {motors.wait()})")
-        bus = MitJointBus(profile, [GROUP], interface="udp_multicast")
+        bus = MitJointBus(profile, [channel], interface=interface)
         bus.open()
         try:
             yield bus
@@ -95,8 +110,9 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
         motors.wait(5)
 
 
-def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int]:
-    """Lateness and compute samples (s) of the Qingzhui tick at 1 kHz, and its overruns."""
+def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int, int | None]:
+    """Lateness and compute samples (s) of the Qingzhui tick at 1 kHz, its overruns, and the
+    driver's reads that found replies still on the wire (None without a driver)."""
     from daemon import profile as profiles
     from daemon.control import Controller
     from daemon.estimation import EstimatorConfig, StateEstimator
@@ -145,12 +161,14 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int]
         thread.join()
         stop.set()
         feeder.join()
+        late_reads = getattr(bus, "late_reads", None)
     mode = safety.mode
     if mode != Mode.ACTIVE:
         raise RuntimeError(f"the loop ended in {mode.value}, not walking: {safety.reason}")
     timing = loop.timing
     count = min(n, timing.count)
-    return timing.lateness[:count].copy(), timing.compute[:count].copy(), timing.overruns
+    lateness, compute = timing.lateness[:count].copy(), timing.compute[:count].copy()
+    return lateness, compute, timing.overruns, late_reads
 
 
 def statics_table(calls: int = 2000) -> None:
@@ -211,29 +229,35 @@ def report(seconds: float, kinds: list[str]) -> dict:
         c = c_loop(1000.0, seconds, Path(tmp))
     c_p = pct(c) if c is not None else None
     print(f"## Qingzhui's 1 kHz loop ({seconds:g} s each; times in µs)")
-    print("| loop | lateness p50 | p99 | p99.9 | compute p50 | p99 | overruns | ratio | goal |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print(
+        "| loop | lateness p50 | p99 | p99.9 | compute p50 | p99 | overruns | late reads | "
+        "ratio | goal |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
     if c_p is None:
-        print("| C clock_nanosleep | skipped: no C compiler | | | | | | | |")
+        print("| C clock_nanosleep | skipped: no C compiler | | | | | | | | |")
     else:
         c_row = f"{c_p[0]:.0f} | {c_p[1]:.0f} | {c_p[2]:.0f}"
-        print(f"| C clock_nanosleep | {c_row} | – | – | – | 1.00 | |")
+        print(f"| C clock_nanosleep | {c_row} | – | – | – | – | 1.00 | |")
     figures = {}
     for kind in kinds:
-        late, compute, overruns = torque_loop(seconds, kind)
+        late, compute, overruns, late_reads = torque_loop(seconds, kind)
+        stale = "–" if late_reads is None else f"{late_reads / len(late):.1%}"
         lp, cp = pct(late), pct(compute)
         ratio = lp[1] / c_p[1] if c_p is not None else float("nan")
         met = ratio <= GOAL_RATIO and overruns <= GOAL_OVERRUNS * len(late)
         print(
             f"| Qingzhui tick, {BUSES[kind]} | {lp[0]:.0f} | {lp[1]:.0f} | {lp[2]:.0f} | "
-            f"{cp[0]:.0f} | {cp[1]:.0f} | {overruns} of {len(late)} | {ratio:.2f} | "
+            f"{cp[0]:.0f} | {cp[1]:.0f} | {overruns} of {len(late)} | {stale} | {ratio:.2f} | "
             f"{'met' if met else 'not met'} |"
         )
         figures[kind] = {"lateness_us": lp, "compute_us": cp, "ratio": ratio, "overruns": overruns}
     print(
         f"\nratio: p99 lateness over the C loop's. Goal: ratio <= {GOAL_RATIO} and overruns <= "
         f"{GOAL_OVERRUNS:.0%} of ticks (a loop that overruns skips ahead, so its lateness alone "
-        "stays under a period however long its ticks take)."
+        "stays under a period however long its ticks take). Late reads: ticks whose read found "
+        "some motor's reply to the last write still on the wire (that joint's state is then a "
+        "tick older; the next read takes the reply)."
     )
     return figures
 

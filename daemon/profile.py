@@ -88,7 +88,11 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     default position gains ``kp`` (N·m/rad) and ``kd`` (N·m·s/rad) for commands without gains;
     ``can_channels`` spreads the legs over several CAN buses (leg i on channel i mod n), each
     of which must carry its motors' command and reply every tick at ``baud`` (the serial or CAN
-    bit rate, bit/s).
+    bit rate, bit/s). ``reply_timeout`` (s) is how long a read waits for motors yet to answer
+    the last write: 0 takes the replies that have arrived and leaves those still on the wire
+    to the next read, so a tick never waits out a channel's bus time (three motors hold a
+    1 Mbit/s channel 0.75 ms after each write); a motor is lost after ``lost_after`` reads
+    without any reply.
     Position servos (Dynamixel) sag under load by torque / ``stiffness`` (N·m/rad, the firmware
     gain's); above 0, each stance leg's goal is offset by its share of the weight's torque over
     it, so loaded legs hold their height (0: no sag compensation).
@@ -107,7 +111,7 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     can_channel: str = "can0"
     can_channels: list[str] = []
     master_id: int = 0
-    reply_timeout: float = 0.0005
+    reply_timeout: float = 0.0
     actuator: ActuatorRanges = msgspec.field(default_factory=ActuatorRanges)
     kp: float = 60.0
     kd: float = 1.5

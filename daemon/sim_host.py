@@ -43,6 +43,10 @@ STEPPED_TIMEOUT_MARGIN_MS = 100.0
 
 STEPPED_REPLY_TIMEOUT = 0.05
 """MIT-mode reply timeout (s) in stepped mode, for the same reason."""
+THREAD_REPLY_TIMEOUT = 0.0005
+"""MIT-mode reply timeout (s) in real time: the twin's motors answer from a thread of this
+interpreter, which runs only while the tick waits (a tick that never waits starves them until
+they are taken for lost)."""
 
 
 class PerceptionGate:
@@ -138,8 +142,8 @@ class SimHost:
         options: dict = {"port": self.twin.port}
         if bus.kind == "torque":
             options["interface"] = "virtual"
-            if self.stepped:
-                bus = msgspec.structs.replace(bus, reply_timeout=STEPPED_REPLY_TIMEOUT)
+            wait = STEPPED_REPLY_TIMEOUT if self.stepped else THREAD_REPLY_TIMEOUT
+            bus = msgspec.structs.replace(bus, reply_timeout=max(bus.reply_timeout, wait))
         elif self.stepped:
             options["timeout_margin_ms"] = STEPPED_TIMEOUT_MARGIN_MS
         return msgspec.structs.replace(self.profile, bus=bus), options

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import select
+import socket
 import subprocess
 import sys
 import threading
@@ -23,7 +24,7 @@ from daemon.safety import Safety
 from drivers.base import DriverError
 from drivers.sim import mit_motors
 from drivers.sim.mit_motors import MitMotorChain
-from drivers.torque import mit
+from drivers.torque import links, mit
 from drivers.torque.bus import MitJointBus
 
 RANGES = ActuatorRanges()
@@ -116,47 +117,33 @@ def test_motors_follow_impedance_commands(rig) -> None:
     assert bus.read().effort[2] == pytest.approx(2.0, abs=0.1)
 
 
-MULTICAST_GROUP = "239.74.163.90"
-
-
-def multicast_unavailable() -> str | None:
-    """Why this host cannot carry python-can's udp_multicast between processes, or None."""
-    try:
-        a = can.Bus(interface="udp_multicast", channel=MULTICAST_GROUP)
-    except (can.CanError, OSError) as e:
-        return f"udp_multicast does not open here: {e}"
-    try:
-        b = can.Bus(interface="udp_multicast", channel=MULTICAST_GROUP)
-        try:
-            a.send(can.Message(arbitration_id=0x7FF, data=b"probe", is_extended_id=False))
-            heard = b.recv(0.5)
-        except (can.CanError, OSError) as e:
-            return f"udp_multicast does not deliver here: {e}"
-        finally:
-            b.shutdown()
-    finally:
-        a.shutdown()
-    return None if heard is not None else "udp_multicast delivers nothing on this host"
+def udp_channels(count: int) -> list[str]:
+    """``count`` udp_can channels (driver's end first) on loopback ports free right now."""
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(2 * count)]
+    for s in socks:
+        s.bind(("127.0.0.1", 0))
+    ports = [s.getsockname()[1] for s in socks]
+    for s in socks:
+        s.close()
+    return [f"127.0.0.1:{a}/127.0.0.1:{b}" for a, b in zip(ports[::2], ports[1::2], strict=True)]
 
 
 def test_motors_in_their_own_process_follow_the_driver(qingzhui, robots) -> None:
     """``python -m drivers.sim.mit_motors`` serves the profile's motors from a process of its own
-    on two channels (legs alternating, as the driver spreads them); the driver opens them,
-    drives them to a goal, and the emulator exits cleanly on SIGTERM."""
-    reason = multicast_unavailable()
-    if reason:
-        pytest.skip(reason)
-    channels = [MULTICAST_GROUP, "239.74.163.91"]
+    on two udp_can channels (legs alternating, as the driver spreads them); the driver opens
+    them, drives them to a goal, and the emulator exits cleanly on SIGTERM."""
+    channels = udp_channels(2)
+    theirs = [links.peer_channel(c) for c in channels]
     motors = subprocess.Popen(
         [sys.executable, "-m", "drivers.sim.mit_motors", "--profile", str(robots / "qingzhui.toml")]
-        + ["--channel", *channels],
+        + ["--channel", *theirs],
         stdout=subprocess.PIPE,
         text=True,
     )
-    bus = MitJointBus(patient(qingzhui), channels, interface="udp_multicast")
+    bus = MitJointBus(patient(qingzhui), channels, interface=links.UDP_INTERFACE)
     try:
         ready, _, _ = select.select([motors.stdout], [], [], 30)
-        assert ready and motors.stdout.readline().split() == channels
+        assert ready and motors.stdout.readline().split() == theirs
         bus.open()
         assert follows_goal(bus) < 0.01
         bus.torque(False)
@@ -164,6 +151,95 @@ def test_motors_in_their_own_process_follow_the_driver(qingzhui, robots) -> None
         bus.close()
         motors.terminate()
         assert motors.wait(10) == 0
+
+
+def test_udp_link_carries_can_frames_both_ways() -> None:
+    """Data frames (ids and payload lengths kept), a bus-off error frame, and everything waiting
+    taken by one receive; a datagram that is not a can_frame is named as such."""
+    mine = udp_channels(1)[0]
+    a, b = links.UdpLink(mine), links.UdpLink(links.peer_channel(mine))
+    try:
+        a.send([1, 2, 0x7FF], [bytes(range(8)), b"\x05" * 6, b""])
+        a.send_error(mit.CAN_ERR_BUSOFF)
+        frames = b.receive(1.0)
+        while len(frames) < 4:
+            frames += b.receive(1.0)
+        assert frames == [
+            links.Frame(1, bytes(range(8))),
+            links.Frame(2, b"\x05" * 6),
+            links.Frame(0x7FF, b""),
+            links.Frame(mit.CAN_ERR_BUSOFF, bytes(8), error=True),
+        ]
+        assert b.receive(0.0) == []
+        a.socket.send(b"short")
+        with pytest.raises(can.CanOperationError, match="5-byte datagram is not a 16-byte"):
+            b.receive(1.0)
+    finally:
+        a.close()
+        b.close()
+
+
+@pytest.mark.parametrize("channel", ["127.0.0.1:1", "a:1/b", "h:1/h:x", "can0"])
+def test_a_malformed_udp_channel_is_named(qingzhui, channel) -> None:
+    bus = MitJointBus(qingzhui, [channel], interface=links.UDP_INTERFACE)
+    with pytest.raises(DriverError, match=f"channel {channel!r} is not LOCAL_HOST:PORT/PEER"):
+        bus.open()
+
+
+def test_motors_not_served_over_udp_are_a_clear_error(qingzhui) -> None:
+    """No emulator at the peer's port: the refusal (on the first receive or the next send)
+    names the channel, not a raw OSError."""
+    channel = udp_channels(1)[0]
+    bus = MitJointBus(qingzhui, [channel], interface=links.UDP_INTERFACE)
+    with pytest.raises(DriverError, match=f"CAN (send|receive) on {channel}: .*refused"):
+        bus.open()
+
+
+class EchoLink:
+    """A channel whose motors answer every command at once; records what receive waited."""
+
+    def __init__(self, channel: str, master_id: int) -> None:
+        self.channel, self.master_id = channel, master_id
+        self.waiting: list[links.Frame] = []
+        self.waits: list[float] = []
+
+    def send(self, ids, payloads) -> None:
+        for motor in ids:
+            reply = mit.pack_reply(mit.Reply(motor, 0.1, 0.0, 0.0), RANGES)
+            self.waiting.append(links.Frame(self.master_id, reply))
+
+    def send_error(self, error_class: int) -> None:
+        raise AssertionError("the driver sends no error frames")
+
+    def receive(self, timeout: float) -> list[links.Frame]:
+        self.waits.append(timeout)
+        frames, self.waiting = self.waiting, []
+        return frames
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_channel_whose_motors_answered_is_not_waited_on(qingzhui, monkeypatch) -> None:
+    """With six channels, a read waits on each only while its own motors have not answered
+    (waiting on one channel for the others' replies cost a tick the whole reply timeout)."""
+    opened: dict[str, EchoLink] = {}
+
+    def echo(interface: str, channel: str) -> EchoLink:
+        opened[channel] = EchoLink(channel, qingzhui.bus.master_id)
+        return opened[channel]
+
+    monkeypatch.setattr("drivers.torque.bus.open_link", echo)
+    bus = MitJointBus(patient(qingzhui), [f"can{i}" for i in range(6)])
+    bus.open()
+    for link in opened.values():
+        link.waits.clear()
+    bus.torque(True)
+    bus.write(JointCommand(position=[0.0] * 18))
+    state = bus.read()
+    assert state.position == pytest.approx([0.1] * 18, abs=1e-3)
+    for link in opened.values():  # a wait for its three replies, then a look for more
+        assert len(link.waits) == 2 and link.waits[0] > 0.0 and link.waits[1] == 0.0
 
 
 def test_the_motor_emulator_names_a_bad_profile(tmp_path, capsys) -> None:

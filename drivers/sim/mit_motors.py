@@ -1,4 +1,5 @@
-"""Emulated MIT-mode actuators answering CAN frames on a python-can bus (``virtual`` in tests).
+"""Emulated MIT-mode actuators answering CAN frames on a ``FrameLink`` (python-can's ``virtual``
+bus in tests, ``udp_can`` between processes).
 
 Each motor behaves as the firmware does: special frames enter/leave motor mode or zero the
 encoder; every command frame is answered with the motor's state; commands act only in motor
@@ -12,10 +13,11 @@ between frames unless an external model (the physics twin) sets their state inst
     chain.silence(2); chain.corrupt(3); chain.bus_off()      # fault injection
     chain.stop()
 
-``python -m drivers.sim.mit_motors --profile robots/qingzhui.toml --channel 239.74.163.2``
-serves a profile's motors from a process of their own (python-can's ``udp_multicast``, CAN
-between processes, by default; ``--interface socketcan --channel vcan0`` where there is vcan),
-so a driver is measured without emulated motors taking its interpreter's time.
+``python -m drivers.sim.mit_motors --profile robots/qingzhui.toml --channel
+127.0.0.1:47002/127.0.0.1:47001`` serves a profile's motors from a process of their own
+(``udp_can`` by default, the driver on the reversed channel; any python-can interface with
+``--interface``, e.g. ``socketcan --channel vcan0`` where there is vcan), so a driver is
+measured without emulated motors taking its interpreter's time.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import can
 
 from daemon.profile import ActuatorRanges, ProfileError, load
 from drivers.torque.bus import joint_channels
+from drivers.torque.links import UDP_INTERFACE, FrameLink, open_link
 from drivers.torque.mit import (
     CAN_ERR_BUSOFF,
     ENTER_MOTOR_MODE,
@@ -98,10 +101,10 @@ class MitMotorChain:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._bus: can.BusABC | None = None
+        self._link: FrameLink | None = None
 
     def start(self) -> MitMotorChain:
-        self._bus = can.Bus(interface=self.interface, channel=self.channel)
+        self._link = open_link(self.interface, self.channel)
         self._thread = threading.Thread(target=self._serve, name=f"mit-{self.channel}", daemon=True)
         self._thread.start()
         return self
@@ -110,8 +113,8 @@ class MitMotorChain:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(2)
-        if self._bus is not None:
-            self._bus.shutdown()
+        if self._link is not None:
+            self._link.close()
 
     # --- in-process API for the twin and tests ----------------------------------------
 
@@ -131,21 +134,24 @@ class MitMotorChain:
 
     def bus_off(self) -> None:
         """Put an error frame with the bus-off class on the bus, as a SocketCAN controller does."""
-        self._bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, dlc=8))
+        self._link.send_error(CAN_ERR_BUSOFF)
 
     # --- the wire ---------------------------------------------------------------------
 
     def _serve(self) -> None:
-        bus = self._bus
+        """Answer the frames waiting, all at once, as motors on one bus answer in turn."""
+        link = self._link
         while not self._stop.is_set():
-            msg = bus.recv(timeout=0.05)
-            if msg is None or msg.is_error_frame or msg.arbitration_id not in self.motors:
+            try:
+                replies = []
+                for frame in link.receive(0.05):
+                    m = None if frame.error else self.motors.get(frame.can_id)
+                    reply = None if m is None else self._handle(m, frame.data)
+                    if reply is not None:
+                        replies.append(reply)
+                link.send([self.master_id] * len(replies), replies)
+            except can.CanOperationError:  # a udp_can driver that went away: wait for the next
                 continue
-            reply = self._handle(self.motors[msg.arbitration_id], bytes(msg.data))
-            if reply is not None:
-                bus.send(
-                    can.Message(arbitration_id=self.master_id, data=reply, is_extended_id=False)
-                )
 
     def _handle(self, m: EmulatedMotor, data: bytes) -> bytes | None:
         now = time.monotonic()
@@ -183,9 +189,12 @@ def main(argv: list[str] | None = None) -> int:
         "--channel",
         nargs="+",
         required=True,
-        help="CAN channels (multicast groups, vcan0 ...): leg i's motors on channel i mod n",
+        help="CAN channels (LOCAL/PEER UDP endpoints, vcan0 ...): leg i's motors on channel "
+        "i mod n",
     )
-    parser.add_argument("--interface", default="udp_multicast", help="python-can interface")
+    parser.add_argument(
+        "--interface", default=UDP_INTERFACE, help=f"{UDP_INTERFACE} or a python-can interface"
+    )
     args = parser.parse_args(argv)
     chains: list[MitMotorChain] = []
     try:

@@ -517,21 +517,23 @@ class Twin:
             self._settle_pty()
 
     def _settle_can(self) -> None:
-        """The virtual CAN channel's queue is empty and the chain's thread waits in recv(),
+        """The virtual CAN channel's queue is empty and the chain's thread waits in receive(),
         twice 0.5 ms apart."""
         chain = self.can_chain
-        if chain._thread is None or chain._bus is None:
+        if chain._thread is None or chain._link is None:
             return
         if self._recv_line is None:
             source, first = inspect.getsourcelines(type(chain)._serve)
-            self._recv_line = first + next(i for i, line in enumerate(source) if ".recv(" in line)
+            self._recv_line = first + next(
+                i for i, line in enumerate(source) if ".receive(" in line
+            )
         deadline = time.monotonic() + 0.5
         idle = 0
         while idle < 2 and time.monotonic() < deadline:
             frame = sys._current_frames().get(chain._thread.ident)
             while frame is not None and frame.f_code is not type(chain)._serve.__code__:
                 frame = frame.f_back
-            quiet = chain._bus.queue.empty() and frame is not None
+            quiet = chain._link.bus.queue.empty() and frame is not None
             quiet = quiet and frame.f_lineno == self._recv_line
             idle = idle + 1 if quiet else 0
             time.sleep(0.0005)

@@ -19,6 +19,7 @@ import numpy as np
 from daemon.messages import JointCommand, JointHealth, JointState
 from daemon.profile import Profile
 from drivers.base import DriverError
+from drivers.torque.links import Frame, FrameLink, open_link
 from drivers.torque.mit import (
     CAN_ERR_BUSOFF,
     ENTER_MOTOR_MODE,
@@ -58,6 +59,12 @@ class MitJointBus:
         self.names = [j.name for j in joints]
         self.ids = np.array([j.id for j in joints])
         self.channel_of = joint_channels(profile, legs_channels)
+        self.joints_on = {
+            c: [i for i, joint_channel in enumerate(self.channel_of) if joint_channel == c]
+            for c in dict.fromkeys(self.channel_of)
+        }
+        """Joint indices by channel, in joint order."""
+        self._ids_on = {c: [int(self.ids[i]) for i in js] for c, js in self.joints_on.items()}
         self.index = {int(m): i for i, m in enumerate(self.ids)}
         n = len(joints)
         self.position = np.zeros(n)
@@ -69,13 +76,18 @@ class MitJointBus:
         self.reply_timeout = cfg.reply_timeout
         self.kp, self.kd = cfg.kp, cfg.kd
         self.master_id = cfg.master_id
-        self.buses: dict[str, can.BusABC] = {}
+        self.links: dict[str, FrameLink] = {}
         self.torque_on = False
         self._answered = np.zeros(n, bool)
+        self._unanswered = dict.fromkeys(self.joints_on, 0)
+        """Per channel, the motors yet to answer the last frames sent."""
         self._expecting = False
         self._last_frames: list[bytes] | None = None
         self.sent = 0
         """Frames put on the buses since construction (a lock-step twin waits for them)."""
+        self.late_reads = 0
+        """Reads that found some motor's reply to the last write still on the wire (its state
+        then comes from an earlier reply; with ``reply_timeout`` 0 the next read takes it)."""
 
     @classmethod
     def from_profile(cls, profile: Profile, port: str | None = None, **options) -> MitJointBus:
@@ -85,9 +97,9 @@ class MitJointBus:
     # --- lifecycle --------------------------------------------------------------------
 
     def open(self) -> None:
-        for channel in dict.fromkeys(self.channel_of):
+        for channel in self.joints_on:
             try:
-                self.buses[channel] = can.Bus(interface=self.interface, channel=channel)
+                self.links[channel] = open_link(self.interface, channel)
             except (can.CanError, OSError, ValueError) as e:
                 self.close()
                 raise DriverError(
@@ -105,9 +117,9 @@ class MitJointBus:
             raise DriverError(f"no reply within {OPEN_TIMEOUT * 1e3:.0f} ms from {missing}")
 
     def close(self) -> None:
-        for bus in self.buses.values():
-            bus.shutdown()
-        self.buses.clear()
+        for link in self.links.values():
+            link.close()
+        self.links.clear()
 
     def torque(self, on: bool) -> None:
         """Enter (on) or leave (off) motor mode on every actuator."""
@@ -140,12 +152,13 @@ class MitJointBus:
         self._last_frames = frames
 
     def read(self) -> JointState:
-        if not self.buses:
+        if not self.links:
             raise DriverError("torque joint bus: read before open()")
         if not self._expecting:
             frames = self._last_frames if self.torque_on and self._last_frames else None
             self._send_all(frames or self._zero_gain())
         self._collect(self.reply_timeout)
+        self.late_reads += not self._answered.all()
         self.missed = np.where(self._answered, 0, self.missed + 1)
         self._expecting = False
         return JointState(
@@ -171,41 +184,44 @@ class MitJointBus:
 
     def _send_all(self, frames: list[bytes]) -> None:
         self._answered[:] = False
-        for i, data in enumerate(frames):
-            msg = can.Message(arbitration_id=int(self.ids[i]), data=data, is_extended_id=False)
+        for channel, joints in self.joints_on.items():
+            self._unanswered[channel] = len(joints)
             try:
-                self.buses[self.channel_of[i]].send(msg)
+                self.links[channel].send(self._ids_on[channel], [frames[i] for i in joints])
             except can.CanError as e:
-                raise DriverError(
-                    f"CAN send to motor {self.ids[i]} on {self.channel_of[i]}: {e}"
-                ) from e
-            self.sent += 1
+                raise DriverError(f"CAN send on {channel}: {e}") from e
+            self.sent += len(joints)
         self._expecting = True
 
     def _collect(self, timeout: float) -> None:
-        """Take every reply waiting, then wait up to ``timeout`` for the missing ones; decode
-        the replies together."""
+        """Take every reply waiting, then wait up to ``timeout`` for the missing ones (on each
+        channel only for its own motors); decode the replies together."""
         deadline = time.monotonic() + timeout
         replies: dict[int, bytes] = {}
-        for channel, bus in self.buses.items():
+        for channel, link in self.links.items():
             while True:
-                wait = 0.0 if self._answered.all() else max(0.0, deadline - time.monotonic())
-                msg = bus.recv(timeout=wait)
-                if msg is None:
+                pending = self._unanswered[channel]
+                wait = max(0.0, deadline - time.monotonic()) if pending else 0.0
+                try:
+                    frames = link.receive(wait)
+                except can.CanError as e:
+                    raise DriverError(f"CAN receive on {channel}: {e}") from e
+                if not frames:
                     break
-                self._take(channel, msg, replies)
+                for frame in frames:
+                    self._take(channel, frame, replies)
         if replies:
             self._decode(replies)
 
-    def _take(self, channel: str, msg: can.Message, replies: dict[int, bytes]) -> None:
+    def _take(self, channel: str, frame: Frame, replies: dict[int, bytes]) -> None:
         """File one frame: a bus-off raises, a reply of a known motor is kept by joint."""
-        if msg.is_error_frame:
-            if msg.arbitration_id & CAN_ERR_BUSOFF:
+        if frame.error:
+            if frame.can_id & CAN_ERR_BUSOFF:
                 raise DriverError(f"CAN bus-off on {self.interface} channel {channel!r}")
             return
-        if msg.arbitration_id != self.master_id:
+        if frame.can_id != self.master_id:
             return
-        data = bytes(msg.data)
+        data = frame.data
         i = self.index.get(data[0]) if data else None
         if i is None:
             log.warning("reply from unknown motor %s on %s", data[:1].hex(), channel)
@@ -216,7 +232,9 @@ class MitJointBus:
             self.errors[i] = [f"bad reply: {e}"]
             return
         replies[i] = data
-        self._answered[i] = True
+        if not self._answered[i]:
+            self._answered[i] = True
+            self._unanswered[self.channel_of[i]] -= 1
 
     def _decode(self, replies: dict[int, bytes]) -> None:
         """The state of every joint that answered; a reply at the end of a range is flagged."""
