@@ -57,9 +57,7 @@ _channels = itertools.count()
 @contextlib.contextmanager
 def joint_bus(kind: str, profile) -> Iterator[object]:
     """An open joint bus of ``kind`` for the profile, its motors serving; closed on exit."""
-    import msgspec
-
-    from daemon.sim_host import THREAD_REPLY_TIMEOUT
+    from daemon.sim_host import waiting_profile
     from drivers.base import FakeJointBus
     from drivers.sim.mit_motors import MitMotorChain
     from drivers.torque.bus import MitJointBus
@@ -74,10 +72,7 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
         channel = f"bench-torque-{next(_channels)}"
         ids = [j.id for j in profile.joints]
         chain = MitMotorChain(ids, profile.bus.actuator, channel).start()
-        waiting = msgspec.structs.replace(profile.bus, reply_timeout=THREAD_REPLY_TIMEOUT)
-        bus = MitJointBus(
-            msgspec.structs.replace(profile, bus=waiting), [channel], interface="virtual"
-        )
+        bus = MitJointBus(waiting_profile(profile), [channel], interface="virtual")
         try:
             bus.open()
             yield bus

@@ -49,6 +49,13 @@ interpreter, which runs only while the tick waits (a tick that never waits starv
 they are taken for lost)."""
 
 
+def waiting_profile(profile: Profile, wait: float = THREAD_REPLY_TIMEOUT) -> Profile:
+    """The profile with its MIT-mode reply timeout raised to ``wait`` s, for motors emulated in
+    this interpreter (they answer only while a read waits)."""
+    bus = msgspec.structs.replace(profile.bus, reply_timeout=max(profile.bus.reply_timeout, wait))
+    return msgspec.structs.replace(profile, bus=bus)
+
+
 class PerceptionGate:
     """Lock-step of the twin's depth frames with perception: physics waits for the answer to
     the last frame rendered, from perception's first answer on (start-up is not waited for).
@@ -138,15 +145,14 @@ class SimHost:
 
     def driver(self) -> tuple[Profile, dict]:
         """The profile and options the control role opens its driver with, on the twin's port."""
-        bus = self.profile.bus
         options: dict = {"port": self.twin.port}
-        if bus.kind == "torque":
+        if self.profile.bus.kind == "torque":
             options["interface"] = "virtual"
             wait = STEPPED_REPLY_TIMEOUT if self.stepped else THREAD_REPLY_TIMEOUT
-            bus = msgspec.structs.replace(bus, reply_timeout=max(bus.reply_timeout, wait))
-        elif self.stepped:
+            return waiting_profile(self.profile, wait), options
+        if self.stepped:
             options["timeout_margin_ms"] = STEPPED_TIMEOUT_MARGIN_MS
-        return msgspec.structs.replace(self.profile, bus=bus), options
+        return self.profile, options
 
     def attach(self, joint_bus) -> None:
         """Stepped mode: physics waits until the emulated bus handled all this driver sent."""

@@ -21,7 +21,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import msgspec
 import numpy as np
 import pytest
 
@@ -114,7 +113,7 @@ class Rig:
                 self.profile, port=self.emulator.port, timeout_margin_ms=10.0
             )
         else:
-            from daemon.sim_host import THREAD_REPLY_TIMEOUT
+            from daemon.sim_host import waiting_profile
             from drivers.sim.mit_motors import MitMotorChain
             from drivers.torque.bus import MitJointBus
 
@@ -124,10 +123,7 @@ class Rig:
             for ident, q in zip(ids, stand, strict=True):
                 self.chain.set_state(ident, float(q), 0.0, 0.0)
             self.emulator = None
-            # Motors in a thread of this interpreter answer only while the tick waits for them.
-            waiting = msgspec.structs.replace(self.profile.bus, reply_timeout=THREAD_REPLY_TIMEOUT)
-            profile = msgspec.structs.replace(self.profile, bus=waiting)
-            self.bus = MitJointBus(profile, [channel], interface="virtual")
+            self.bus = MitJointBus(waiting_profile(self.profile), [channel], interface="virtual")
         self.bus.open()
         write = self.bus.write
 

@@ -202,18 +202,23 @@ class EchoLink:
         self.channel, self.master_id = channel, master_id
         self.waiting: list[links.Frame] = []
         self.waits: list[float] = []
+        self.arrived = threading.Condition()
 
     def send(self, ids, payloads) -> None:
-        for motor in ids:
-            reply = mit.pack_reply(mit.Reply(motor, 0.1, 0.0, 0.0), RANGES)
-            self.waiting.append(links.Frame(self.master_id, reply))
+        with self.arrived:
+            for motor in ids:
+                reply = mit.pack_reply(mit.Reply(motor, 0.1, 0.0, 0.0), RANGES)
+                self.waiting.append(links.Frame(self.master_id, reply))
+            self.arrived.notify_all()
 
     def send_error(self, error_class: int) -> None:
         raise AssertionError("the driver sends no error frames")
 
     def receive(self, timeout: float) -> list[links.Frame]:
         self.waits.append(timeout)
-        frames, self.waiting = self.waiting, []
+        with self.arrived:
+            self.arrived.wait_for(lambda: self.waiting, timeout)
+            frames, self.waiting = self.waiting, []
         return frames
 
     def close(self) -> None:
@@ -252,6 +257,7 @@ def test_torque_off_leaves_motor_mode_and_still_reads(rig) -> None:
     bus.open()
     bus.torque(True)
     bus.torque(False)
+    bus.read()  # the replies to the exit frames, sent before the state below
     chain.set_state(5, position=0.25, velocity=0.0, torque=0.0)
     assert not any(m.motor_mode for m in chain.motors.values())
     assert bus.read().position[4] == pytest.approx(0.25, abs=1e-3)

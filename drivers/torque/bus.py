@@ -6,6 +6,8 @@ encoder zero (the joint convention of every driver; daemon/kinematics.py maps it
 leg's kinematic angles with the profile's zero offsets and directions). A tick writes one
 frame per motor; each answers once, and ``read`` collects the answers to the last write
 (polling with zero-gain frames, which motors out of motor mode ignore, when torque is off).
+Frames go out from a thread of their own (drivers/torque/sender.py): a write returns once its
+frames are queued, and a failed send is raised by the next call.
 """
 
 from __future__ import annotations
@@ -29,11 +31,14 @@ from drivers.torque.mit import (
     pack_commands,
     unpack_replies,
 )
+from drivers.torque.sender import Batch, FrameSender
 
 log = logging.getLogger("climbd.torque")
 
 OPEN_TIMEOUT = 0.1
 """Seconds every motor has to answer at open() before it is reported missing."""
+SEND_TIMEOUT = 0.1
+"""Seconds the frames of open() and torque() have to go out before the call fails."""
 
 
 def joint_channels(profile: Profile, channels: list[str]) -> list[str]:
@@ -77,6 +82,7 @@ class MitJointBus:
         self.kp, self.kd = cfg.kp, cfg.kd
         self.master_id = cfg.master_id
         self.links: dict[str, FrameLink] = {}
+        self._sender: FrameSender | None = None
         self.torque_on = False
         self._answered = np.zeros(n, bool)
         self._unanswered = dict.fromkeys(self.joints_on, 0)
@@ -84,7 +90,8 @@ class MitJointBus:
         self._expecting = False
         self._last_frames: list[bytes] | None = None
         self.sent = 0
-        """Frames put on the buses since construction (a lock-step twin waits for them)."""
+        """Frames put on the buses since construction, counted when queued and uncounted if a
+        newer command replaces them unsent (a lock-step twin waits for them)."""
         self.late_reads = 0
         """Reads that found some motor's reply to the last write still on the wire (its state
         then comes from an earlier reply; with ``reply_timeout`` 0 the next read takes it)."""
@@ -105,8 +112,14 @@ class MitJointBus:
                 raise DriverError(
                     f"cannot open CAN {self.interface} channel {channel!r}: {e}"
                 ) from e
+        self._sender = FrameSender()
         self._send_all(self._zero_gain())
-        self._collect(OPEN_TIMEOUT)
+        try:
+            self._sender.flush(SEND_TIMEOUT)
+            self._collect(OPEN_TIMEOUT)
+        except DriverError:
+            self.close()
+            raise
         self._expecting = False
         if not self._answered.all():
             missing = ", ".join(
@@ -117,6 +130,9 @@ class MitJointBus:
             raise DriverError(f"no reply within {OPEN_TIMEOUT * 1e3:.0f} ms from {missing}")
 
     def close(self) -> None:
+        if self._sender is not None:
+            self._sender.close()
+            self._sender = None
         for link in self.links.values():
             link.close()
         self.links.clear()
@@ -125,6 +141,7 @@ class MitJointBus:
         """Enter (on) or leave (off) motor mode on every actuator."""
         frame = ENTER_MOTOR_MODE if on else EXIT_MOTOR_MODE
         self._send_all([frame] * len(self.names))
+        self._sender.flush(SEND_TIMEOUT)
         self.torque_on = on
         self._last_frames = None
 
@@ -148,15 +165,16 @@ class MitJointBus:
             frames = pack_commands(p, v, kp, kd, t, self.ranges, self.names)
         except ProtocolError as e:
             raise DriverError(f"torque joint bus: {e}") from e
-        self._send_all(frames)
+        self._send_all(frames, command=True)
         self._last_frames = frames
 
     def read(self) -> JointState:
-        if not self.links:
+        if self._sender is None:
             raise DriverError("torque joint bus: read before open()")
+        self._sender.raise_failure()
         if not self._expecting:
             frames = self._last_frames if self.torque_on and self._last_frames else None
-            self._send_all(frames or self._zero_gain())
+            self._send_all(frames or self._zero_gain(), command=True)
         self._collect(self.reply_timeout)
         self.late_reads += not self._answered.all()
         self.missed = np.where(self._answered, 0, self.missed + 1)
@@ -182,15 +200,15 @@ class MitJointBus:
 
     # --- wire -------------------------------------------------------------------------
 
-    def _send_all(self, frames: list[bytes]) -> None:
+    def _send_all(self, frames: list[bytes], command: bool = False) -> None:
+        """Queue one frame per motor; a ``command`` (every joint's) may replace one unsent."""
+        batches = [
+            Batch(self.links[c], self._ids_on[c], [frames[i] for i in joints])
+            for c, joints in self.joints_on.items()
+        ]
+        self._unanswered.update((c, len(joints)) for c, joints in self.joints_on.items())
         self._answered[:] = False
-        for channel, joints in self.joints_on.items():
-            self._unanswered[channel] = len(joints)
-            try:
-                self.links[channel].send(self._ids_on[channel], [frames[i] for i in joints])
-            except can.CanError as e:
-                raise DriverError(f"CAN send on {channel}: {e}") from e
-            self.sent += len(joints)
+        self.sent += len(frames) - self._sender.submit(batches, command)
         self._expecting = True
 
     def _collect(self, timeout: float) -> None:
