@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import itertools
 import subprocess
 import sys
@@ -151,9 +152,12 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int,
         safety.request(Mode.STAND, clock.now())
         feeder = threading.Thread(target=operator, daemon=True)
         feeder.start()
+        gc.collect()
+        gc.freeze()  # as climbd run does before its loop starts
         thread = threading.Thread(target=loop.run, kwargs={"max_ticks": n})
         thread.start()
         thread.join()
+        gc.unfreeze()
         stop.set()
         feeder.join()
         late_reads = getattr(bus, "late_reads", None)

@@ -292,27 +292,24 @@ class GatedLink:
         self.sent.append(list(payloads))
 
 
-def test_a_command_not_yet_begun_is_replaced_by_the_next() -> None:
-    """Only the newest whole command waits behind the one on the wire; a mode frame is never
-    dropped nor overtaken; a flush that times out names it."""
+def test_a_write_waits_for_the_frames_before_it() -> None:
+    """One batch is on its way at a time: the next waits for it (an overrunning tick cannot
+    outrun the wire), past its timeout is an error, and batches go out in order."""
     link, sender = GatedLink(), FrameSender()
     try:
 
         def batch(tag: bytes) -> list[Batch]:
             return [Batch(link, [1], [tag])]
 
-        sender.submit(batch(b"a"), command=True)
+        sender.submit(batch(b"a"), 1.0)
         assert link.sending.wait(10.0)
-        assert sender.submit(batch(b"b"), command=True) == 0
-        assert sender.submit(batch(b"c"), command=True) == 1
-        assert sender.submit(batch(mit.ENTER_MOTOR_MODE), command=False) == 0
-        assert sender.submit(batch(b"d"), command=True) == 0
         with pytest.raises(DriverError, match="frames still queued after 10 ms"):
-            sender.flush(0.01)
+            sender.submit(batch(b"b"), 0.01)
         link.gate.set()
+        sender.submit(batch(b"b"), 10.0)
+        sender.submit(batch(mit.ENTER_MOTOR_MODE), 10.0)
         sender.flush(10.0)
-        assert link.sent == [[b"a"], [b"c"], [mit.ENTER_MOTOR_MODE], [b"d"]]
-        assert sender.replaced == 1
+        assert link.sent == [[b"a"], [b"b"], [mit.ENTER_MOTOR_MODE]]
     finally:
         link.gate.set()
         sender.close()

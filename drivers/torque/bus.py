@@ -38,7 +38,7 @@ log = logging.getLogger("climbd.torque")
 OPEN_TIMEOUT = 0.1
 """Seconds every motor has to answer at open() before it is reported missing."""
 SEND_TIMEOUT = 0.1
-"""Seconds the frames of open() and torque() have to go out before the call fails."""
+"""Seconds a call's frames, or the frames before them, have to go out before it fails."""
 
 
 def joint_channels(profile: Profile, channels: list[str]) -> list[str]:
@@ -90,8 +90,8 @@ class MitJointBus:
         self._expecting = False
         self._last_frames: list[bytes] | None = None
         self.sent = 0
-        """Frames put on the buses since construction, counted when queued and uncounted if a
-        newer command replaces them unsent (a lock-step twin waits for them)."""
+        """Frames put on the buses since construction, counted when queued (a lock-step twin
+        waits for them)."""
         self.late_reads = 0
         """Reads that found some motor's reply to the last write still on the wire (its state
         then comes from an earlier reply; with ``reply_timeout`` 0 the next read takes it)."""
@@ -165,7 +165,7 @@ class MitJointBus:
             frames = pack_commands(p, v, kp, kd, t, self.ranges, self.names)
         except ProtocolError as e:
             raise DriverError(f"torque joint bus: {e}") from e
-        self._send_all(frames, command=True)
+        self._send_all(frames)
         self._last_frames = frames
 
     def read(self) -> JointState:
@@ -174,7 +174,7 @@ class MitJointBus:
         self._sender.raise_failure()
         if not self._expecting:
             frames = self._last_frames if self.torque_on and self._last_frames else None
-            self._send_all(frames or self._zero_gain(), command=True)
+            self._send_all(frames or self._zero_gain())
         self._collect(self.reply_timeout)
         self.late_reads += not self._answered.all()
         self.missed = np.where(self._answered, 0, self.missed + 1)
@@ -200,15 +200,16 @@ class MitJointBus:
 
     # --- wire -------------------------------------------------------------------------
 
-    def _send_all(self, frames: list[bytes], command: bool = False) -> None:
-        """Queue one frame per motor; a ``command`` (every joint's) may replace one unsent."""
+    def _send_all(self, frames: list[bytes]) -> None:
+        """Queue one frame per motor, once the frames before have gone out."""
         batches = [
             Batch(self.links[c], self._ids_on[c], [frames[i] for i in joints])
             for c, joints in self.joints_on.items()
         ]
         self._unanswered.update((c, len(joints)) for c, joints in self.joints_on.items())
         self._answered[:] = False
-        self.sent += len(frames) - self._sender.submit(batches, command)
+        self._sender.submit(batches, SEND_TIMEOUT)
+        self.sent += len(frames)
         self._expecting = True
 
     def _collect(self, timeout: float) -> None:

@@ -3,14 +3,13 @@
 A 1 kHz tick writes 18 frames, one syscall each (SocketCAN, or ``udp_can`` in the twin); on
 the tick's own thread those take a third of its budget. The tick hands its frames to this
 thread and goes on; the sends then overlap the loop's sleep, and each syscall leaves the GIL
-to the tick. A command batch (every joint's whole MIT command) not yet begun when the next
-arrives is replaced by it: the motors need only the newest.
+to the tick. One batch is on its way at a time: a tick whose last frames have not all gone
+out waits for them, so an overrunning loop (which never sleeps) still gets every command out.
 """
 
 from __future__ import annotations
 
 import threading
-from collections import deque
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -34,38 +33,24 @@ class FrameSender:
 
     def __init__(self, name: str = "climbd-can-send") -> None:
         self._wake = threading.Condition()
-        self._queue: deque[tuple[list[Batch], bool]] = deque()
+        self._pending: list[Batch] | None = None
         self._busy = False
         self._failure: DriverError | None = None
         self._stopping = False
-        self.replaced = 0
-        """Command batches replaced by a newer one before any of their frames went out."""
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
-    def submit(self, batches: list[Batch], command: bool) -> int:
-        """Queue ``batches``; a ``command`` replaces a queued command not yet begun. Returns
-        the number of frames that replacement dropped (0 if none)."""
+    def submit(self, batches: list[Batch], timeout: float) -> None:
+        """Queue ``batches`` once the frames before them went out (waiting up to ``timeout``)."""
         with self._wake:
-            self.raise_failure()
-            dropped = 0
-            if command and self._queue and self._queue[-1][1]:
-                dropped = sum(len(b.ids) for b in self._queue.pop()[0])
-                self.replaced += 1
-            self._queue.append((batches, command))
+            self._wait_idle(timeout)
+            self._pending = batches
             self._wake.notify_all()
-        return dropped
 
     def flush(self, timeout: float) -> None:
-        """Wait until every queued frame went out; raise its failure, or a timeout naming the
-        frames still queued."""
+        """Wait until every queued frame went out."""
         with self._wake:
-            idle = self._wake.wait_for(
-                lambda: self._failure is not None or not (self._queue or self._busy), timeout
-            )
-            self.raise_failure()
-            if not idle:
-                raise DriverError(f"CAN send: frames still queued after {timeout * 1e3:.0f} ms")
+            self._wait_idle(timeout)
 
     def raise_failure(self) -> None:
         """Raise (and clear) the failure of an earlier send, if any."""
@@ -81,15 +66,24 @@ class FrameSender:
             self._wake.notify_all()
         self._thread.join(timeout)
 
+    def _wait_idle(self, timeout: float) -> None:
+        """Wait for the sends before to end; raise their failure, or a timeout."""
+        idle = self._wake.wait_for(
+            lambda: self._failure is not None or not (self._pending or self._busy), timeout
+        )
+        self.raise_failure()
+        if not idle:
+            raise DriverError(f"CAN send: frames still queued after {timeout * 1e3:.0f} ms")
+
     def _run(self) -> None:
         while True:
             with self._wake:
                 self._busy = False
                 self._wake.notify_all()
-                self._wake.wait_for(lambda: self._queue or self._stopping)
-                if not self._queue:
+                self._wake.wait_for(lambda: self._pending or self._stopping)
+                if not self._pending:
                     return
-                batches, _ = self._queue.popleft()
+                batches, self._pending = self._pending, None
                 self._busy = True
             for batch in batches:
                 try:
