@@ -26,7 +26,6 @@ from drivers.sim import mit_motors
 from drivers.sim.mit_motors import MitMotorChain
 from drivers.torque import links, mit
 from drivers.torque.bus import MitJointBus
-from drivers.torque.sender import Batch, FrameSender
 
 RANGES = ActuatorRanges()
 _channels = itertools.count()
@@ -197,44 +196,33 @@ def test_motors_not_served_over_udp_are_a_clear_error(qingzhui) -> None:
 
 
 class EchoLink:
-    """A channel whose motors answer every command at once; records what receive waited and
-    what was sent, and fails its sends while ``failure`` is set."""
+    """A channel whose motors answer every command at once; records what receive waited."""
 
     def __init__(self, channel: str, master_id: int) -> None:
         self.channel, self.master_id = channel, master_id
         self.waiting: list[links.Frame] = []
         self.waits: list[float] = []
-        self.sent: list[bytes] = []
-        self.failure: can.CanError | None = None
-        self.arrived = threading.Condition()
 
     def send(self, ids, payloads) -> None:
-        if self.failure is not None:
-            raise self.failure
-        with self.arrived:
-            self.sent += payloads
-            for motor in ids:
-                reply = mit.pack_reply(mit.Reply(motor, 0.1, 0.0, 0.0), RANGES)
-                self.waiting.append(links.Frame(self.master_id, reply))
-            self.arrived.notify_all()
+        for motor in ids:
+            reply = mit.pack_reply(mit.Reply(motor, 0.1, 0.0, 0.0), RANGES)
+            self.waiting.append(links.Frame(self.master_id, reply))
 
     def send_error(self, error_class: int) -> None:
         raise AssertionError("the driver sends no error frames")
 
     def receive(self, timeout: float) -> list[links.Frame]:
         self.waits.append(timeout)
-        with self.arrived:
-            self.arrived.wait_for(lambda: self.waiting, timeout)
-            frames, self.waiting = self.waiting, []
+        frames, self.waiting = self.waiting, []
         return frames
 
     def close(self) -> None:
         pass
 
 
-@pytest.fixture()
-def echo_bus(qingzhui, monkeypatch):
-    """The driver, opened on six echoing channels ``can0``…``can5``, and those links."""
+def test_a_channel_whose_motors_answered_is_not_waited_on(qingzhui, monkeypatch) -> None:
+    """With six channels, a read waits on each only while its own motors have not answered
+    (waiting on one channel for the others' replies cost a tick the whole reply timeout)."""
     opened: dict[str, EchoLink] = {}
 
     def echo(interface: str, channel: str) -> EchoLink:
@@ -244,14 +232,6 @@ def echo_bus(qingzhui, monkeypatch):
     monkeypatch.setattr("drivers.torque.bus.open_link", echo)
     bus = MitJointBus(patient(qingzhui), [f"can{i}" for i in range(6)])
     bus.open()
-    yield bus, opened
-    bus.close()
-
-
-def test_a_channel_whose_motors_answered_is_not_waited_on(echo_bus) -> None:
-    """With six channels, a read waits on each only while its own motors have not answered
-    (waiting on one channel for the others' replies cost a tick the whole reply timeout)."""
-    bus, opened = echo_bus
     for link in opened.values():
         link.waits.clear()
     bus.torque(True)
@@ -260,59 +240,6 @@ def test_a_channel_whose_motors_answered_is_not_waited_on(echo_bus) -> None:
     assert state.position == pytest.approx([0.1] * 18, abs=1e-3)
     for link in opened.values():  # a wait for its three replies, then a look for more
         assert len(link.waits) == 2 and link.waits[0] > 0.0 and link.waits[1] == 0.0
-
-
-def test_a_failed_send_is_raised_once_naming_the_channel(echo_bus) -> None:
-    """A write returns once its frames are queued; the send's failure comes with a later call,
-    naming the channel, and only once, so torque off still reaches every motor."""
-    bus, opened = echo_bus
-    bus.torque(True)
-    opened["can3"].failure = can.CanOperationError("No buffer space available")
-    bus.write(JointCommand(position=[0.0] * 18))
-    with pytest.raises(DriverError, match="CAN send on can3: No buffer space available"):
-        for _ in range(20):
-            bus.read()
-    opened["can3"].failure = None
-    bus.torque(False)
-    assert all(link.sent[-3:] == [mit.EXIT_MOTOR_MODE] * 3 for link in opened.values())
-
-
-class GatedLink:
-    """A channel whose sends wait for ``gate``; records each batch of payloads sent."""
-
-    channel = "can0"
-
-    def __init__(self) -> None:
-        self.gate, self.sending = threading.Event(), threading.Event()
-        self.sent: list[list[bytes]] = []
-
-    def send(self, ids, payloads) -> None:
-        self.sending.set()
-        self.gate.wait(10.0)
-        self.sent.append(list(payloads))
-
-
-def test_a_write_waits_for_the_frames_before_it() -> None:
-    """One batch is on its way at a time: the next waits for it (an overrunning tick cannot
-    outrun the wire), past its timeout is an error, and batches go out in order."""
-    link, sender = GatedLink(), FrameSender()
-    try:
-
-        def batch(tag: bytes) -> list[Batch]:
-            return [Batch(link, [1], [tag])]
-
-        sender.submit(batch(b"a"), 1.0)
-        assert link.sending.wait(10.0)
-        with pytest.raises(DriverError, match="frames still queued after 10 ms"):
-            sender.submit(batch(b"b"), 0.01)
-        link.gate.set()
-        sender.submit(batch(b"b"), 10.0)
-        sender.submit(batch(mit.ENTER_MOTOR_MODE), 10.0)
-        sender.flush(10.0)
-        assert link.sent == [[b"a"], [b"b"], [mit.ENTER_MOTOR_MODE]]
-    finally:
-        link.gate.set()
-        sender.close()
 
 
 def test_the_motor_emulator_names_a_bad_profile(tmp_path, capsys) -> None:
@@ -324,11 +251,7 @@ def test_torque_off_leaves_motor_mode_and_still_reads(rig) -> None:
     chain, bus = rig
     bus.open()
     bus.torque(True)
-    # Each read takes the replies to the frames before it: MIT replies carry no sequence
-    # number, so a reply to an older frame would count as an answer to a newer one.
-    bus.read()
     bus.torque(False)
-    bus.read()
     chain.set_state(5, position=0.25, velocity=0.0, torque=0.0)
     assert not any(m.motor_mode for m in chain.motors.values())
     assert bus.read().position[4] == pytest.approx(0.25, abs=1e-3)

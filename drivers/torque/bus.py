@@ -6,8 +6,6 @@ encoder zero (the joint convention of every driver; daemon/kinematics.py maps it
 leg's kinematic angles with the profile's zero offsets and directions). A tick writes one
 frame per motor; each answers once, and ``read`` collects the answers to the last write
 (polling with zero-gain frames, which motors out of motor mode ignore, when torque is off).
-Frames go out from a thread of their own (drivers/torque/sender.py): a write returns once its
-frames are queued, and a failed send is raised by the next call.
 """
 
 from __future__ import annotations
@@ -31,14 +29,11 @@ from drivers.torque.mit import (
     pack_commands,
     unpack_replies,
 )
-from drivers.torque.sender import Batch, FrameSender
 
 log = logging.getLogger("climbd.torque")
 
 OPEN_TIMEOUT = 0.1
 """Seconds every motor has to answer at open() before it is reported missing."""
-SEND_TIMEOUT = 0.1
-"""Seconds a call's frames, or the frames before them, have to go out before it fails."""
 
 
 def joint_channels(profile: Profile, channels: list[str]) -> list[str]:
@@ -82,7 +77,6 @@ class MitJointBus:
         self.kp, self.kd = cfg.kp, cfg.kd
         self.master_id = cfg.master_id
         self.links: dict[str, FrameLink] = {}
-        self._sender: FrameSender | None = None
         self.torque_on = False
         self._answered = np.zeros(n, bool)
         self._unanswered = dict.fromkeys(self.joints_on, 0)
@@ -90,8 +84,7 @@ class MitJointBus:
         self._expecting = False
         self._last_frames: list[bytes] | None = None
         self.sent = 0
-        """Frames put on the buses since construction, counted when queued (a lock-step twin
-        waits for them)."""
+        """Frames put on the buses since construction (a lock-step twin waits for them)."""
         self.late_reads = 0
         """Reads that found some motor's reply to the last write still on the wire (its state
         then comes from an earlier reply; with ``reply_timeout`` 0 the next read takes it)."""
@@ -112,14 +105,8 @@ class MitJointBus:
                 raise DriverError(
                     f"cannot open CAN {self.interface} channel {channel!r}: {e}"
                 ) from e
-        self._sender = FrameSender()
         self._send_all(self._zero_gain())
-        try:
-            self._sender.flush(SEND_TIMEOUT)
-            self._collect(OPEN_TIMEOUT)
-        except DriverError:
-            self.close()
-            raise
+        self._collect(OPEN_TIMEOUT)
         self._expecting = False
         if not self._answered.all():
             missing = ", ".join(
@@ -130,9 +117,6 @@ class MitJointBus:
             raise DriverError(f"no reply within {OPEN_TIMEOUT * 1e3:.0f} ms from {missing}")
 
     def close(self) -> None:
-        if self._sender is not None:
-            self._sender.close()
-            self._sender = None
         for link in self.links.values():
             link.close()
         self.links.clear()
@@ -141,7 +125,6 @@ class MitJointBus:
         """Enter (on) or leave (off) motor mode on every actuator."""
         frame = ENTER_MOTOR_MODE if on else EXIT_MOTOR_MODE
         self._send_all([frame] * len(self.names))
-        self._sender.flush(SEND_TIMEOUT)
         self.torque_on = on
         self._last_frames = None
 
@@ -169,9 +152,8 @@ class MitJointBus:
         self._last_frames = frames
 
     def read(self) -> JointState:
-        if self._sender is None:
+        if not self.links:
             raise DriverError("torque joint bus: read before open()")
-        self._sender.raise_failure()
         if not self._expecting:
             frames = self._last_frames if self.torque_on and self._last_frames else None
             self._send_all(frames or self._zero_gain())
@@ -201,15 +183,14 @@ class MitJointBus:
     # --- wire -------------------------------------------------------------------------
 
     def _send_all(self, frames: list[bytes]) -> None:
-        """Queue one frame per motor, once the frames before have gone out."""
-        batches = [
-            Batch(self.links[c], self._ids_on[c], [frames[i] for i in joints])
-            for c, joints in self.joints_on.items()
-        ]
-        self._unanswered.update((c, len(joints)) for c, joints in self.joints_on.items())
         self._answered[:] = False
-        self._sender.submit(batches, SEND_TIMEOUT)
-        self.sent += len(frames)
+        for channel, joints in self.joints_on.items():
+            self._unanswered[channel] = len(joints)
+            try:
+                self.links[channel].send(self._ids_on[channel], [frames[i] for i in joints])
+            except can.CanError as e:
+                raise DriverError(f"CAN send on {channel}: {e}") from e
+            self.sent += len(joints)
         self._expecting = True
 
     def _collect(self, timeout: float) -> None:
