@@ -37,6 +37,7 @@ from pathlib import Path
 
 import dynamixel_sdk as sdk
 import numpy as np
+from loop import realtime
 
 from daemon.messages import JointCommand
 from daemon.profile import load
@@ -76,15 +77,6 @@ def bus_limit_s(protocol: int, n: int, baud: int, delay_s: float = 0.0) -> tuple
 def weighted(ordinary: float, health: float, every: int) -> float:
     """Average cycle over a health period: ``every - 1`` ordinary cycles and one health cycle."""
     return ((every - 1) * ordinary + health) / every
-
-
-def realtime(priority: int) -> bool:
-    """Run the calling process SCHED_FIFO at ``priority``; False if not permitted."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (OSError, AttributeError):
-        return False
-    return True
 
 
 def pty_round_trip_s(count: int = 2000) -> float:

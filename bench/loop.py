@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import tempfile
@@ -41,6 +42,22 @@ int main(int argc, char **argv) {
 """
 
 ROOT = Path(__file__).resolve().parent.parent
+SERVICE_PRIORITY = 50
+"""SCHED_FIFO priority of the control role under systemd/climbd-control.service.in."""
+
+
+def realtime(priority: int) -> bool:
+    """Run the calling process SCHED_FIFO at ``priority``; False if not permitted."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError):
+        return False
+    return True
+
+
+def normal_scheduling() -> None:
+    """Put the calling process back on the normal scheduler (a child's ``preexec_fn``)."""
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
 def c_loop(rate: float, seconds: float, workdir: Path) -> np.ndarray | None:

@@ -10,14 +10,19 @@ frame, each frame echoed to its sender), both with the profile's reply timeout (
 the replies that have arrived); the same driver to motors serving in a thread of this process
 (python-can's ``virtual`` bus: the motors then take this interpreter's time, and the read waits
 the twin's ``THREAD_REPLY_TIMEOUT`` for them); and ``FakeJointBus`` (no driver: the controller's
-own compute). The C ``clock_nanosleep`` loop runs in the same run, so the p99 lateness ratio
-means something on a loaded machine. Goal (issue 2's): ratio <= 1.5, with overruns under 1 %
+own compute). Between ticks the driver takes its replies as they arrive (``serve_until``, the
+loop's idle hook, as ``climbd run`` wires it). The process runs SCHED_FIFO at the control
+service's priority unless ``--no-realtime`` (the emulated motors in normal scheduling: they
+stand in for hardware, which takes none of the controller's CPU). The C ``clock_nanosleep``
+loop runs in the same run at the same priority, so the p99 lateness ratio means something on
+a loaded machine. Goal (issue 2's): ratio <= 1.5, with overruns under 1 %
 of ticks (an overrun skips its deadline, so lateness alone hides a slow tick). First, the
 tick's eq. 5 both ways (feet, foot forces from torques for the estimator, feed-forward torques
 from forces) as the tick computes it, ``daemon.statics`` on floats, beside the same quantities
 from ``Kinematics``'s vectorised numpy forms, checked equal in the same run.
 
     .venv/bin/python bench/torque_loop.py [--seconds 20] [--buses udp,multicast,virtual,fake]
+        [--no-realtime]
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import argparse
 import contextlib
 import gc
 import itertools
+import os
 import subprocess
 import sys
 import tempfile
@@ -37,7 +43,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from loop import c_loop, pct  # noqa: E402
+from loop import SERVICE_PRIORITY, c_loop, normal_scheduling, pct, realtime  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 PROFILE = ROOT / "robots" / "qingzhui.toml"
@@ -91,6 +97,7 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
         cwd=ROOT,
         stdout=subprocess.PIPE,
         text=True,
+        preexec_fn=normal_scheduling,
     )
     try:
         if motors.stdout.readline().strip() != theirs:
@@ -135,7 +142,9 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int,
             feed_forward=True,
         )
         n = int(profile.rate_hz * seconds)
-        loop = ControlLoop(profile.rate_hz, clock, controller.tick)
+        loop = ControlLoop(
+            profile.rate_hz, clock, controller.tick, getattr(bus, "serve_until", None)
+        )
         loop.timing = TimingWindow(size=n)
         stop = threading.Event()
         command = MotionCommand(vx=0.1, session=SESSION)
@@ -265,11 +274,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--buses", default=",".join(BUSES), help=f"of {', '.join(BUSES)}")
+    parser.add_argument("--no-realtime", action="store_true", help="normal scheduling")
     args = parser.parse_args()
     kinds = args.buses.split(",")
     unknown = [k for k in kinds if k not in BUSES]
     if unknown:
         parser.error(f"--buses: unknown {unknown} (known: {', '.join(BUSES)})")
+    rt = not args.no_realtime and realtime(SERVICE_PRIORITY)
+    print(
+        f"scheduling: {f'SCHED_FIFO {SERVICE_PRIORITY}' if rt else 'normal'}; "
+        f"load average {os.getloadavg()[0]:.1f}\n"
+    )
     statics_table()
     report(args.seconds, kinds)
 

@@ -148,16 +148,21 @@ class ControlLoop:
     """Calls ``tick(t, dt)`` at ``rate_hz`` on absolute deadlines of ``clock``.
 
     ``t`` is the tick's deadline (scheduled time), ``dt`` the period; the tick itself does
-    read → estimate → behave → write. ``run`` blocks until ``stop()`` or ``max_ticks``.
+    read → estimate → behave → write. ``idle(deadline)``, if given, does work that need not
+    wait for the tick before the sleep (the joint bus taking its replies) and returns before
+    the deadline. ``run`` blocks until ``stop()`` or ``max_ticks``.
     """
 
-    def __init__(self, rate_hz: float, clock: Clock, tick: Tick) -> None:
+    def __init__(
+        self, rate_hz: float, clock: Clock, tick: Tick, idle: Callable[[float], None] | None = None
+    ) -> None:
         if rate_hz <= 0:
             raise ValueError(f"control rate must be > 0 Hz, got {rate_hz}")
         self.rate_hz = rate_hz
         self.period = 1.0 / rate_hz
         self.clock = clock
         self.tick = tick
+        self.idle = idle
         self.timing = TimingWindow()
         self.ticks = 0
         self._stop = threading.Event()
@@ -175,10 +180,13 @@ class ControlLoop:
     def run(self, max_ticks: int | None = None) -> None:
         """Run ticks until stopped; each waits for its absolute deadline first."""
         clock, period, tick, timing = self.clock, self.period, self.tick, self.timing
+        idle = self.idle
         start = clock.now()
         k = 0
         while not self._stop.is_set() and (max_ticks is None or self.ticks < max_ticks):
             deadline = start + k * period
+            if idle is not None:
+                idle(deadline)
             clock.sleep_until(deadline)
             woke = clock.now()
             tick(deadline, period)

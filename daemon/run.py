@@ -221,7 +221,9 @@ class ControlRole:
             imu=imu,
             feed_forward=estimator is not None,
         )
-        loop = ControlLoop(profile.rate_hz, clock, controller.tick)
+        # Between ticks on wall time the joint bus takes its replies (a stepped clock has none).
+        idle = getattr(joint_bus, "serve_until", None) if type(clock) is MonotonicClock else None
+        loop = ControlLoop(profile.rate_hz, clock, controller.tick, idle)
         controller.loop_stats = loop.stats
         if gate is not None:
             controller.unauthorised = lambda: gate.attempts

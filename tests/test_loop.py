@@ -19,6 +19,21 @@ def test_stepped_clock_gives_the_exact_tick_sequence() -> None:
     assert s.ticks == 2500 and s.overruns == 0 and s.lateness_max == 0.0
 
 
+def test_idle_work_runs_before_each_deadline_and_the_tick_after() -> None:
+    """``idle`` gets each tick's deadline before the tick runs (the joint bus takes its replies
+    there), and the tick still runs at that deadline."""
+    clock = SteppedClock()
+    events: list[tuple[str, float]] = []
+    loop = ControlLoop(
+        100.0,
+        clock,
+        lambda t, dt: events.append(("tick", t)),
+        idle=lambda deadline: events.append(("idle", deadline)),
+    )
+    loop.run(max_ticks=3)
+    assert events == [(kind, k * 0.01) for k in range(3) for kind in ("idle", "tick")]
+
+
 def test_late_ticks_do_not_shift_the_schedule() -> None:
     """A tick that costs 60 % of the period is followed by a tick on the original grid."""
     clock = SteppedClock()

@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 
 import can
 import msgspec
@@ -25,7 +26,7 @@ from drivers.base import DriverError
 from drivers.sim import mit_motors
 from drivers.sim.mit_motors import MitMotorChain
 from drivers.torque import links, mit
-from drivers.torque.bus import MitJointBus
+from drivers.torque.bus import MitJointBus, joint_channels
 
 RANGES = ActuatorRanges()
 _channels = itertools.count()
@@ -216,6 +217,9 @@ class EchoLink:
         frames, self.waiting = self.waiting, []
         return frames
 
+    def fileno(self) -> None:
+        return None
+
     def close(self) -> None:
         pass
 
@@ -240,6 +244,60 @@ def test_a_channel_whose_motors_answered_is_not_waited_on(qingzhui, monkeypatch)
     assert state.position == pytest.approx([0.1] * 18, abs=1e-3)
     for link in opened.values():  # a wait for its three replies, then a look for more
         assert len(link.waits) == 2 and link.waits[0] > 0.0 and link.waits[1] == 0.0
+
+
+@pytest.fixture()
+def udp_rig(qingzhui):
+    """Emulated motors serving in a thread on two udp_can channels (their state as set, not
+    stepped), and the driver with the profile's reply timeout (0: a read takes only what has
+    arrived)."""
+    channels = udp_channels(2)
+    placed = joint_channels(qingzhui, channels)
+    chains = [
+        MitMotorChain(
+            [j.id for j, c in zip(qingzhui.joints, placed, strict=True) if c == channel],
+            qingzhui.bus.actuator,
+            links.peer_channel(channel),
+            links.UDP_INTERFACE,
+            external_model=True,
+        ).start()
+        for channel in channels
+    ]
+    bus = MitJointBus(qingzhui, channels, interface=links.UDP_INTERFACE)
+    yield chains, bus
+    bus.close()
+    for chain in chains:
+        chain.stop()
+
+
+def test_replies_are_taken_between_ticks(udp_rig) -> None:
+    """``serve_until`` files the replies to a write as they arrive and returns once all are in,
+    before its deadline; the read after it finds nothing missing."""
+    chains, bus = udp_rig
+    bus.open()
+    bus.torque(True)
+    bus.read()
+    for chain in chains:
+        for motor in chain.motors:
+            chain.set_state(motor, position=0.3, velocity=0.0, torque=0.0)
+    bus.write(JointCommand(position=[0.1] * 18))
+    deadline = time.monotonic() + 5.0
+    bus.serve_until(deadline)
+    assert time.monotonic() < deadline
+    assert bus.position == pytest.approx(0.3, abs=1e-3)
+    late = bus.late_reads
+    assert bus.read().position == pytest.approx([0.3] * 18, abs=1e-3)
+    assert bus.late_reads == late
+
+
+def test_a_bus_off_between_ticks_is_raised_by_the_next_read(udp_rig) -> None:
+    chains, bus = udp_rig
+    bus.open()
+    bus.write(JointCommand(position=[0.0] * 18))
+    chains[1].bus_off()
+    bus.serve_until(time.monotonic() + 0.2)
+    with pytest.raises(DriverError, match="bus-off on udp_can channel"):
+        bus.read()
 
 
 def test_the_motor_emulator_names_a_bad_profile(tmp_path, capsys) -> None:

@@ -6,11 +6,15 @@ encoder zero (the joint convention of every driver; daemon/kinematics.py maps it
 leg's kinematic angles with the profile's zero offsets and directions). A tick writes one
 frame per motor; each answers once, and ``read`` collects the answers to the last write
 (polling with zero-gain frames, which motors out of motor mode ignore, when torque is off).
+Between ticks, ``serve_until`` takes the replies as they arrive, on the loop's own thread (a
+thread of their own would wait on the GIL while the tick computes), so the read finds them
+filed.
 """
 
 from __future__ import annotations
 
 import logging
+import select
 import time
 
 import can
@@ -34,6 +38,9 @@ log = logging.getLogger("climbd.torque")
 
 OPEN_TIMEOUT = 0.1
 """Seconds every motor has to answer at open() before it is reported missing."""
+IDLE_MARGIN = 0.0001
+"""Seconds before the next tick's deadline that ``serve_until`` stops taking replies, so
+filing a burst of them does not make the tick late."""
 
 
 def joint_channels(profile: Profile, channels: list[str]) -> list[str]:
@@ -77,6 +84,10 @@ class MitJointBus:
         self.kp, self.kd = cfg.kp, cfg.kd
         self.master_id = cfg.master_id
         self.links: dict[str, FrameLink] = {}
+        self._readable: dict[int, str] = {}
+        """Channels by their links' descriptors; empty unless every link has one."""
+        self._failure: DriverError | None = None
+        """What went wrong between ticks, for the next read to raise."""
         self.torque_on = False
         self._answered = np.zeros(n, bool)
         self._unanswered = dict.fromkeys(self.joints_on, 0)
@@ -105,6 +116,8 @@ class MitJointBus:
                 raise DriverError(
                     f"cannot open CAN {self.interface} channel {channel!r}: {e}"
                 ) from e
+        fds = {link.fileno(): channel for channel, link in self.links.items()}
+        self._readable = {} if None in fds else fds
         self._send_all(self._zero_gain())
         self._collect(OPEN_TIMEOUT)
         self._expecting = False
@@ -120,6 +133,7 @@ class MitJointBus:
         for link in self.links.values():
             link.close()
         self.links.clear()
+        self._readable = {}
 
     def torque(self, on: bool) -> None:
         """Enter (on) or leave (off) motor mode on every actuator."""
@@ -154,6 +168,9 @@ class MitJointBus:
     def read(self) -> JointState:
         if not self.links:
             raise DriverError("torque joint bus: read before open()")
+        failure, self._failure = self._failure, None
+        if failure is not None:
+            raise failure
         if not self._expecting:
             frames = self._last_frames if self.torque_on and self._last_frames else None
             self._send_all(frames or self._zero_gain())
@@ -179,6 +196,33 @@ class MitJointBus:
             )
             for i, name in enumerate(self.names)
         ]
+
+    def serve_until(self, deadline: float) -> None:
+        """The control loop's idle time before ``deadline`` (monotonic s): take the replies to
+        the last write as they arrive, until all are in or ``IDLE_MARGIN`` before the deadline;
+        a failure is kept for the next read. Returns at once for links ``select`` cannot
+        wait on."""
+        if not self._readable or not self._expecting:
+            return
+        replies: dict[int, bytes] = {}
+        try:
+            while not self._answered.all():
+                wait = deadline - IDLE_MARGIN - time.monotonic()
+                if wait <= 0.0:
+                    break
+                ready, _, _ = select.select(list(self._readable), [], [], wait)
+                for fd in ready:
+                    channel = self._readable[fd]
+                    try:
+                        frames = self.links[channel].receive(0.0)
+                    except can.CanError as e:
+                        raise DriverError(f"CAN receive on {channel}: {e}") from e
+                    for frame in frames:
+                        self._take(channel, frame, replies)
+        except DriverError as e:
+            self._failure = self._failure or e
+        if replies:
+            self._decode(replies)
 
     # --- wire -------------------------------------------------------------------------
 

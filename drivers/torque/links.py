@@ -48,6 +48,9 @@ class FrameLink(Protocol):
     def receive(self, timeout: float) -> list[Frame]:
         """Every frame waiting, after waiting up to ``timeout`` s for the first ([] if none)."""
 
+    def fileno(self) -> int | None:
+        """A descriptor ``select`` finds readable when frames wait, or None if there is none."""
+
     def close(self) -> None: ...
 
 
@@ -79,6 +82,12 @@ class PythonCanLink:
             frames.append(Frame(msg.arbitration_id, bytes(msg.data), msg.is_error_frame))
             msg = self.bus.recv(0.0)
         return frames
+
+    def fileno(self) -> int | None:
+        try:
+            return self.bus.fileno()
+        except NotImplementedError:  # python-can's virtual bus, some vendor adapters
+            return None
 
     def close(self) -> None:
         self.bus.shutdown()
@@ -154,6 +163,9 @@ class UdpLink:
                 )
             can_id, length, data = CAN_FRAME.unpack_from(buffer)
             frames.append(Frame(can_id & CAN_EFF_MASK, data[:length], bool(can_id & CAN_ERR_FLAG)))
+
+    def fileno(self) -> int | None:
+        return self.socket.fileno()
 
     def close(self) -> None:
         self.socket.close()
