@@ -59,7 +59,7 @@ def test_round_trip_within_quantisation() -> None:
         mit.pack_reply(mit.Reply(i % 256, p[i], v[i], t[i]), RANGES) for i in range(n)
     )
     motor, position, velocity, torque = mit.unpack_replies(replies, RANGES)
-    assert motor.tolist() == [i % 256 for i in range(n)]
+    assert motor == [i % 256 for i in range(n)]
     assert np.abs(position - p).max() <= 25.0 / 65535
     assert np.abs(velocity - v).max() <= 90.0 / 4095 and np.abs(torque - t).max() <= 36.0 / 4095
     with pytest.raises(mit.ProtocolError, match="5 bytes, expected 6"):

@@ -146,20 +146,19 @@ class MitJointBus:
 
     def _zero_gain(self) -> list[bytes]:
         """Frames that ask every motor for its state and, in motor mode, hold it limp."""
-        zero = np.zeros(len(self.names))
+        zero = [0.0] * len(self.names)
         return pack_commands(self.position, zero, zero, zero, zero, self.ranges)
 
     def write(self, command: JointCommand) -> None:
         n = len(self.names)
         if len(command.position) != n:
             raise DriverError(f"command has {len(command.position)} positions, bus has {n} joints")
-        p = np.asarray(command.position, float)
-        v = np.asarray(command.velocity, float) if command.velocity else np.zeros(n)
-        t = np.asarray(command.effort, float) if command.effort else np.zeros(n)
-        kp = np.asarray(command.kp, float) if command.kp else np.full(n, self.kp)
-        kd = np.asarray(command.kd, float) if command.kd else np.full(n, self.kd)
+        v = command.velocity or [0.0] * n
+        t = command.effort or [0.0] * n
+        kp = command.kp or [self.kp] * n
+        kd = command.kd or [self.kd] * n
         try:
-            frames = pack_commands(p, v, kp, kd, t, self.ranges, self.names)
+            frames = pack_commands(command.position, v, kp, kd, t, self.ranges, self.names)
         except ProtocolError as e:
             raise DriverError(f"torque joint bus: {e}") from e
         self._send_all(frames)
@@ -282,12 +281,11 @@ class MitJointBus:
 
     def _decode(self, replies: dict[int, bytes]) -> None:
         """The state of every joint that answered; a reply at the end of a range is flagged."""
-        joints = np.fromiter(replies, int, len(replies))
+        joints = list(replies)
         _, position, velocity, torque = unpack_replies(b"".join(replies.values()), self.ranges)
         r = self.ranges
-        saturated = (np.abs(position) >= r.position) | (np.abs(velocity) >= r.velocity)
-        for i, flagged in zip(joints.tolist(), saturated.tolist(), strict=True):
-            self.errors[i] = ["range"] if flagged else []
+        for i, p, v in zip(joints, position, velocity, strict=True):
+            self.errors[i] = ["range"] if abs(p) >= r.position or abs(v) >= r.velocity else []
         self.position[joints] = position
         self.velocity[joints] = velocity
         self.effort[joints] = torque

@@ -10,11 +10,12 @@ linearly onto its configured range; the motor applies
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
+from math import isfinite
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from daemon.profile import MIT_FRAME_BYTES, ActuatorRanges
 
@@ -30,18 +31,13 @@ class ProtocolError(ValueError):
     """A frame that does not decode: wrong length or a value outside the actuator's range."""
 
 
-def to_uint(x: ArrayLike, lo: ArrayLike, hi: ArrayLike, bits: ArrayLike) -> np.ndarray | int:
-    """Map ``x`` in [lo, hi] onto unsigned ``bits`` integers, saturating outside: an int for a
-    float (a motor's one frame, where numpy's call costs more than the arithmetic), else an
-    array (``lo``, ``hi`` and ``bits`` broadcast against ``x``)."""
-    if isinstance(x, float):
-        return int((min(max(x, lo), hi) - lo) * ((1 << bits) - 1) / (hi - lo))
-    full = np.left_shift(1, bits) - 1
-    return ((np.clip(x, lo, hi) - lo) * full / (np.subtract(hi, lo))).astype(np.int64)
+def to_uint(x: float, lo: float, hi: float, bits: int) -> int:
+    """Map ``x`` in [lo, hi] onto an unsigned ``bits`` integer, saturating outside."""
+    return int((min(max(x, lo), hi) - lo) * ((1 << bits) - 1) / (hi - lo))
 
 
-def to_float(u: ArrayLike, lo: float, hi: float, bits: int) -> np.ndarray | float:
-    """Inverse of ``to_uint`` (an int gives a float, an array an array)."""
+def to_float(u: int, lo: float, hi: float, bits: int) -> float:
+    """Inverse of ``to_uint``."""
     return u * (hi - lo) / ((1 << bits) - 1) + lo
 
 
@@ -67,36 +63,62 @@ class Reply:
 
 
 COMMAND_FIELDS = ("position", "velocity", "kp", "kd", "torque")
-COMMAND_BITS = np.array([[16], [12], [12], [12], [12]])
-"""Width of each command field on the wire, in ``COMMAND_FIELDS`` order."""
+REPLY = struct.Struct(">BHBBB")
+"""A reply: id, position (16 bits), then velocity and torque (12 bits each) in three bytes."""
 
 
 def pack_commands(
-    position: ArrayLike,
-    velocity: ArrayLike,
-    kp: ArrayLike,
-    kd: ArrayLike,
-    torque: ArrayLike,
+    position: Sequence[float],
+    velocity: Sequence[float],
+    kp: Sequence[float],
+    kd: Sequence[float],
+    torque: Sequence[float],
     r: ActuatorRanges,
     labels: Sequence[str] = (),
 ) -> list[bytes]:
-    """The 8 data bytes of each motor's command, one value per motor in every argument, all
-    packed at once; out-of-range values saturate as the firmware does, non-finite ones raise,
-    naming the motor by ``labels`` or index (a NaN would cast to a full-scale command)."""
-    values = np.array([position, velocity, kp, kd, torque], float)
-    bad = np.argwhere(~np.isfinite(values))
-    if len(bad):
-        field, i = bad[0]
-        motor = labels[i] if labels else f"motor index {i}"
-        raise ProtocolError(f"command {COMMAND_FIELDS[field]} of {motor} is not finite")
-    lo = np.array([[-r.position], [-r.velocity], [0.0], [0.0], [-r.torque]])
-    hi = np.array([[r.position], [r.velocity], [r.kp], [r.kd], [r.torque]])
-    p, v, kp_, kd_, t = to_uint(values, lo, hi, COMMAND_BITS)
-    frames = np.stack(
-        [p >> 8, p, v >> 4, (v << 4) | (kp_ >> 8), kp_, kd_ >> 4, (kd_ << 4) | (t >> 8), t], 1
-    ).astype(np.uint8)  # the cast keeps each byte's low 8 bits
-    raw = frames.tobytes()
-    return [raw[i : i + COMMAND_BYTES] for i in range(0, len(raw), COMMAND_BYTES)]
+    """The 8 data bytes of each motor's command, one value per motor in every argument;
+    out-of-range values saturate as the firmware does, non-finite ones raise, naming the
+    motor by ``labels`` or index (a NaN would cast to a full-scale command). Per motor in
+    floats: for a robot's 18 joints numpy's per-call cost is more than the arithmetic."""
+    fields = [
+        f.tolist() if isinstance(f, np.ndarray) else f for f in (position, velocity, kp, kd, torque)
+    ]
+    pl, ph, vl, vh, tl, th = -r.position, r.position, -r.velocity, r.velocity, -r.torque, r.torque
+    kph, kdh = r.kp, r.kd
+    frames = []
+    for a, b, c, d, e in zip(*fields, strict=True):
+        if not (isfinite(a) and isfinite(b) and isfinite(c) and isfinite(d) and isfinite(e)):
+            raise _non_finite(fields, labels)
+        p = int((min(max(a, pl), ph) - pl) * 65535 / (ph - pl))
+        v = int((min(max(b, vl), vh) - vl) * 4095 / (vh - vl))
+        k = int(min(max(c, 0.0), kph) * 4095 / kph)
+        g = int(min(max(d, 0.0), kdh) * 4095 / kdh)
+        t = int((min(max(e, tl), th) - tl) * 4095 / (th - tl))
+        frames.append(
+            bytes(
+                (
+                    p >> 8,
+                    p & 0xFF,
+                    v >> 4,
+                    (v & 0xF) << 4 | k >> 8,
+                    k & 0xFF,
+                    g >> 4,
+                    (g & 0xF) << 4 | t >> 8,
+                    t & 0xFF,
+                )
+            )
+        )
+    return frames
+
+
+def _non_finite(fields: list[Sequence[float]], labels: Sequence[str]) -> ProtocolError:
+    """The error naming the first non-finite value, field by field."""
+    for name, values in zip(COMMAND_FIELDS, fields, strict=True):
+        for i, x in enumerate(values):
+            if not isfinite(x):
+                motor = labels[i] if labels else f"motor index {i}"
+                return ProtocolError(f"command {name} of {motor} is not finite")
+    raise AssertionError("every value is finite")
 
 
 def unpack_command(data: bytes, r: ActuatorRanges) -> Command:
@@ -133,18 +155,25 @@ def check_reply(data: bytes) -> None:
         )
 
 
-def unpack_replies(data: bytes, r: ActuatorRanges) -> tuple[np.ndarray, ...]:
-    """Decode replies laid end to end at once: motor ids, positions (rad), velocities (rad/s)
-    and torques (N·m); a buffer that does not split into replies is a ProtocolError."""
+def unpack_replies(
+    data: bytes, r: ActuatorRanges
+) -> tuple[list[int], list[float], list[float], list[float]]:
+    """Decode replies laid end to end: motor ids, positions (rad), velocities (rad/s) and
+    torques (N·m); a buffer that does not split into replies is a ProtocolError."""
     if len(data) % REPLY_BYTES:
         check_reply(data)  # not a whole number of replies, so not one either: name what arrived
-    b = np.frombuffer(data, np.uint8).reshape(-1, REPLY_BYTES).astype(np.int64)
-    p = (b[:, 1] << 8) | b[:, 2]
-    v = (b[:, 3] << 4) | (b[:, 4] >> 4)
-    t = ((b[:, 4] & 0xF) << 8) | b[:, 5]
-    return (
-        b[:, 0],
-        to_float(p, -r.position, r.position, 16),
-        to_float(v, -r.velocity, r.velocity, 12),
-        to_float(t, -r.torque, r.torque, 12),
+    pl, pspan, vl, vspan, tl, tspan = (
+        -r.position,
+        2 * r.position,
+        -r.velocity,
+        2 * r.velocity,
+        -r.torque,
+        2 * r.torque,
     )
+    motors, position, velocity, torque = [], [], [], []
+    for m, p, b3, b4, b5 in REPLY.iter_unpack(data):
+        motors.append(m)
+        position.append(p * pspan / 65535 + pl)
+        velocity.append((b3 << 4 | b4 >> 4) * vspan / 4095 + vl)
+        torque.append(((b4 & 0xF) << 8 | b5) * tspan / 4095 + tl)
+    return motors, position, velocity, torque
