@@ -50,8 +50,10 @@ PROFILE = ROOT / "robots" / "qingzhui.toml"
 SESSION = "bench"
 GROUP = "239.74.163.2"
 UDP_CHANNEL = "127.0.0.1:47163/127.0.0.1:47164"
+BRIDGE_CHANNEL = "127.0.0.1:47165/127.0.0.1:47166"
 BUSES = {
     "udp": "MitJointBus, motors in another process (udp_can: SocketCAN's frames)",
+    "bridge": "BridgeJointBus, MitJointBus in a bridge process, motors as above",
     "multicast": "MitJointBus, motors in another process (udp_multicast)",
     "virtual": "MitJointBus, motors in this process (virtual CAN)",
     "fake": "FakeJointBus (no driver)",
@@ -67,6 +69,7 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
     from daemon.sim_host import waiting_profile
     from drivers.base import FakeJointBus
     from drivers.sim.mit_motors import MitMotorChain
+    from drivers.torque.bridge import BridgeJointBus
     from drivers.torque.bus import MitJointBus
     from drivers.torque.links import peer_channel
 
@@ -88,29 +91,42 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
             chain.stop()
         return
     interface, channel, theirs = "udp_multicast", GROUP, GROUP
-    if kind == "udp":
+    if kind in ("udp", "bridge"):
         interface, channel = "udp_can", UDP_CHANNEL
         theirs = peer_channel(channel)
-    motors = subprocess.Popen(
-        [sys.executable, "-m", "drivers.sim.mit_motors", "--profile", str(PROFILE)]
-        + ["--interface", interface, "--channel", theirs],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        text=True,
-        preexec_fn=normal_scheduling,
-    )
-    try:
-        if motors.stdout.readline().strip() != theirs:
-            raise RuntimeError(f"the motor emulator did not start (exit {motors.wait()})")
-        bus = MitJointBus(profile, [channel], interface=interface)
+    motors = ["drivers.sim.mit_motors", "--interface", interface, "--channel", theirs]
+    with serving(motors, theirs, normal_scheduling), contextlib.ExitStack() as stack:
+        if kind != "bridge":
+            bus = MitJointBus(profile, [channel], interface=interface)
+        else:
+            bridge = ["drivers.torque.bridge", "--interface", interface, "--channel", channel]
+            listen = peer_channel(BRIDGE_CHANNEL)
+            stack.enter_context(serving([*bridge, "--listen", listen], listen))
+            bus = BridgeJointBus(profile, BRIDGE_CHANNEL)
         bus.open()
         try:
             yield bus
         finally:
             bus.close()
+
+
+@contextlib.contextmanager
+def serving(module: list[str], ready: str, preexec_fn=None) -> Iterator[None]:
+    """``python -m MODULE --profile PROFILE ...`` running until exit, once it printed ``ready``."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", module[0], "--profile", str(PROFILE), *module[1:]],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        text=True,
+        preexec_fn=preexec_fn,
+    )
+    try:
+        if process.stdout.readline().strip() != ready:
+            raise RuntimeError(f"{module[0]} did not start (exit {process.wait()})")
+        yield
     finally:
-        motors.terminate()
-        motors.wait(5)
+        process.terminate()
+        process.wait(5)
 
 
 def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int, int | None]:
