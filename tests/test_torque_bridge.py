@@ -1,0 +1,150 @@
+"""The torque bridge: ``python -m drivers.torque.bridge`` serving MIT motors (emulated in a
+thread here, over udp_can) to the control role's ``BridgeJointBus``."""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_torque import udp_channels
+
+from daemon import profile as profiles
+from daemon.control import Controller
+from daemon.loop import ControlLoop, MonotonicClock
+from daemon.messages import JointCommand, Mode
+from daemon.safety import Safety
+from drivers.base import DriverError
+from drivers.sim.mit_motors import MitMotorChain
+from drivers.torque import links
+from drivers.torque.bridge import BridgeJointBus
+
+WATCHDOG = 0.05
+
+
+@contextlib.contextmanager
+def bridged(profile_path: Path, watchdog: float = WATCHDOG):
+    """Emulated motors, the bridge process to them and the control role's bus (not opened)."""
+    profile = profiles.load(profile_path)
+    can_channel, bridge_channel = udp_channels(2)
+    ids = [j.id for j in profile.joints]
+    chain = MitMotorChain(
+        ids, profile.bus.actuator, links.peer_channel(can_channel), links.UDP_INTERFACE
+    ).start()
+    listen = links.peer_channel(bridge_channel)
+    bridge = subprocess.Popen(
+        [sys.executable, "-m", "drivers.torque.bridge", "--profile", str(profile_path)]
+        + ["--interface", links.UDP_INTERFACE, "--channel", can_channel, "--listen", listen]
+        + ["--watchdog", str(watchdog)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    bus = BridgeJointBus(profile, bridge_channel)
+    try:
+        ready, _, _ = select.select([bridge.stdout], [], [], 30)
+        assert ready and bridge.stdout.readline().strip() == listen
+        yield chain, bridge, bus
+    finally:
+        bus.close()
+        bridge.terminate()
+        bridge.wait(10)
+        chain.stop()
+
+
+def drive(bus: BridgeJointBus, goal: np.ndarray, cycles: int = 600, **command) -> float:
+    """Largest joint error (rad) after commanding ``goal`` once a millisecond."""
+    for _ in range(cycles):
+        bus.read()
+        bus.write(JointCommand(position=goal.tolist(), **command))
+        time.sleep(0.001)
+    time.sleep(0.01)
+    bus.read()
+    return float(np.max(np.abs(np.array(bus.read().position) - goal)))
+
+
+def test_the_bridge_serves_the_motors_to_the_control_role(robots) -> None:
+    with bridged(robots / "qingzhui.toml") as (chain, bridge, bus):
+        bus.open()
+        bus.torque(True)
+        assert all(m.motor_mode for m in chain.motors.values())
+        assert drive(bus, np.linspace(-0.4, 0.4, 18)) < 0.01
+        bus.torque(False)
+        assert not any(m.motor_mode for m in chain.motors.values())
+        bus.close()
+        bridge.terminate()
+        assert bridge.wait(10) == 0
+
+
+@pytest.mark.parametrize("policy", ["hold", "torque_off"])
+def test_a_silent_control_role_gets_the_estop_policy(robots, tmp_path, policy) -> None:
+    """Commands stop (the control role died): after the watchdog the motors hold the last
+    commanded pose with its velocity zeroed, or leave motor mode, as the profile says."""
+    text = (robots / "qingzhui.toml").read_text()
+    assert 'estop_policy = "hold"' in text
+    profile_path = tmp_path / "qingzhui.toml"
+    profile_path.write_text(text.replace('estop_policy = "hold"', f'estop_policy = "{policy}"'))
+    with bridged(profile_path) as (chain, _, bus):
+        bus.open()
+        bus.torque(True)
+        goal = np.full(18, 0.2)
+        drive(bus, goal, cycles=50, velocity=[0.5] * 18)
+        assert all(m.command.velocity > 0.4 for m in chain.motors.values())
+        time.sleep(10 * WATCHDOG)
+        motors = chain.motors.values()
+        if policy == "torque_off":
+            assert not any(m.motor_mode for m in motors)
+        else:
+            assert all(m.motor_mode for m in motors)
+            assert all(abs(m.command.velocity) < 0.05 for m in motors)
+            assert [m.command.position for m in motors] == pytest.approx(goal, abs=1e-3)
+
+
+def test_a_bus_off_behind_the_bridge_reaches_the_control_role(robots) -> None:
+    with bridged(robots / "qingzhui.toml") as (chain, _, bus):
+        bus.open()
+        chain.bus_off()
+        with pytest.raises(DriverError, match="torque bridge on .*: CAN bus-off"):
+            for _ in range(200):
+                bus.read()
+                time.sleep(0.002)
+
+
+def test_a_malformed_request_is_dropped_and_the_bridge_serves_on(robots) -> None:
+    with bridged(robots / "qingzhui.toml") as (_, bridge, bus):
+        bus.open()
+        bus.sock.send(b"\x93not a request")
+        bus.torque(True)
+        assert drive(bus, np.zeros(18), cycles=100) < 0.01
+        assert bridge.poll() is None
+
+
+def test_no_bridge_is_a_clear_error(robots) -> None:
+    bus = BridgeJointBus(profiles.load(robots / "qingzhui.toml"), udp_channels(1)[0])
+    with pytest.raises(DriverError, match="torque bridge"):
+        bus.open()
+    with pytest.raises(DriverError, match="no channel"):
+        BridgeJointBus.from_profile(profiles.load(robots / "qingzhui.toml"))
+
+
+def test_one_khz_loop_stands_qingzhui_through_the_bridge(robots) -> None:
+    profile = profiles.load(robots / "qingzhui.toml")
+    with bridged(robots / "qingzhui.toml") as (_, _, bus):
+        bus.open()
+        clock = MonotonicClock()
+        safety = Safety(profile)
+        controller = Controller(profile, bus, safety, clock.now, feed_forward=True)
+        loop = ControlLoop(profile.rate_hz, clock, controller.tick)
+        safety.request(Mode.STAND, clock.now())
+        thread = threading.Thread(target=loop.run, kwargs={"max_ticks": 6000})
+        thread.start()
+        thread.join(60)
+        assert safety.mode == Mode.HOLD and safety.reason == "stand complete", safety.reason
+        q = np.array(bus.read().position)
+        assert np.max(np.abs(q - controller.stand_q)) < 0.02
+        assert all(not h.lost for h in bus.health())
