@@ -111,6 +111,9 @@ class Bridge:
         self.safe = True
         """True once the policy was applied for a silent control role (or before the first
         command): the motors then wait for the next request."""
+        self.tripped = ""
+        """What the watchdog did, for the next report (whose command is not written: it comes
+        from a control role that went silent and must hear of it first)."""
 
     def serve(self) -> None:
         """Answer requests until ``stop`` is set."""
@@ -138,9 +141,9 @@ class Bridge:
                 return Done(request.seq, str(e))
             self.safe = not request.on
             return Done(request.seq)
-        error = ""
+        error, self.tripped = self.tripped, ""
         try:
-            if request.command is not None:
+            if request.command is not None and not error:
                 self.bus.write(request.command)
                 self._last = request.command
                 self.safe = not self.bus.torque_on
@@ -153,23 +156,18 @@ class Bridge:
     def _control_role_gone(self) -> None:
         """The e-stop policy, for a control role silent for ``watchdog`` s."""
         self.safe = True
+        off = self.policy == EstopPolicy.TORQUE_OFF or self._last is None
+        self.tripped = (
+            f"no request for {self.watchdog * 1e3:.0f} ms: "
+            f"{'torque off' if off else 'holding the last commanded pose'}"
+        )
+        log.error("bridge %s: %s", self.channel, self.tripped)
         try:
-            if self.policy == EstopPolicy.TORQUE_OFF or self._last is None:
-                log.error(
-                    "bridge %s: no request for %.0f ms: torque off",
-                    self.channel,
-                    self.watchdog * 1e3,
-                )
+            if off:
                 self.bus.torque(False)
-                return
-            log.error(
-                "bridge %s: no request for %.0f ms: holding the last pose",
-                self.channel,
-                self.watchdog * 1e3,
-            )
-            held = msgspec.structs.replace(self._last, velocity=None)
-            self.bus.write(held)
-            self.bus.read()
+            else:
+                self.bus.write(msgspec.structs.replace(self._last, velocity=None))
+                self.bus.read()
         except DriverError as e:
             log.error("bridge %s: applying the e-stop policy failed: %s", self.channel, e)
 
@@ -195,8 +193,10 @@ class BridgeJointBus:
         self._answers = msgspec.msgpack.Decoder(Answer)
         self._encode = msgspec.msgpack.Encoder().encode
         self._report: Report | None = None
+        self._error = ""
+        """The first error a report carried since the last read (a newer report may follow)."""
         self._silent = 0
-        """Reads in a row that found no new report."""
+        """Reads since the last that found a new report."""
         self._written = False
         self._seq = 0
         self.late_reads = 0
@@ -273,18 +273,19 @@ class BridgeJointBus:
     def read(self) -> JointState:
         if self.sock is None:
             raise DriverError("torque bridge: read before open()")
+        self._silent += 1
         if not self._written:
             self._request(Exchange())
         self._written = False
         before = self._report
         self._take(0.0)
+        error, self._error = self._error, ""
+        if error:
+            raise DriverError(f"torque bridge on {self.channel}: {error}")
         if self._report is before:
-            self._silent += 1
             self.late_reads += 1
         else:
             self._silent = 0
-            if self._report.error:
-                raise DriverError(f"torque bridge on {self.channel}: {self._report.error}")
         return self._report.state
 
     def health(self) -> list[JointHealth]:
@@ -300,7 +301,8 @@ class BridgeJointBus:
             raise DriverError(f"torque bridge on {self.channel}: {e.strerror}") from e
 
     def _take(self, timeout: float) -> list[Done]:
-        """Keep the newest report waiting (after up to ``timeout`` s for one); the ``Done``s."""
+        """Keep the newest report waiting (after up to ``timeout`` s for one) and the first
+        error any carried; the ``Done``s."""
         done = []
         while True:
             try:
@@ -317,6 +319,7 @@ class BridgeJointBus:
                 done.append(answer)
             else:
                 self._report = answer
+                self._error = self._error or answer.error
 
 
 def main(argv: list[str] | None = None) -> int:
