@@ -3,26 +3,26 @@
 The real ``ControlLoop`` on ``MonotonicClock`` runs ``Controller.tick`` as ``climbd run`` builds
 it for the Qingzhui profile (paper 004's estimator with its IMU filter on a level, still IMU,
 gravity feed-forward, tripod gait walking ACTIVE, heartbeats and motion commands arriving from
-another thread) over four joint buses: ``MitJointBus`` to 18 emulated MIT motors in a process
+another thread) over five joint buses: ``MitJointBus`` to 18 emulated MIT motors in a process
 of their own over ``udp_can`` (SocketCAN's can_frame, a datagram a frame, as SocketCAN is a
 syscall a frame; this VM has no vcan) and over python-can's ``udp_multicast`` (msgpack per
 frame, each frame echoed to its sender), both with the profile's reply timeout (0: a read takes
 the replies that have arrived); the same driver to motors serving in a thread of this process
 (python-can's ``virtual`` bus: the motors then take this interpreter's time, and the read waits
-the twin's ``THREAD_REPLY_TIMEOUT`` for them); and ``FakeJointBus`` (no driver: the controller's
-own compute). Between ticks the driver takes its replies as they arrive (``serve_until``, the
+the twin's ``THREAD_REPLY_TIMEOUT`` for them); ``BridgeJointBus`` to that driver in a torque
+bridge process (drivers/torque/bridge.py, SCHED_FIFO as the bench) driving the udp_can motors,
+one datagram each way a tick; and ``FakeJointBus`` (no driver: the controller's own compute). Between ticks the driver takes its replies as they arrive (``serve_until``, the
 loop's idle hook, as ``climbd run`` wires it). The process runs SCHED_FIFO at the control
 service's priority unless ``--no-realtime`` (the emulated motors in normal scheduling: they
 stand in for hardware, which takes none of the controller's CPU). The C ``clock_nanosleep``
 loop runs in the same run at the same priority, so the p99 lateness ratio means something on
-a loaded machine. Goal (issue 2's): ratio <= 1.5, with overruns under 1 %
-of ticks (an overrun skips its deadline, so lateness alone hides a slow tick). First, the
+a loaded machine. Goal (issue 2's): ratio <= 1.5, with overruns under 1 % of ticks (an overrun skips its deadline, so lateness alone hides a slow tick). First, the
 tick's eq. 5 both ways (feet, foot forces from torques for the estimator, feed-forward torques
 from forces) as the tick computes it, ``daemon.statics`` on floats, beside the same quantities
 from ``Kinematics``'s vectorised numpy forms, checked equal in the same run.
 
-    .venv/bin/python bench/torque_loop.py [--seconds 20] [--buses udp,multicast,virtual,fake]
-        [--no-realtime]
+    .venv/bin/python bench/torque_loop.py [--seconds 20]
+        [--buses bridge,udp,multicast,virtual,fake] [--no-realtime]
 """
 
 from __future__ import annotations

@@ -39,8 +39,9 @@ from drivers.torque.links import endpoints
 
 log = logging.getLogger("climbd.torque.bridge")
 
-WATCHDOG = 0.05
-"""Seconds without a request before the bridge applies the e-stop policy."""
+WATCHDOG = 0.1
+"""Seconds without a request before the bridge applies the e-stop policy: a hundred missed
+ticks, past a collector's pause or a stalled host, short of a fall."""
 REPLY_WAIT = 0.0008
 """Seconds the bridge waits for the motors' replies to a command (it returns once all are in)."""
 OPEN_TIMEOUT = 1.0
