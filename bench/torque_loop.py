@@ -11,15 +11,17 @@ the replies that have arrived); the same driver to motors serving in a thread of
 (python-can's ``virtual`` bus: the motors then take this interpreter's time, and the read waits
 the twin's ``THREAD_REPLY_TIMEOUT`` for them); ``BridgeJointBus`` to that driver in a torque
 bridge process (drivers/torque/bridge.py, SCHED_FIFO as the bench) driving the udp_can motors,
-one datagram each way a tick; and ``FakeJointBus`` (no driver: the controller's own compute). Between ticks the driver takes its replies as they arrive (``serve_until``, the
-loop's idle hook, as ``climbd run`` wires it). The process runs SCHED_FIFO at the control
-service's priority unless ``--no-realtime`` (the emulated motors in normal scheduling: they
-stand in for hardware, which takes none of the controller's CPU). The C ``clock_nanosleep``
-loop runs in the same run at the same priority, so the p99 lateness ratio means something on
-a loaded machine. Goal (issue 2's): ratio <= 1.5, with overruns under 1 % of ticks (an overrun skips its deadline, so lateness alone hides a slow tick). First, the
-tick's eq. 5 both ways (feet, foot forces from torques for the estimator, feed-forward torques
-from forces) as the tick computes it, ``daemon.statics`` on floats, beside the same quantities
-from ``Kinematics``'s vectorised numpy forms, checked equal in the same run.
+one datagram each way a tick; and ``FakeJointBus`` (no driver: the controller's own compute).
+Between ticks the driver takes its replies as they arrive (``serve_until``, the loop's idle
+hook, as ``climbd run`` wires it). The process runs SCHED_FIFO at the control service's
+priority unless ``--no-realtime`` (the emulated motors in normal scheduling: they stand in for
+hardware, which takes none of the controller's CPU). The C ``clock_nanosleep`` loop runs in the
+same run at the same priority, so the p99 lateness ratio means something on a loaded machine.
+Goal (issue 2's): ratio <= 1.5, with overruns under 1 % of ticks (an overrun skips its deadline,
+so lateness alone hides a slow tick). First, the tick's eq. 5 both ways (feet, foot forces from
+torques for the estimator, feed-forward torques from forces) as the tick computes it,
+``daemon.statics`` on floats, beside the same quantities from ``Kinematics``'s vectorised numpy
+forms, checked equal in the same run.
 
     .venv/bin/python bench/torque_loop.py [--seconds 20]
         [--buses bridge,udp,multicast,virtual,fake] [--no-realtime]
