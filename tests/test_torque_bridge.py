@@ -97,6 +97,7 @@ def test_a_silent_control_role_gets_the_estop_policy(robots, tmp_path, policy) -
     with bridged(profile_path, WATCHDOG) as (chain, _, bus):
         bus.open()
         bus.torque(True)
+        time.sleep(2 * WATCHDOG)  # armed by the first command: a slow first tick is no fault
         goal = np.full(18, 0.2)
         drive(bus, goal, cycles=50, velocity=[0.5] * 18)
         assert all(m.command.velocity > 0.4 for m in chain.motors.values())

@@ -110,8 +110,9 @@ class Bridge:
         self._state: JointState | None = None
         self.stop = threading.Event()
         self.safe = True
-        """True once the policy was applied for a silent control role (or before the first
-        command): the motors then wait for the next request."""
+        """True while there is nothing to guard: before the first command after torque on (a
+        control role's first tick may be slow), with torque off, and once the policy was
+        applied for a silent control role."""
         self.tripped = ""
         """What the watchdog did, for the next report (whose command is not written: it comes
         from a control role that went silent and must hear of it first)."""
@@ -140,7 +141,7 @@ class Bridge:
                 self.bus.torque(request.on)
             except DriverError as e:
                 return Done(request.seq, str(e))
-            self.safe = not request.on
+            self.safe = self.safe or not request.on  # armed by the first command, not by torque on
             return Done(request.seq)
         error, self.tripped = self.tripped, ""
         try:
