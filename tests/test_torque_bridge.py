@@ -7,19 +7,15 @@ import contextlib
 import select
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_torque import udp_channels
+from test_torque import assert_stands_at_one_khz, udp_channels
 
 from daemon import profile as profiles
-from daemon.control import Controller
-from daemon.loop import ControlLoop, MonotonicClock
-from daemon.messages import JointCommand, Mode
-from daemon.safety import Safety
+from daemon.messages import JointCommand
 from drivers.base import DriverError
 from drivers.sim.mit_motors import MitMotorChain
 from drivers.torque import links
@@ -161,18 +157,6 @@ def test_no_bridge_is_a_clear_error(robots) -> None:
 
 
 def test_one_khz_loop_stands_qingzhui_through_the_bridge(robots) -> None:
-    profile = profiles.load(robots / "qingzhui.toml")
     with bridged(robots / "qingzhui.toml") as (_, _, bus):
         bus.open()
-        clock = MonotonicClock()
-        safety = Safety(profile)
-        controller = Controller(profile, bus, safety, clock.now, feed_forward=True)
-        loop = ControlLoop(profile.rate_hz, clock, controller.tick)
-        safety.request(Mode.STAND, clock.now())
-        thread = threading.Thread(target=loop.run, kwargs={"max_ticks": 6000})
-        thread.start()
-        thread.join(60)
-        assert safety.mode == Mode.HOLD and safety.reason == "stand complete", safety.reason
-        q = np.array(bus.read().position)
-        assert np.max(np.abs(q - controller.stand_q)) < 0.02
-        assert all(not h.lost for h in bus.health())
+        assert_stands_at_one_khz(profiles.load(robots / "qingzhui.toml"), bus)
