@@ -212,11 +212,7 @@ class MitJointBus:
                 ready, _, _ = select.select(list(self._readable), [], [], wait)
                 for fd in ready:
                     channel = self._readable[fd]
-                    try:
-                        frames = self.links[channel].receive(0.0)
-                    except can.CanError as e:
-                        raise DriverError(f"CAN receive on {channel}: {e}") from e
-                    for frame in frames:
+                    for frame in self._receive(channel, 0.0):
                         self._take(channel, frame, replies)
         except DriverError as e:
             self._failure = self._failure or e
@@ -241,20 +237,24 @@ class MitJointBus:
         channel only for its own motors); decode the replies together."""
         deadline = time.monotonic() + timeout
         replies: dict[int, bytes] = {}
-        for channel, link in self.links.items():
+        for channel in self.links:
             while True:
                 pending = self._unanswered[channel]
                 wait = max(0.0, deadline - time.monotonic()) if pending else 0.0
-                try:
-                    frames = link.receive(wait)
-                except can.CanError as e:
-                    raise DriverError(f"CAN receive on {channel}: {e}") from e
+                frames = self._receive(channel, wait)
                 if not frames:
                     break
                 for frame in frames:
                     self._take(channel, frame, replies)
         if replies:
             self._decode(replies)
+
+    def _receive(self, channel: str, timeout: float) -> list[Frame]:
+        """The frames waiting on ``channel`` (after up to ``timeout`` s); failures named."""
+        try:
+            return self.links[channel].receive(timeout)
+        except can.CanError as e:
+            raise DriverError(f"CAN receive on {channel}: {e}") from e
 
     def _take(self, channel: str, frame: Frame, replies: dict[int, bytes]) -> None:
         """File one frame: a bus-off raises, a reply of a known motor is kept by joint."""
