@@ -68,11 +68,11 @@ _channels = itertools.count()
 @contextlib.contextmanager
 def joint_bus(kind: str, profile) -> Iterator[object]:
     """An open joint bus of ``kind`` for the profile, its motors serving; closed on exit."""
-    from daemon.sim_host import waiting_profile
+    from daemon.sim_host import THREAD_REPLY_TIMEOUT
     from drivers.base import FakeJointBus
     from drivers.sim.mit_motors import MitMotorChain
     from drivers.torque.bridge import BridgeJointBus
-    from drivers.torque.bus import MitJointBus
+    from drivers.torque.bus import MitJointBus, waiting_for_replies
     from drivers.torque.links import peer_channel
 
     if kind == "fake":
@@ -84,7 +84,8 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
         channel = f"bench-torque-{next(_channels)}"
         ids = [j.id for j in profile.joints]
         chain = MitMotorChain(ids, profile.bus.actuator, channel).start()
-        bus = MitJointBus(waiting_profile(profile), [channel], interface="virtual")
+        waiting = waiting_for_replies(profile, THREAD_REPLY_TIMEOUT)
+        bus = MitJointBus(waiting, [channel], interface="virtual")
         try:
             bus.open()
             yield bus

@@ -18,7 +18,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import msgspec
 import numpy as np
 
 from daemon.estimation import rotation
@@ -47,13 +46,6 @@ THREAD_REPLY_TIMEOUT = 0.0005
 """MIT-mode reply timeout (s) in real time: the twin's motors answer from a thread of this
 interpreter, which runs only while the tick waits (a tick that never waits starves them until
 they are taken for lost)."""
-
-
-def waiting_profile(profile: Profile, wait: float = THREAD_REPLY_TIMEOUT) -> Profile:
-    """The profile with its MIT-mode reply timeout raised to ``wait`` s, for motors emulated in
-    this interpreter (they answer only while a read waits)."""
-    bus = msgspec.structs.replace(profile.bus, reply_timeout=max(profile.bus.reply_timeout, wait))
-    return msgspec.structs.replace(profile, bus=bus)
 
 
 class PerceptionGate:
@@ -148,8 +140,10 @@ class SimHost:
         options: dict = {"port": self.twin.port}
         if self.profile.bus.kind == "torque":
             options["interface"] = "virtual"
+            from drivers.torque.bus import waiting_for_replies
+
             wait = STEPPED_REPLY_TIMEOUT if self.stepped else THREAD_REPLY_TIMEOUT
-            return waiting_profile(self.profile, wait), options
+            return waiting_for_replies(self.profile, wait), options
         if self.stepped:
             options["timeout_margin_ms"] = STEPPED_TIMEOUT_MARGIN_MS
         return self.profile, options

@@ -113,9 +113,9 @@ class Rig:
                 self.profile, port=self.emulator.port, timeout_margin_ms=10.0
             )
         else:
-            from daemon.sim_host import waiting_profile
+            from daemon.sim_host import THREAD_REPLY_TIMEOUT
             from drivers.sim.mit_motors import MitMotorChain
-            from drivers.torque.bus import MitJointBus
+            from drivers.torque.bus import MitJointBus, waiting_for_replies
 
             channel = f"campaign-{os.getpid()}-{next(_channels)}"
             ids = [j.id for j in self.profile.joints]
@@ -123,7 +123,8 @@ class Rig:
             for ident, q in zip(ids, stand, strict=True):
                 self.chain.set_state(ident, float(q), 0.0, 0.0)
             self.emulator = None
-            self.bus = MitJointBus(waiting_profile(self.profile), [channel], interface="virtual")
+            waiting = waiting_for_replies(self.profile, THREAD_REPLY_TIMEOUT)
+            self.bus = MitJointBus(waiting, [channel], interface="virtual")
         self.bus.open()
         write = self.bus.write
 

@@ -34,7 +34,7 @@ import msgspec
 from daemon.messages import EstopPolicy, JointCommand, JointHealth, JointState
 from daemon.profile import Profile, ProfileError, load
 from drivers.base import DriverError
-from drivers.torque.bus import MitJointBus
+from drivers.torque.bus import MitJointBus, waiting_for_replies
 from drivers.torque.links import endpoints
 
 log = logging.getLogger("climbd.torque.bridge")
@@ -345,12 +345,7 @@ def main(argv: list[str] | None = None) -> int:
         profile = load(args.profile)
         if profile.bus.kind != "torque":
             raise ProfileError(f"{args.profile}: bus.kind is {profile.bus.kind!r}, not 'torque'")
-        waiting = msgspec.structs.replace(
-            profile.bus, reply_timeout=max(profile.bus.reply_timeout, REPLY_WAIT)
-        )
-        bus = MitJointBus(
-            msgspec.structs.replace(profile, bus=waiting), args.channel, args.interface
-        )
+        bus = MitJointBus(waiting_for_replies(profile, REPLY_WAIT), args.channel, args.interface)
         bus.open()
     except (ProfileError, DriverError) as e:
         print(f"error: {e}", file=sys.stderr)

@@ -18,6 +18,7 @@ import select
 import time
 
 import can
+import msgspec
 import numpy as np
 
 from daemon.messages import JointCommand, JointHealth, JointState
@@ -41,6 +42,13 @@ OPEN_TIMEOUT = 0.1
 IDLE_MARGIN = 0.0001
 """Seconds before the next tick's deadline that ``serve_until`` stops taking replies, so
 filing a burst of them does not make the tick late."""
+
+
+def waiting_for_replies(profile: Profile, wait: float) -> Profile:
+    """The profile with its reply timeout raised to at least ``wait`` s: for a driver that can
+    afford to wait (a bridge process, motors emulated in the same interpreter)."""
+    bus = msgspec.structs.replace(profile.bus, reply_timeout=max(profile.bus.reply_timeout, wait))
+    return msgspec.structs.replace(profile, bus=bus)
 
 
 def joint_channels(profile: Profile, channels: list[str]) -> list[str]:
