@@ -140,9 +140,14 @@ def test_a_bus_off_behind_the_bridge_reaches_the_control_role(robots) -> None:
 
 
 def test_a_malformed_request_is_dropped_and_the_bridge_serves_on(robots) -> None:
+    """A datagram that is no request is dropped; a NaN command is refused before it is sent."""
     with bridged(robots / "qingzhui.toml") as (_, bridge, bus):
         bus.open()
         bus.sock.send(b"\x93not a request")
+        goal = [0.0] * 18
+        goal[4] = float("nan")
+        with pytest.raises(DriverError, match="command position of lf_thigh is not finite"):
+            bus.write(JointCommand(position=goal))
         bus.torque(True)
         assert drive(bus, np.zeros(18), cycles=100) < 0.01
         assert bridge.poll() is None

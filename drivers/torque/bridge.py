@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import math
 import select
 import signal
 import socket
@@ -35,7 +34,8 @@ from daemon.messages import EstopPolicy, JointCommand, JointHealth, JointState
 from daemon.profile import Profile, ProfileError, load
 from drivers.base import DriverError
 from drivers.torque.bus import MitJointBus, waiting_for_replies
-from drivers.torque.links import endpoints
+from drivers.torque.links import udp_socket
+from drivers.torque.mit import non_finite
 
 log = logging.getLogger("climbd.torque.bridge")
 
@@ -79,20 +79,6 @@ class Done(msgspec.Struct, tag="done"):
 
 Request = Exchange | Torque
 Answer = Report | Done
-
-
-def udp_socket(channel: str) -> socket.socket:
-    """A non-blocking UDP socket bound to the channel's local end, connected to its peer."""
-    local, peer = endpoints(channel)
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        sock.bind(local)
-        sock.connect(peer)
-    except OSError:
-        sock.close()
-        raise
-    sock.setblocking(False)
-    return sock
 
 
 class Bridge:
@@ -158,7 +144,7 @@ class Bridge:
     def _control_role_gone(self) -> None:
         """The e-stop policy, for a control role silent for ``watchdog`` s."""
         self.safe = True
-        off = self.policy == EstopPolicy.TORQUE_OFF or self._last is None
+        off = self.policy == EstopPolicy.TORQUE_OFF  # armed only after a command: _last is set
         self.tripped = (
             f"no request for {self.watchdog * 1e3:.0f} ms: "
             f"{'torque off' if off else 'holding the last commanded pose'}"
@@ -257,18 +243,11 @@ class BridgeJointBus:
             raise DriverError(
                 f"command has {len(command.position)} positions, bus has {len(self.names)} joints"
             )
-        for name, values in (
-            ("position", command.position),
-            ("velocity", command.velocity),
-            ("effort", command.effort),
-            ("kp", command.kp),
-            ("kd", command.kd),
-        ):
-            if values and not all(map(math.isfinite, values)):
-                i = next(i for i, x in enumerate(values) if not math.isfinite(x))
-                raise DriverError(
-                    f"torque joint bus: command {name} of {self.names[i]} is not finite"
-                )
+        c = command
+        fields = [c.position, c.velocity or (), c.kp or (), c.kd or (), c.effort or ()]
+        error = non_finite(fields, self.names)
+        if error is not None:
+            raise DriverError(f"torque joint bus: {error}")
         self._request(Exchange(command))
         self._written = True
 

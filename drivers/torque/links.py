@@ -110,20 +110,30 @@ def peer_channel(channel: str) -> str:
     return f"{peer}/{local}"
 
 
+def udp_socket(channel: str) -> socket.socket:
+    """A non-blocking UDP socket bound to the ``"LOCAL/PEER"`` channel's local end, connected
+    to its peer; a malformed channel is a CanInitializationError, a taken port an OSError."""
+    local, peer = endpoints(channel)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind(local)
+        sock.connect(peer)
+    except OSError:
+        sock.close()
+        raise
+    sock.setblocking(False)
+    return sock
+
+
 class UdpLink:
     """One end of a point-to-point CAN channel in UDP datagrams (``"LOCAL/PEER"`` endpoints)."""
 
     def __init__(self, channel: str) -> None:
         self.channel = channel
-        local, peer = endpoints(channel)
-        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            self.socket.bind(local)
-            self.socket.connect(peer)
+            self.socket = udp_socket(channel)
         except OSError as e:
-            self.socket.close()
             raise can.CanInitializationError(f"{UDP_INTERFACE} channel {channel!r}: {e}") from e
-        self.socket.setblocking(False)
         self._buffer = bytearray(CAN_FRAME.size)
 
     def _send(self, frames: list[bytes]) -> None:

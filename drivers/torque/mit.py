@@ -88,7 +88,7 @@ def pack_commands(
     frames = []
     for a, b, c, d, e in zip(*fields, strict=True):
         if not (isfinite(a) and isfinite(b) and isfinite(c) and isfinite(d) and isfinite(e)):
-            raise _non_finite(fields, labels)
+            raise non_finite(fields, labels)
         p = int((min(max(a, pl), ph) - pl) * 65535 / (ph - pl))
         v = int((min(max(b, vl), vh) - vl) * 4095 / (vh - vl))
         k = int(min(max(c, 0.0), kph) * 4095 / kph)
@@ -111,14 +111,15 @@ def pack_commands(
     return frames
 
 
-def _non_finite(fields: list[Sequence[float]], labels: Sequence[str]) -> ProtocolError:
-    """The error naming the first non-finite value, field by field."""
+def non_finite(fields: Sequence[Sequence[float]], labels: Sequence[str]) -> ProtocolError | None:
+    """The error naming the first non-finite value, field by field in ``COMMAND_FIELDS``
+    order (an empty field is skipped), or None if all are finite."""
     for name, values in zip(COMMAND_FIELDS, fields, strict=True):
         for i, x in enumerate(values):
             if not isfinite(x):
                 motor = labels[i] if labels else f"motor index {i}"
                 return ProtocolError(f"command {name} of {motor} is not finite")
-    raise AssertionError("every value is finite")
+    return None
 
 
 def unpack_command(data: bytes, r: ActuatorRanges) -> Command:
