@@ -276,6 +276,7 @@ def test_replies_are_taken_between_ticks(udp_rig) -> None:
     chains, bus = udp_rig
     bus.open()
     bus.torque(True)
+    bus.serve_until(time.monotonic() + 5.0)  # every reply to torque on in: none can pass as new
     bus.read()
     for chain in chains:
         for motor in chain.motors:
