@@ -26,33 +26,51 @@ WATCHDOG = 0.2
 requests for the production default's 50 ms)."""
 
 
+def started(module: str, *args: str, ready: str) -> subprocess.Popen:
+    """``python -m MODULE ARGS`` once it printed ``ready`` (within 30 s)."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", module, *args], stdout=subprocess.PIPE, text=True
+    )
+    readable, _, _ = select.select([process.stdout], [], [], 30)
+    if not (readable and process.stdout.readline().strip() == ready):
+        process.kill()
+        raise AssertionError(f"{module} did not start (exit {process.wait()})")
+    return process
+
+
 @contextlib.contextmanager
-def bridged(profile_path: Path, watchdog: float = 5.0):
-    """Emulated motors, the bridge process to them and the control role's bus (not opened)."""
+def bridged(profile_path: Path, watchdog: float = 5.0, motors_in_process: bool = True):
+    """Emulated motors (a thread of this process, or else a process of their own, as hardware
+    is), the bridge process to them and the control role's bus (not opened)."""
     profile = profiles.load(profile_path)
     can_channel, bridge_channel = udp_channels(2)
-    ids = [j.id for j in profile.joints]
-    chain = MitMotorChain(
-        ids, profile.bus.actuator, links.peer_channel(can_channel), links.UDP_INTERFACE
-    ).start()
+    motors, chain = None, None
+    if motors_in_process:
+        ids = [j.id for j in profile.joints]
+        actuator = profile.bus.actuator
+        chain = MitMotorChain(ids, actuator, links.peer_channel(can_channel), links.UDP_INTERFACE)
+        chain.start()
+    else:
+        emulator = ("--profile", str(profile_path), "--channel", links.peer_channel(can_channel))
+        motors = started("drivers.sim.mit_motors", *emulator, ready=emulator[-1])
     listen = links.peer_channel(bridge_channel)
-    bridge = subprocess.Popen(
-        [sys.executable, "-m", "drivers.torque.bridge", "--profile", str(profile_path)]
-        + ["--interface", links.UDP_INTERFACE, "--channel", can_channel, "--listen", listen]
-        + ["--watchdog", str(watchdog)],
-        stdout=subprocess.PIPE,
-        text=True,
+    bridge = started(
+        "drivers.torque.bridge",
+        *("--profile", str(profile_path), "--interface", links.UDP_INTERFACE),
+        *("--channel", can_channel, "--listen", listen, "--watchdog", str(watchdog)),
+        ready=listen,
     )
     bus = BridgeJointBus(profile, bridge_channel)
     try:
-        ready, _, _ = select.select([bridge.stdout], [], [], 30)
-        assert ready and bridge.stdout.readline().strip() == listen
         yield chain, bridge, bus
     finally:
         bus.close()
-        bridge.terminate()
-        bridge.wait(10)
-        chain.stop()
+        for process in (bridge, motors):
+            if process is not None:
+                process.terminate()
+                process.wait(10)
+        if chain is not None:
+            chain.stop()
 
 
 def drive(bus: BridgeJointBus, goal: np.ndarray, cycles: int = 600, **command) -> float:
@@ -162,6 +180,6 @@ def test_no_bridge_is_a_clear_error(robots) -> None:
 
 
 def test_one_khz_loop_stands_qingzhui_through_the_bridge(robots) -> None:
-    with bridged(robots / "qingzhui.toml") as (_, _, bus):
+    with bridged(robots / "qingzhui.toml", motors_in_process=False) as (_, _, bus):
         bus.open()
         assert_stands_at_one_khz(profiles.load(robots / "qingzhui.toml"), bus)
