@@ -8,6 +8,7 @@ import select
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -26,16 +27,19 @@ WATCHDOG = 0.2
 requests for the production default's 50 ms)."""
 
 
-def started(module: str, *args: str, ready: str) -> subprocess.Popen:
-    """``python -m MODULE ARGS`` once it printed ``ready`` (within 30 s)."""
+@contextlib.contextmanager
+def started(module: str, *args: str, ready: str) -> Iterator[subprocess.Popen]:
+    """``python -m MODULE ARGS`` once it printed ``ready`` (within 30 s), terminated after."""
     process = subprocess.Popen(
         [sys.executable, "-m", module, *args], stdout=subprocess.PIPE, text=True
     )
-    readable, _, _ = select.select([process.stdout], [], [], 30)
-    if not (readable and process.stdout.readline().strip() == ready):
-        process.kill()
-        raise AssertionError(f"{module} did not start (exit {process.wait()})")
-    return process
+    try:
+        readable, _, _ = select.select([process.stdout], [], [], 30)
+        assert readable and process.stdout.readline().strip() == ready, f"{module} did not start"
+        yield process
+    finally:
+        process.terminate()
+        process.wait(10)
 
 
 @contextlib.contextmanager
@@ -44,33 +48,35 @@ def bridged(profile_path: Path, watchdog: float = 5.0, motors_in_process: bool =
     is), the bridge process to them and the control role's bus (not opened)."""
     profile = profiles.load(profile_path)
     can_channel, bridge_channel = udp_channels(2)
-    motors, chain = None, None
-    if motors_in_process:
-        ids = [j.id for j in profile.joints]
-        actuator = profile.bus.actuator
-        chain = MitMotorChain(ids, actuator, links.peer_channel(can_channel), links.UDP_INTERFACE)
-        chain.start()
-    else:
-        emulator = ("--profile", str(profile_path), "--channel", links.peer_channel(can_channel))
-        motors = started("drivers.sim.mit_motors", *emulator, ready=emulator[-1])
-    listen = links.peer_channel(bridge_channel)
-    bridge = started(
-        "drivers.torque.bridge",
-        *("--profile", str(profile_path), "--interface", links.UDP_INTERFACE),
-        *("--channel", can_channel, "--listen", listen, "--watchdog", str(watchdog)),
-        ready=listen,
-    )
-    bus = BridgeJointBus(profile, bridge_channel)
-    try:
+    with contextlib.ExitStack() as stack:
+        chain = None
+        if motors_in_process:
+            ids = [j.id for j in profile.joints]
+            actuator = profile.bus.actuator
+            chain = MitMotorChain(
+                ids, actuator, links.peer_channel(can_channel), links.UDP_INTERFACE
+            ).start()
+            stack.callback(chain.stop)
+        else:
+            emulator = (
+                "--profile",
+                str(profile_path),
+                "--channel",
+                links.peer_channel(can_channel),
+            )
+            stack.enter_context(started("drivers.sim.mit_motors", *emulator, ready=emulator[-1]))
+        listen = links.peer_channel(bridge_channel)
+        bridge = stack.enter_context(
+            started(
+                "drivers.torque.bridge",
+                *("--profile", str(profile_path), "--interface", links.UDP_INTERFACE),
+                *("--channel", can_channel, "--listen", listen, "--watchdog", str(watchdog)),
+                ready=listen,
+            )
+        )
+        bus = BridgeJointBus(profile, bridge_channel)
+        stack.callback(bus.close)
         yield chain, bridge, bus
-    finally:
-        bus.close()
-        for process in (bridge, motors):
-            if process is not None:
-                process.terminate()
-                process.wait(10)
-        if chain is not None:
-            chain.stop()
 
 
 def drive(bus: BridgeJointBus, goal: np.ndarray, cycles: int = 600, **command) -> float:
