@@ -30,8 +30,8 @@ import time
 import numpy as np
 import zenoh
 
-from daemon.bus import Bus, Endpoints, zenoh_config
-from daemon.messages import ElevationGrid, JointState, Message, encode, key
+from climbd.daemon.contract.messages import ElevationGrid, JointState, Message, encode, key
+from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
 ROBOT = "bench"
 AIO_ROBOT = "bench-aio"

@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 import pyrealsense2 as rs
 
-from daemon.cloud import PAPER_000, crop, frame_to_points
-from daemon.profile import CameraConfig, CameraMount
-from drivers.base import DepthFrame, Intrinsics, mount_extrinsics
-from drivers.realsense.models import D435, L515
-from drivers.realsense.software import SoftwareDepthCamera
+from climbd.daemon.algorithms.cloud import PAPER_000, crop, frame_to_points
+from climbd.daemon.contract.hardware import DepthFrame, Intrinsics, mount_extrinsics
+from climbd.daemon.contract.profile import CameraConfig, CameraMount
+from climbd.drivers.realsense.models import D435, L515
+from climbd.drivers.realsense.software import SoftwareDepthCamera
 
 FRAMES = 8
 

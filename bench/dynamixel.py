@@ -39,11 +39,11 @@ import dynamixel_sdk as sdk
 import numpy as np
 from loop import realtime
 
-from daemon.messages import JointCommand
-from daemon.profile import load
-from drivers.dynamixel.bus import MISPARSE, DynamixelBus, LatencyPort
-from drivers.sim.dynamixel import ServoChain
-from drivers.sim.dynamixel.wire import Framer
+from climbd.daemon.contract.messages import JointCommand
+from climbd.daemon.contract.profile import load
+from climbd.drivers.dynamixel.bus import MISPARSE, DynamixelBus, LatencyPort
+from climbd.drivers.sim.dynamixel import ServoChain
+from climbd.drivers.sim.dynamixel.wire import Framer
 
 ROOT = Path(__file__).resolve().parent.parent
 DRIVER_PRIORITY, EMULATOR_PRIORITY = 40, 50
@@ -108,10 +108,10 @@ def pty_round_trip_s(count: int = 2000) -> float:
 
 
 class Emulator:
-    """``python -m drivers.sim.dynamixel`` in a child process; ``.port`` is its pty."""
+    """``python -m climbd.drivers.sim.dynamixel`` in a child process; ``.port`` is its pty."""
 
     def __init__(self, profile_path: Path, baud: int, rt: bool) -> None:
-        cmd = [sys.executable, "-m", "drivers.sim.dynamixel", "--profile", str(profile_path)]
+        cmd = [sys.executable, "-m", "climbd.drivers.sim.dynamixel", "--profile", str(profile_path)]
         cmd += ["--baud", str(baud), "--return-delay-us", "0", "--spin-us", "150"]
         self.proc = subprocess.Popen(
             cmd,

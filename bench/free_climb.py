@@ -27,10 +27,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from climb_run import ClimbLog, SlopeClimb
 
-from drivers.sim.climb import ClimbLog, SlopeClimb
-from plugins.gaits.free_climb import GOAL, NORMAL, ClimbConfig, ClimbPlanner, Step, stance_key
-from plugins.gaits.tsm import tumble_stability_margins
+from climbd.plugins.gaits.free_climb import (
+    GOAL,
+    NORMAL,
+    ClimbConfig,
+    ClimbPlanner,
+    Step,
+    stance_key,
+)
+from climbd.plugins.gaits.tsm import tumble_stability_margins
 
 ROOT = Path(__file__).resolve().parent.parent
 

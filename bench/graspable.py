@@ -22,9 +22,9 @@ import time
 import numpy as np
 from scipy.spatial import Delaunay
 
-from daemon.cloudio import read_cloud
-from drivers.sim.worlds import DATA
-from plugins.perception.graspable import (
+from climbd.daemon.contract.cloudio import read_cloud
+from climbd.drivers.sim.worlds import DATA
+from climbd.plugins.perception.graspable import (
     GraspableConfig,
     GraspableDetector,
     column_depths,

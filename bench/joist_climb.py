@@ -22,8 +22,8 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 from joist_twin_run import run_scenario  # noqa: E402
 from test_joist_climb_twin import TABLE_2, assert_climbed, assert_went_round  # noqa: E402
 
-from drivers.sim.worlds import INCH, JoistRow  # noqa: E402
-from plugins.gaits.joist_climb import JoistClimbConfig  # noqa: E402
+from climbd.drivers.sim.worlds import INCH, JoistRow  # noqa: E402
+from climbd.plugins.gaits.joist_climb import JoistClimbConfig  # noqa: E402
 
 
 def setups() -> dict[str, tuple[JoistRow, float, float]]:

@@ -28,13 +28,13 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from joist_scenes import JoistSpec, body_state, render  # noqa: E402
 
-from plugins.perception.elevation import ElevationConfig  # noqa: E402
-from plugins.perception.joist_perception import (  # noqa: E402
+from climbd.plugins.perception.elevation import ElevationConfig  # noqa: E402
+from climbd.plugins.perception.joist_perception import (  # noqa: E402
     JoistPerception,
     JoistPerceptionConfig,
 )
-from plugins.perception.joists import height_image  # noqa: E402
-from plugins.perception.joists_paper import PaperPipeline  # noqa: E402
+from climbd.plugins.perception.joists import height_image  # noqa: E402
+from climbd.plugins.perception.joists_paper import PaperPipeline  # noqa: E402
 
 
 def frames(count: int, joist: JoistSpec, stop: float) -> list[tuple[np.ndarray, object]]:

@@ -77,12 +77,12 @@ def c_loop(rate: float, seconds: float, workdir: Path) -> np.ndarray | None:
 
 def climbd_loop(profile_name: str, rate: float, seconds: float) -> tuple[np.ndarray, np.ndarray]:
     """Lateness and compute samples of ControlLoop running the full control tick on a fake bus."""
-    from daemon import profile as profiles
-    from daemon.control import Controller
-    from daemon.loop import ControlLoop, MonotonicClock, TimingWindow
-    from daemon.messages import Mode
-    from daemon.safety import Safety
-    from drivers.base import FakeJointBus
+    from climbd.daemon.contract import profile as profiles
+    from climbd.daemon.contract.messages import Mode
+    from climbd.daemon.runtime.control import Controller
+    from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock, TimingWindow
+    from climbd.daemon.runtime.safety import Safety
+    from climbd.drivers.fake import FakeJointBus
 
     profile = msgspec.structs.replace(
         profiles.load(ROOT / "robots" / f"{profile_name}.toml"), rate_hz=rate

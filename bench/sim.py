@@ -25,10 +25,10 @@ import msgspec
 import mujoco
 import numpy as np
 
-from daemon.kinematics import Kinematics
-from daemon.profile import load
-from drivers.sim.depth import GEOM_GROUPS, RayCastDepth
-from drivers.sim.twin import Twin
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.profile import load
+from climbd.drivers.sim.depth import GEOM_GROUPS, RayCastDepth
+from climbd.drivers.sim.twin import Twin
 
 ROBOTS = ("widowx", "hubrobo", "qingzhui")
 WORLDS = ("attic", "stairs", "slope", "truss")
@@ -65,12 +65,12 @@ def real_time_with_daemon(robot: str, seconds: float, cameras: str) -> dict:
     ``cameras``: ``gl`` (rasterised in the twin's camera process), ``gl-here`` (rasterised in
     this process), ``rays`` (mj_multiRay in this process, as the last release did) or ``none``
     (the baseline)."""
-    from daemon.control import Controller
-    from daemon.loop import ControlLoop
-    from daemon.messages import Mode, encode
-    from daemon.run import StartupError, make_joint_bus
-    from daemon.safety import Safety
-    from daemon.sim_host import SimHost
+    from climbd.daemon.cli.run import StartupError, make_joint_bus
+    from climbd.daemon.cli.sim_host import SimHost
+    from climbd.daemon.contract.messages import Mode, encode
+    from climbd.daemon.runtime.control import Controller
+    from climbd.daemon.runtime.loop import ControlLoop
+    from climbd.daemon.runtime.safety import Safety
 
     profile = load(f"robots/{robot}.toml")
     camera = profile.cameras[0]
@@ -163,7 +163,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=10, help="depth frames per resolution")
     parser.add_argument("--daemon-seconds", type=float, default=6.0)
     args = parser.parse_args()
-    from daemon.run import StartupError
+    from climbd.daemon.cli.run import StartupError
 
     print("## real-time factor, stepped (twin alone; baseline bare mj_step, same model)\n")
     print("| robot | world | twin RTF | bare mj_step RTF | twin / bare |")

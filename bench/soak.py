@@ -54,7 +54,7 @@ def rss_mib(pid: int) -> float:
 
 def daemon(endpoint: str, *extra: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli", "run", "--profile", "robots/widowx.toml"]
+        [sys.executable, "-m", "climbd.daemon.cli", "run", "--profile", "robots/widowx.toml"]
         + ["--driver", "fake", "--listen", endpoint, "--quiet", *extra],
         cwd=ROOT,
         stdout=subprocess.DEVNULL,
@@ -64,9 +64,9 @@ def daemon(endpoint: str, *extra: str) -> subprocess.Popen:
 
 def soak(minutes: float, sample: float) -> tuple[list[str], dict]:
     """Run the walking and idle daemons; a markdown table and a summary of the run."""
-    from daemon.bus import Bus, Endpoints, zenoh_config
-    from daemon.messages import Health, Mode
-    from daemon.teleop import TeleopClient
+    from climbd.daemon.cli.teleop import TeleopClient
+    from climbd.daemon.contract.messages import Health, Mode
+    from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
     seconds = minutes * 60
     eps = {k: f"tcp/127.0.0.1:{free_port()}" for k in ("walk", "idle")}
@@ -179,7 +179,7 @@ def open_client(endpoint: str, proc: subprocess.Popen, timeout: float = 60.0):
     """
     import zenoh
 
-    from daemon.bus import Bus, Endpoints, zenoh_config
+    from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
     deadline = time.monotonic() + timeout
     while True:
@@ -205,7 +205,7 @@ class TwinRecorder:
 
     def attach(self, bus) -> TwinRecorder:
         """Subscribe to the topics the soak tabulates on ``bus``."""
-        from daemon.messages import BodyState, Health, Joists, ModeState
+        from climbd.daemon.contract.messages import BodyState, Health, Joists, ModeState
 
         bus.subscribe(Health, self._on_health)
         bus.subscribe(ModeState, self._on_mode)
@@ -244,7 +244,7 @@ class SoakOperator:
 
     def poll(self, recorder: TwinRecorder) -> None:
         """Act on the latest mode (every call retries until the robot walks again)."""
-        from daemon.messages import Mode
+        from climbd.daemon.contract.messages import Mode
 
         with recorder.lock:
             since, mode, reason = recorder.modes[-1] if recorder.modes else (0.0, "", "")
@@ -265,13 +265,13 @@ class SoakOperator:
 
 def twin_soak(minutes: float, window: float, perception: bool) -> tuple[list[str], dict]:
     """Walk the WidowX in the real-time twin for ``minutes``; a table per ``window`` seconds."""
-    from daemon.teleop import TeleopClient
+    from climbd.daemon.cli.teleop import TeleopClient
 
     motion = {"vx": 0.05, "yaw_rate": 0.05}
     tmp = Path(tempfile.mkdtemp(prefix="climbd-soak-"))
     (tmp / "flat.toml").write_text(FLAT_WORLD)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    argv = [sys.executable, "-m", "daemon.cli", "run", "--profile", "robots/widowx.toml"]
+    argv = [sys.executable, "-m", "climbd.daemon.cli", "run", "--profile", "robots/widowx.toml"]
     argv += ["--sim", str(tmp / "flat.toml"), "--activate", "--gait", "tripod", "--quiet"]
     argv += ["--listen", endpoint, "--snapshot", str(tmp / "top.png")]
     argv += ["--role", "all"] if perception else []
@@ -417,7 +417,7 @@ def fuzz(n: int) -> list[str]:
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
-    from daemon.messages import ALL_MESSAGES, decode
+    from climbd.daemon.contract.messages import ALL_MESSAGES, decode
 
     cfg = settings(
         max_examples=n, deadline=None, database=None, suppress_health_check=list(HealthCheck)

@@ -37,12 +37,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from stair_run import StairRun, stair_world, world_stairs  # noqa: E402
 from test_stairs import staircase  # noqa: E402
 
-from daemon import profile as profiles  # noqa: E402
-from daemon.estimation import GRAVITY  # noqa: E402
-from daemon.kinematics import Kinematics  # noqa: E402
-from plugins.gaits.stair_gait import StairGait, StairGaitConfig  # noqa: E402
-from plugins.gaits.stair_plan import StairModel  # noqa: E402
-from plugins.perception.stairs import StairsConfig, horizontal_planes  # noqa: E402
+from climbd.daemon.algorithms.estimation import GRAVITY  # noqa: E402
+from climbd.daemon.algorithms.kinematics import Kinematics  # noqa: E402
+from climbd.daemon.contract import profile as profiles  # noqa: E402
+from climbd.plugins.gaits.stair_gait import StairGait, StairGaitConfig  # noqa: E402
+from climbd.plugins.gaits.stair_plan import StairModel  # noqa: E402
+from climbd.plugins.perception.stairs import StairsConfig, horizontal_planes  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import ruckig
 
-from daemon import profile as profiles
-from daemon.kinematics import LIMIT_TOLERANCE
-from daemon.messages import BodyState, MotionCommand
-from daemon.motion import MotionPipeline
-from daemon.plugins import instantiate
+from climbd.daemon.algorithms.kinematics import LIMIT_TOLERANCE
+from climbd.daemon.algorithms.motion import MotionPipeline
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import BodyState, MotionCommand
+from climbd.daemon.runtime.loader import instantiate
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 MARGIN = 0.999

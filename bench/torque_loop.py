@@ -20,8 +20,8 @@ same run at the same priority, so the p99 lateness ratio means something on a lo
 Goal (issue 2's): ratio <= 1.5, with overruns under 1 % of ticks (an overrun skips its deadline,
 so lateness alone hides a slow tick). First, the tick's eq. 5 both ways (feet, foot forces from
 torques for the estimator, feed-forward torques from forces) as the tick computes it,
-``daemon.statics`` on floats, beside the same quantities from ``Kinematics``'s vectorised numpy
-forms, checked equal in the same run.
+``climbd.daemon.algorithms.statics`` on floats, beside the same quantities from ``Kinematics``'s
+vectorised numpy forms, checked equal in the same run.
 
     .venv/bin/python bench/torque_loop.py [--seconds 20]
         [--buses bridge,udp,multicast,virtual,fake] [--no-realtime]
@@ -68,12 +68,12 @@ _channels = itertools.count()
 @contextlib.contextmanager
 def joint_bus(kind: str, profile) -> Iterator[object]:
     """An open joint bus of ``kind`` for the profile, its motors serving; closed on exit."""
-    from daemon.sim_host import THREAD_REPLY_TIMEOUT
-    from drivers.base import FakeJointBus
-    from drivers.sim.mit_motors import MitMotorChain
-    from drivers.torque.bridge import BridgeJointBus
-    from drivers.torque.bus import MitJointBus, waiting_for_replies
-    from drivers.torque.links import peer_channel
+    from climbd.daemon.cli.sim_host import THREAD_REPLY_TIMEOUT
+    from climbd.drivers.fake import FakeJointBus
+    from climbd.drivers.sim.mit_motors import MitMotorChain
+    from climbd.drivers.torque.bridge import BridgeJointBus
+    from climbd.drivers.torque.bus import MitJointBus, waiting_for_replies
+    from climbd.drivers.torque.links import peer_channel
 
     if kind == "fake":
         bus = FakeJointBus(profile)
@@ -97,12 +97,18 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
     if kind in ("udp", "bridge"):
         interface, channel = "udp_can", UDP_CHANNEL
         theirs = peer_channel(channel)
-    motors = ["drivers.sim.mit_motors", "--interface", interface, "--channel", theirs]
+    motors = ["climbd.drivers.sim.mit_motors", "--interface", interface, "--channel", theirs]
     with serving(motors, theirs, normal_scheduling), contextlib.ExitStack() as stack:
         if kind != "bridge":
             bus = MitJointBus(profile, [channel], interface=interface)
         else:
-            bridge = ["drivers.torque.bridge", "--interface", interface, "--channel", channel]
+            bridge = [
+                "climbd.drivers.torque.bridge",
+                "--interface",
+                interface,
+                "--channel",
+                channel,
+            ]
             listen = peer_channel(BRIDGE_CHANNEL)
             stack.enter_context(serving([*bridge, "--listen", listen], listen))
             bus = BridgeJointBus(profile, BRIDGE_CHANNEL)
@@ -135,15 +141,15 @@ def serving(module: list[str], ready: str, preexec_fn=None) -> Iterator[None]:
 def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int, int | None]:
     """Lateness and compute samples (s) of the Qingzhui tick at 1 kHz, its overruns, and the
     driver's reads that found replies still on the wire (None without a driver)."""
-    from daemon import profile as profiles
-    from daemon.control import Controller
-    from daemon.estimation import EstimatorConfig, StateEstimator
-    from daemon.loop import ControlLoop, MonotonicClock, TimingWindow
-    from daemon.messages import Heartbeat, Mode, MotionCommand
-    from daemon.plugins import Isolated
-    from daemon.safety import Safety
-    from drivers.base import FakeImu
-    from plugins.gaits.periodic import Tripod
+    from climbd.daemon.algorithms.estimation import EstimatorConfig, StateEstimator
+    from climbd.daemon.contract import profile as profiles
+    from climbd.daemon.contract.messages import Heartbeat, Mode, MotionCommand
+    from climbd.daemon.runtime.control import Controller
+    from climbd.daemon.runtime.loader import Isolated
+    from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock, TimingWindow
+    from climbd.daemon.runtime.safety import Safety
+    from climbd.drivers.fake import FakeImu
+    from climbd.plugins.gaits.periodic import Tripod
 
     profile = profiles.load(PROFILE)
     with joint_bus(kind, profile) as bus:
@@ -199,14 +205,15 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int,
 
 
 def statics_table(calls: int = 2000) -> None:
-    """Eq. 5 both ways for one tick: floats (daemon.statics) against numpy over the legs."""
+    """Eq. 5 both ways for one tick: floats (climbd.daemon.algorithms.statics) against numpy over
+    the legs."""
     import copy
     import timeit
 
-    from daemon import profile as profiles
-    from daemon.estimation import GRAVITY
-    from daemon.kinematics import Kinematics
-    from daemon.statics import Statics, link_weights
+    from climbd.daemon.algorithms.estimation import GRAVITY
+    from climbd.daemon.algorithms.kinematics import Kinematics
+    from climbd.daemon.algorithms.statics import Statics, link_weights
+    from climbd.daemon.contract import profile as profiles
 
     masses = [0.58, 0.51, 0.37]  # the twin's links (kg)
     kin = Kinematics(profiles.load(PROFILE))
@@ -241,7 +248,7 @@ def statics_table(calls: int = 2000) -> None:
     for name, f in (("floats", floats), ("numpy", vectorised)):
         times[name] = min(timeit.repeat(f, number=calls, repeat=5)) / calls * 1e6
     print("## eq. 5 both ways, one tick (feet, foot forces from torques, feed-forward torques)")
-    print("| daemon.statics (floats) | Kinematics (numpy over legs) | numpy / floats | max diff |")
+    print("| statics (floats) | Kinematics (numpy over legs) | numpy / floats | max diff |")
     print("|---|---|---|---|")
     print(
         f"| {times['floats']:.1f} us | {times['numpy']:.1f} us | "

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 import pyransac3d
 
-from drivers.sim import truss_scene as ts
-from plugins.perception.truss import TrussConfig, TrussModeller
-from plugins.perception.truss.evaluate import Accuracy, evaluate
+from climbd.drivers.sim import truss_scene as ts
+from climbd.plugins.perception.truss import TrussConfig, TrussModeller
+from climbd.plugins.perception.truss.evaluate import Accuracy, evaluate
 
 POINTS = 100_000
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from daemon import messages as m
-from daemon.bus import Bus, Publisher
+from climbd.daemon.contract import messages as m
+from climbd.daemon.runtime.network import Bus, Publisher
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import msgspec
 from hypothesis import strategies as st
 
-from daemon import messages as m
-from daemon.profile import Profile, ProfileError, from_dict, load, tomllib
+from climbd.daemon.contract import messages as m
+from climbd.daemon.contract.profile import Profile, ProfileError, from_dict, load, tomllib
 
 ROOT = Path(__file__).resolve().parent.parent
 DECODE_ERRORS = (msgspec.DecodeError, msgspec.ValidationError, m.SchemaMismatch)

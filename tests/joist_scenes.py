@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daemon.messages import BodyState
+from climbd.daemon.contract.messages import BodyState
 
 
 @dataclass(frozen=True)

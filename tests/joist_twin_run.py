@@ -22,19 +22,19 @@ import numpy as np
 from joist_scenes import JoistSpec
 from joist_world import perceive
 
-from daemon import profile as profiles
-from daemon.control import Controller
-from daemon.loop import ControlLoop, SteppedClock
-from daemon.messages import BodyState, Joists, Mode
-from daemon.motion import MotionPipeline
-from daemon.plugins import Isolated
-from daemon.profile import stock_profiles
-from daemon.safety import Safety
-from daemon.sim_host import STEPPED_TIMEOUT_MARGIN_MS
-from drivers.dynamixel.bus import DynamixelBus
-from drivers.sim.twin import Twin
-from drivers.sim.worlds import JoistRow, World
-from plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig
+from climbd.daemon.algorithms.motion import MotionPipeline
+from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import BodyState, Joists, Mode
+from climbd.daemon.contract.profile import stock_profiles
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.dynamixel.bus import DynamixelBus
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.worlds import JoistRow, World
+from climbd.plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 DT = 0.01

@@ -12,8 +12,8 @@ import math
 import numpy as np
 from joist_scenes import JoistSpec
 
-from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, Joist, Joists
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.messages import BodyState, Joist, Joists
 
 CROP = (0.1, 1.1, 0.6)
 

@@ -13,17 +13,17 @@ import mujoco
 import numpy as np
 from conftest import ROOT
 
-from daemon import profile as profiles
-from daemon.control import Controller
-from daemon.estimation import EstimatorConfig, StateEstimator
-from daemon.loop import ControlLoop, SteppedClock
-from daemon.messages import Heartbeat, Mode, MotionCommand
-from daemon.plugins import Isolated
-from daemon.safety import Safety
-from drivers.sim.mit_coupling import MitCoupling
-from drivers.sim.mit_motors import MitMotorChain
-from drivers.sim.twin import Twin
-from drivers.torque.bus import MitJointBus
+from climbd.daemon.algorithms.estimation import EstimatorConfig, StateEstimator
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import Heartbeat, Mode, MotionCommand
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.sim.mit_coupling import MitCoupling
+from climbd.drivers.sim.mit_motors import MitMotorChain
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.torque.bus import MitJointBus
 
 _channels = itertools.count()
 SESSION = "qz-test"
@@ -67,7 +67,7 @@ def contact_forces(twin: Twin) -> np.ndarray:
 
 def flat_world():
     """The stairs world without its flight: level ground for the flat-ground walks."""
-    from drivers.sim.worlds import load as load_world
+    from climbd.drivers.sim.worlds import load as load_world
 
     world = load_world("stairs")
     world.stairs = []
@@ -80,7 +80,7 @@ class QingzhuiRig:
     def __init__(
         self, world="stairs", gait=None, start_x: float = 0.0, feed_forward: bool = False
     ) -> None:
-        from drivers.sim.worlds import load as load_world
+        from climbd.drivers.sim.worlds import load as load_world
 
         profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
         bus = msgspec.structs.replace(profile.bus, reply_timeout=LOCKSTEP_REPLY_TIMEOUT)

@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from stair_run import CLOUD_PERIOD, CLOUD_VOXEL, StairRun, front_cloud, stair_world  # noqa: E402
 
-from plugins.perception.stairs import voxel_thin  # noqa: E402
+from climbd.plugins.perception.stairs import voxel_thin  # noqa: E402
 
 KEEP = 4
 """Every how many 1 kHz ticks one is kept: the replay runs the estimator at 250 Hz."""

@@ -18,14 +18,14 @@ import msgspec
 import numpy as np
 from qingzhui_twin import QingzhuiRig, contact_forces
 
-from daemon.cloud import frame_to_points
-from daemon.estimation import StateEstimator, log_so3, quaternion, rotation
-from daemon.messages import MotionCommand, Stair, Stairs
-from daemon.plugins import Isolated
-from drivers.sim.worlds import Staircase, World, load
-from plugins.gaits.stair_gait import StairGait, StairGaitConfig
-from plugins.gaits.stair_plan import StairModel
-from plugins.perception.stairs import StairPerception, StairsConfig
+from climbd.daemon.algorithms.cloud import frame_to_points
+from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, quaternion, rotation
+from climbd.daemon.contract.messages import MotionCommand, Stair, Stairs
+from climbd.daemon.runtime.loader import Isolated
+from climbd.drivers.sim.worlds import Staircase, World, load
+from climbd.plugins.gaits.stair_gait import StairGait, StairGaitConfig
+from climbd.plugins.gaits.stair_plan import StairModel
+from climbd.plugins.perception.stairs import StairPerception, StairsConfig
 
 CLOUD_PERIOD = 0.5
 """Seconds (simulated) between the front camera's clouds that ICP aligns (``icp``)."""

@@ -9,11 +9,11 @@ import pytest
 from conftest import free_port
 from zenoh_roles import Observer, Proc
 
-from daemon import profile as profiles
-from daemon.access import AccessError
-from daemon.bus import Endpoints, zenoh_config
-from daemon.certs import generate
-from daemon.messages import EStop, Health, Mode, ModeState
+from climbd.daemon.cli.certs import generate
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import EStop, Health, Mode, ModeState
+from climbd.daemon.runtime.access import AccessError
+from climbd.daemon.runtime.network import Endpoints, zenoh_config
 
 GRID = "features/grid"
 

@@ -9,15 +9,15 @@ import textwrap
 
 from conftest import lossless
 
-from daemon.bus import Bus, Endpoints, zenoh_config
-from daemon.messages import Health, JointState, MotionCommand
+from climbd.daemon.contract.messages import Health, JointState, MotionCommand
+from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
 PUBLISHER = textwrap.dedent(
     """
     import sys, time
     import zenoh
-    from daemon.bus import Bus, Endpoints, zenoh_config
-    from daemon.messages import JointState, MotionCommand, encode
+    from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+    from climbd.daemon.contract.messages import JointState, MotionCommand, encode
     bus = Bus("r2d2", zenoh_config(None, "test", Endpoints([], [sys.argv[1]])))
     pub = bus.publisher(JointState)
     time.sleep(1.0)

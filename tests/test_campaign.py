@@ -24,13 +24,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon import messages as m
-from daemon.control import Controller
-from daemon.loop import ControlLoop, MonotonicClock
-from daemon.messages import EstopPolicy, Mode
-from daemon.plugins import Isolated, PerceptionPlugin, instantiate
-from daemon.profile import Profile, load
-from daemon.safety import Safety
+from climbd.daemon.contract import messages as m
+from climbd.daemon.contract.messages import EstopPolicy, Mode
+from climbd.daemon.contract.plugins import PerceptionPlugin
+from climbd.daemon.contract.profile import Profile, load
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loader import Isolated, instantiate
+from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock
+from climbd.daemon.runtime.safety import Safety
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOTS = ("widowx", "hubrobo", "qingzhui")
@@ -99,12 +100,12 @@ class Rig:
         self.thread = threading.Thread(target=self.loop.run, daemon=True)
 
     def _open_driver(self) -> None:
-        from daemon.kinematics import Kinematics
+        from climbd.daemon.algorithms.kinematics import Kinematics
 
         stand = Kinematics(self.profile).stand_joints()
         if self.robot in DYNAMIXEL:
-            from drivers.dynamixel.bus import DynamixelBus
-            from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
+            from climbd.drivers.dynamixel.bus import DynamixelBus
+            from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
             self.chain = ServoChain.from_profile(self.profile)
             self.chain.set_joint_state(stand)
@@ -113,9 +114,9 @@ class Rig:
                 self.profile, port=self.emulator.port, timeout_margin_ms=10.0
             )
         else:
-            from daemon.sim_host import THREAD_REPLY_TIMEOUT
-            from drivers.sim.mit_motors import MitMotorChain
-            from drivers.torque.bus import MitJointBus, waiting_for_replies
+            from climbd.daemon.cli.sim_host import THREAD_REPLY_TIMEOUT
+            from climbd.drivers.sim.mit_motors import MitMotorChain
+            from climbd.drivers.torque.bus import MitJointBus, waiting_for_replies
 
             channel = f"campaign-{os.getpid()}-{next(_channels)}"
             ids = [j.id for j in self.profile.joints]
@@ -409,10 +410,10 @@ def can_bus_off(robot, make, tmp_path, endpoint) -> str:
 
 
 def camera_unplugged(robot, make, tmp_path, endpoint) -> str:
-    from drivers.base import mount_extrinsics
-    from drivers.realsense.capture import Capture
-    from drivers.realsense.models import model
-    from drivers.realsense.software import SoftwareDepthCamera
+    from climbd.daemon.contract.hardware import mount_extrinsics
+    from climbd.drivers.realsense.capture import Capture
+    from climbd.drivers.realsense.models import model
+    from climbd.drivers.realsense.software import SoftwareDepthCamera
 
     profile = load(ROOT / "robots" / f"{robot}.toml")
     config = profile.cameras[0]
@@ -513,7 +514,7 @@ def clock_jump(robot, make, tmp_path, endpoint) -> str:
 def disk_full(robot, make, tmp_path, endpoint) -> str:
     import resource
 
-    from daemon.bus import Bus, Endpoints, zenoh_config
+    from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
     bus = Bus(robot, zenoh_config(None, "control", Endpoints([endpoint], [])))
     pubs: dict[type, object] = {}
@@ -537,7 +538,7 @@ def disk_full(robot, make, tmp_path, endpoint) -> str:
     try:
         rig.stand()
         rec = subprocess.Popen(
-            [sys.executable, "-m", "daemon.cli", "record", "--robot", robot]
+            [sys.executable, "-m", "climbd.daemon.cli", "record", "--robot", robot]
             + ["--connect", endpoint, "-o", str(out)],
             cwd=ROOT,
             stdout=subprocess.PIPE,
@@ -559,7 +560,7 @@ def disk_full(robot, make, tmp_path, endpoint) -> str:
         bus.close()
     assert rec.returncode == 1 and "Traceback" not in stderr, stderr
     assert "recording stopped" in stderr and "file sealed and readable" in stderr, stderr
-    from daemon.replay import read
+    from climbd.daemon.cli.replay import read
 
     kept = list(read(out))
     assert kept and out.stat().st_size <= limit
@@ -587,8 +588,8 @@ class Crashing(PerceptionPlugin):
 def perception_crash(robot, make, tmp_path, endpoint) -> str:
     import argparse
 
-    from daemon.perception_role import PerceptionRole, make_camera
-    from drivers.realsense.capture import Capture
+    from climbd.daemon.runtime.perception_role import PerceptionRole, make_camera
+    from climbd.drivers.realsense.capture import Capture
 
     profile = load(ROOT / "robots" / f"{robot}.toml")
     role = PerceptionRole(profile, argparse.Namespace())

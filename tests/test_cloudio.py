@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon import lzf
-from daemon.cloudio import CloudFileError, read_cloud, write_cloud
-from drivers.sim.worlds import DATA
+from climbd.daemon.contract import lzf
+from climbd.daemon.contract.cloudio import CloudFileError, read_cloud, write_cloud
+from climbd.drivers.sim.worlds import DATA
 
 ENCODINGS = [
     ("cloud.pcd", "ascii"),

@@ -5,11 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daemon import profile as profiles
-from daemon.control import LOAD_RAMP, Controller
-from daemon.estimation import StateEstimator
-from daemon.loop import ControlLoop, SteppedClock
-from daemon.messages import (
+from climbd.daemon.algorithms.estimation import StateEstimator
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import (
     EStop,
     FootTargets,
     Heartbeat,
@@ -18,9 +16,12 @@ from daemon.messages import (
     SessionClaim,
     Stairs,
 )
-from daemon.plugins import GaitPlugin, Isolated
-from daemon.safety import Safety
-from drivers.base import FakeJointBus
+from climbd.daemon.contract.plugins import GaitPlugin
+from climbd.daemon.runtime.control import LOAD_RAMP, Controller
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.fake import FakeJointBus
 
 
 class StillGait(GaitPlugin):

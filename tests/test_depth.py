@@ -9,13 +9,19 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from daemon.cloud import PAPER_000, PAPER_000_TEST_7, CropBox, crop, frame_to_points
-from daemon.profile import CameraConfig, CameraMount
-from drivers.base import DepthFrame, DriverError, Intrinsics, mount_extrinsics
-from drivers.realsense import camera as camera_module
-from drivers.realsense.camera import LiveSource, RealSenseCamera
-from drivers.realsense.models import D435, L515
-from drivers.realsense.software import SoftwareDepthCamera
+from climbd.daemon.algorithms.cloud import (
+    PAPER_000,
+    PAPER_000_TEST_7,
+    CropBox,
+    crop,
+    frame_to_points,
+)
+from climbd.daemon.contract.hardware import DepthFrame, DriverError, Intrinsics, mount_extrinsics
+from climbd.daemon.contract.profile import CameraConfig, CameraMount
+from climbd.drivers.realsense import camera as camera_module
+from climbd.drivers.realsense.camera import LiveSource, RealSenseCamera
+from climbd.drivers.realsense.models import D435, L515
+from climbd.drivers.realsense.software import SoftwareDepthCamera
 
 
 def _plane_depth(intrinsics, extrinsics, normal, offset, depth_scale):

@@ -8,13 +8,13 @@ import time
 import numpy as np
 import pytest
 
-from daemon.messages import Health
-from daemon.profile import CameraConfig
-from drivers.base import DriverError
-from drivers.realsense.camera import PlaybackSource, RealSenseCamera
-from drivers.realsense.capture import Capture
-from drivers.realsense.models import L515
-from drivers.realsense.software import SoftwareDepthCamera
+from climbd.daemon.contract.hardware import DriverError
+from climbd.daemon.contract.messages import Health
+from climbd.daemon.contract.profile import CameraConfig
+from climbd.drivers.realsense.camera import PlaybackSource, RealSenseCamera
+from climbd.drivers.realsense.capture import Capture
+from climbd.drivers.realsense.models import L515
+from climbd.drivers.realsense.software import SoftwareDepthCamera
 
 INTRINSICS = L515.intrinsics(640, 480)
 

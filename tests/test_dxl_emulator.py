@@ -15,9 +15,9 @@ import dynamixel_sdk as sdk
 import pytest
 import serial
 
-from drivers.sim.dynamixel import DynamixelEmulator, EmulatedServo, ServoChain
-from drivers.sim.dynamixel.tables import AX_18A, XL430_W250
-from drivers.sim.dynamixel.wire import Framer, crc16, packet1, packet2, stuff, unstuff
+from climbd.drivers.sim.dynamixel import DynamixelEmulator, EmulatedServo, ServoChain
+from climbd.drivers.sim.dynamixel.tables import AX_18A, XL430_W250
+from climbd.drivers.sim.dynamixel.wire import Framer, crc16, packet1, packet2, stuff, unstuff
 
 P2_CRC = sdk.Protocol2PacketHandler().updateCRC
 PATIENCE_MS = 200.0

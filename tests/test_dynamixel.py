@@ -14,13 +14,13 @@ import msgspec
 import numpy as np
 import pytest
 
-from daemon.messages import JointCommand, Mode
-from daemon.profile import load
-from daemon.safety import Safety
-from drivers.base import DriverError, JointBus
-from drivers.dynamixel.bus import DynamixelBus
-from drivers.sim.dynamixel import DynamixelEmulator, EmulatedServo, ServoChain
-from drivers.sim.dynamixel.tables import XM430_W350
+from climbd.daemon.contract.hardware import DriverError, JointBus
+from climbd.daemon.contract.messages import JointCommand, Mode
+from climbd.daemon.contract.profile import load
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.dynamixel.bus import DynamixelBus
+from climbd.drivers.sim.dynamixel import DynamixelEmulator, EmulatedServo, ServoChain
+from climbd.drivers.sim.dynamixel.tables import XM430_W350
 
 RESOLUTION = {1: (math.radians(300) / 1023, 512), 2: (2 * math.pi / 4096, 2048)}
 MARGIN_MS = 10.0  # packet-timeout margin: tolerates a loaded CI machine
@@ -280,7 +280,7 @@ def test_compiled_crc_equals_the_sdks_over_random_packets():
     prefix length and starting value, and the driver's handler is that class on 2.0 only."""
     import dynamixel_sdk as sdk
 
-    from drivers.dynamixel.packet import FastCrcProtocol2PacketHandler, packet_handler
+    from climbd.drivers.dynamixel.packet import FastCrcProtocol2PacketHandler, packet_handler
 
     stock, fast = sdk.PacketHandler(2.0), FastCrcProtocol2PacketHandler()
     rng = np.random.default_rng(3)

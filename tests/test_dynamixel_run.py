@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.kinematics import Kinematics
-from daemon.profile import load
-from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.profile import load
+from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
 ROOT = Path(__file__).resolve().parent.parent
 RESOLUTION = {1: np.radians(300) / 1023, 2: 2 * np.pi / 4096}
@@ -30,7 +30,7 @@ def test_climbd_run_stands_up_on_the_emulated_bus(robot: str, endpoint: str, tmp
     chain = ServoChain.from_profile(profile)
     with DynamixelEmulator(chain) as emu:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "daemon.cli", "run", "--profile", str(profile.source)]
+            [sys.executable, "-m", "climbd.daemon.cli", "run", "--profile", str(profile.source)]
             + ["--driver", "dynamixel", "--port", emu.port, "--listen", endpoint, "--quiet"],
             cwd=ROOT,
             stdout=subprocess.DEVNULL,

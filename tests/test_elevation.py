@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from joist_scenes import JoistSpec, body_state, render
 
-from daemon.messages import ElevationGrid, decode, encode
-from daemon.plugins import PluginError, instantiate
-from plugins.perception.elevation import ElevationConfig, ElevationMap, fill_holes
+from climbd.daemon.contract.messages import ElevationGrid, decode, encode
+from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.runtime.loader import instantiate
+from climbd.plugins.perception.elevation import ElevationConfig, ElevationMap, fill_holes
 
 
 def _floor_points(n: int, rng: np.random.Generator, sigma: float) -> np.ndarray:

@@ -9,8 +9,7 @@ import pytest
 from conftest import ROOT
 from qingzhui_twin import QingzhuiRig, contact_forces, estimator_config, flat_world
 
-from daemon import profile as profiles
-from daemon.estimation import (
+from climbd.daemon.algorithms.estimation import (
     GRAVITY,
     EstimatorConfig,
     StateEstimator,
@@ -21,10 +20,11 @@ from daemon.estimation import (
     stance_pose,
     tripod_groups,
 )
-from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, MotionCommand, decode, encode
-from daemon.plugins import Isolated
-from plugins.gaits.periodic import Tripod
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import BodyState, MotionCommand, decode, encode
+from climbd.daemon.runtime.loader import Isolated
+from climbd.plugins.gaits.periodic import Tripod
 
 WALK = 3.5
 """Seconds of tripod walking recorded (four stance changes at the default 1.5 s cycle)."""

@@ -11,11 +11,9 @@ import msgspec
 import numpy as np
 import pytest
 
-from daemon.cloudio import read_cloud
-from daemon.control import Controller
-from daemon.kinematics import Kinematics
-from daemon.loop import ControlLoop, SteppedClock
-from daemon.messages import (
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.cloudio import read_cloud
+from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
     GraspablePoints,
@@ -24,12 +22,14 @@ from daemon.messages import (
     decode,
     encode,
 )
-from daemon.plugins import Isolated, instantiate
-from daemon.profile import load
-from daemon.safety import Safety
-from drivers.base import FakeJointBus
-from drivers.sim.worlds import DATA
-from plugins.gaits.free_climb import (
+from climbd.daemon.contract.profile import load
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loader import Isolated, instantiate
+from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.fake import FakeJointBus
+from climbd.drivers.sim.worlds import DATA
+from climbd.plugins.gaits.free_climb import (
     GOAL,
     PERIODIC_ORDER,
     RECENT,
@@ -42,8 +42,8 @@ from plugins.gaits.free_climb import (
     stance_key,
     swing_lift,
 )
-from plugins.gaits.hold_map import tile_map
-from plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
+from climbd.plugins.gaits.hold_map import tile_map
+from climbd.plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
 
 ROOT = Path(__file__).resolve().parent.parent
 CLOUD = DATA / "leaning_bouldering_holds.pcd"

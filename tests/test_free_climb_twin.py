@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from climb_run import SlopeClimb
 
-from drivers.sim.climb import SlopeClimb
-from drivers.sim.model import GRIP_FORCE
-from drivers.sim.worlds import hold_map_holds, wall_pose
+from climbd.drivers.sim.model import GRIP_FORCE
+from climbd.drivers.sim.worlds import hold_map_holds, wall_pose
 
 
 @pytest.fixture(scope="module")

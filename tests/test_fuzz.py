@@ -12,7 +12,7 @@ from fuzzing import profile_edits as edits_strategy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon.messages import ALL_MESSAGES
+from climbd.daemon.contract.messages import ALL_MESSAGES
 
 FAST = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -13,17 +13,18 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from daemon import profile as profiles
-from daemon.control import Controller
-from daemon.loop import ControlLoop, SteppedClock
-from daemon.messages import BodyState, Heartbeat, Mode, MotionCommand, SessionClaim
-from daemon.motion import MotionPipeline
-from daemon.plugins import Isolated, PluginError, instantiate
-from daemon.profile import stock_profiles
-from daemon.safety import Safety
-from drivers.base import FakeJointBus
-from plugins.gaits.periodic import layout_offsets
-from plugins.gaits.swing import lift, progress
+from climbd.daemon.algorithms.motion import MotionPipeline
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import BodyState, Heartbeat, Mode, MotionCommand, SessionClaim
+from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.contract.profile import stock_profiles
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loader import Isolated, instantiate
+from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.fake import FakeJointBus
+from climbd.plugins.gaits.periodic import layout_offsets
+from climbd.plugins.gaits.swing import lift, progress
 
 PROFILES = {name: profiles.load(path) for name, path in stock_profiles().items()}
 

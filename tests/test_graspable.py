@@ -14,12 +14,13 @@ from graspable_scenes import board_plane, dome_board, hold_cores, pose, unpose
 from scipy import ndimage
 from scipy.spatial import Delaunay, cKDTree
 
-from daemon.cli import main as climbd
-from daemon.cloudio import read_cloud
-from daemon.messages import BodyState, GraspablePoints
-from daemon.plugins import PluginError, instantiate
-from drivers.sim.worlds import DATA
-from plugins.perception.graspable import (
+from climbd.daemon.cli import main as climbd
+from climbd.daemon.contract.cloudio import read_cloud
+from climbd.daemon.contract.messages import BodyState, GraspablePoints
+from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.runtime.loader import instantiate
+from climbd.drivers.sim.worlds import DATA
+from climbd.plugins.perception.graspable import (
     Correlator,
     GraspableConfig,
     GraspableDetector,
@@ -31,7 +32,7 @@ from plugins.perception.graspable import (
     terrain_matrix,
     void_known,
 )
-from plugins.perception.gripper_mask import GripperGeometry, gripper_mask
+from climbd.plugins.perception.gripper_mask import GripperGeometry, gripper_mask
 
 CLOUDS = ["leaning_bouldering_holds.pcd", "vertical_bouldering_holds.pcd"]
 REACH = 0.044  # mask half-size at 1 mm: palm-joint circle 14 + finger 15 + spine 15 mm

@@ -7,12 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon import profile as profiles
-from daemon.guard import Guard, GuardError
-from daemon.messages import FootTargets
-from daemon.motion import MotionError, MotionPipeline
-from daemon.profile import stock_profiles
-from daemon.smoothing import SmoothingError
+from climbd.daemon.algorithms.guard import Guard, GuardError
+from climbd.daemon.algorithms.motion import MotionError, MotionPipeline
+from climbd.daemon.algorithms.smoothing import SmoothingError
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import FootTargets
+from climbd.daemon.contract.profile import stock_profiles
 
 PROFILES = {name: profiles.load(path) for name, path in stock_profiles().items()}
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.cli import build_parser
+from climbd.daemon.cli.main import build_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -19,7 +19,7 @@ def install(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
         [
             sys.executable,
             "-m",
-            "daemon.cli",
+            "climbd.daemon.cli",
             "install",
             "--profile",
             "robots/widowx.toml",
@@ -75,7 +75,7 @@ def test_torque_legs_get_the_bridge_unit_and_the_control_role_is_pointed_at_it(
     assert bridge[:5] == [
         "/opt/climbd/bin/python",
         "-m",
-        "drivers.torque.bridge",
+        "climbd.drivers.torque.bridge",
         "--profile",
         profile,
     ]
@@ -142,7 +142,7 @@ def test_bad_profile_is_refused(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "daemon.cli",
+            "climbd.daemon.cli",
             "install",
             "--profile",
             str(bad),

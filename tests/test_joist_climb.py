@@ -16,17 +16,18 @@ import pytest
 from joist_scenes import JoistSpec
 from joist_world import body_state, joist_distance, knees, perceive, world_feet
 
-from daemon import profile as profiles
-from daemon.kinematics import Kinematics
-from daemon.loop import SteppedClock
-from daemon.messages import Joists
-from daemon.motion import MotionPipeline
-from daemon.plugins import PluginError, instantiate
-from daemon.profile import stock_profiles
-from drivers.base import FakeJointBus
-from drivers.sim.worlds import INCH
-from plugins.gaits.joist_climb import InPlaceTurn, JoistClimb, JoistClimbConfig, Phase
-from plugins.gaits.joist_crossing import Bar, CrossingGeometry, CrossingPlan, support_margin
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.algorithms.motion import MotionPipeline
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import Joists
+from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.contract.profile import stock_profiles
+from climbd.daemon.runtime.loader import instantiate
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.drivers.fake import FakeJointBus
+from climbd.drivers.sim.worlds import INCH
+from climbd.plugins.gaits.joist_climb import InPlaceTurn, JoistClimb, JoistClimbConfig, Phase
+from climbd.plugins.gaits.joist_crossing import Bar, CrossingGeometry, CrossingPlan, support_margin
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 DT = 0.01

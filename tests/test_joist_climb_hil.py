@@ -13,7 +13,7 @@ import numpy as np
 from joist_twin_run import run_scenario
 from test_joist_climb_twin import assert_went_round
 
-from drivers.sim.worlds import JoistRow
+from climbd.drivers.sim.worlds import JoistRow
 
 
 def test_table_2_test_3_goes_round_through_the_driver_as_in_process():

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from joist_twin_run import run_scenario
 
-from drivers.sim.worlds import INCH, JoistRow
-from plugins.perception.joist_perception import JoistPerception
+from climbd.drivers.sim.worlds import INCH, JoistRow
+from climbd.plugins.perception.joist_perception import JoistPerception
 
 TABLE_2 = [
     # test, distance (m), yaw (deg), height (m)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from joist_scenes import JoistSpec, body_state, render
 
-from daemon import cli
-from daemon.messages import Joists, decode, encode
-from daemon.plugins import instantiate
-from plugins.perception.elevation import ElevationMap, Grid
-from plugins.perception.joists import (
+from climbd.daemon import cli
+from climbd.daemon.contract.messages import Joists, decode, encode
+from climbd.daemon.runtime.loader import instantiate
+from climbd.plugins.perception.elevation import ElevationMap, Grid
+from climbd.plugins.perception.joists import (
     JoistConfig,
     JoistDetector,
     detect_lines,

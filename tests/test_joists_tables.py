@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from joist_scenes import JoistSpec, body_state, render
 
-from plugins.perception.elevation import ElevationConfig
-from plugins.perception.joist_perception import JoistPerception, JoistPerceptionConfig
-from plugins.perception.joists_paper import PaperPipeline
+from climbd.plugins.perception.elevation import ElevationConfig
+from climbd.plugins.perception.joist_perception import JoistPerception, JoistPerceptionConfig
+from climbd.plugins.perception.joists_paper import PaperPipeline
 
 TABLE_1 = [(h, yaw) for h in (0.10, 0.18) for yaw in (60.0, 45.0, 30.0)]
 STEEP = [(h, yaw) for h in (0.10, 0.18) for yaw in (70.0, 75.0)]

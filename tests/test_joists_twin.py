@@ -14,13 +14,13 @@ import math
 import numpy as np
 import pytest
 
-from daemon import profile as profiles
-from daemon.kinematics import Kinematics
-from daemon.messages import BodyState
-from daemon.profile import stock_profiles
-from drivers.sim.twin import Twin
-from drivers.sim.worlds import JoistRow, World
-from plugins.perception.joist_perception import JoistPerception
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import BodyState
+from climbd.daemon.contract.profile import stock_profiles
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.worlds import JoistRow, World
+from climbd.plugins.perception.joist_perception import JoistPerception
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 

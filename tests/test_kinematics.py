@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon import profile as profiles
-from daemon.kinematics import Kinematics, KinematicsError
-from daemon.profile import stock_profiles
+from climbd.daemon.algorithms.kinematics import Kinematics, KinematicsError
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.profile import stock_profiles
 
 ROBOTS = ("widowx", "hubrobo", "qingzhui", "mixed")
 KIN = {name: Kinematics(profiles.load(path)) for name, path in stock_profiles().items()}

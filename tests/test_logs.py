@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 
-from daemon.logs import JournalFormatter, RateLimit
+from climbd.daemon.runtime.logs import JournalFormatter, RateLimit
 
 
 def record(msg: str, level: int = logging.WARNING, line: int = 10) -> logging.LogRecord:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from daemon.loop import ControlLoop, MonotonicClock, SteppedClock
+from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock, SteppedClock
 
 
 def test_stepped_clock_gives_the_exact_tick_sequence() -> None:

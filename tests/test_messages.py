@@ -9,7 +9,7 @@ import sys
 import msgspec
 import pytest
 
-from daemon import messages as m
+from climbd.daemon.contract import messages as m
 
 
 def test_every_message_round_trips() -> None:
@@ -74,7 +74,9 @@ def test_garbage_is_a_decode_error(payload: bytes) -> None:
 def test_schema_command_lists_every_topic(tmp_path) -> None:
     out = tmp_path / "schema.json"
     subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "schema", "-o", str(out)], check=True, timeout=60
+        [sys.executable, "-m", "climbd.daemon.cli", "schema", "-o", str(out)],
+        check=True,
+        timeout=60,
     )
     doc = json.loads(out.read_text())
     assert doc["schema_version"] == m.SCHEMA_VERSION

@@ -16,7 +16,7 @@ import time
 import pytest
 from zenoh_roles import Proc
 
-from daemon import profile as profiles
+from climbd.daemon.contract import profile as profiles
 
 PORT = 7447
 

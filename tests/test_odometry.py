@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 
-from daemon import profile as profiles
-from daemon.estimation import rotation
-from daemon.kinematics import Kinematics
-from daemon.odometry import LegOdometry
+from climbd.daemon.algorithms.estimation import rotation
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.algorithms.odometry import LegOdometry
+from climbd.daemon.contract import profile as profiles
 
 
 def rot_z(yaw: float) -> np.ndarray:
@@ -153,7 +153,7 @@ def test_the_gyro_bounds_the_heading_of_slipping_legs(robots) -> None:
     """Leg odometry alone turns with the slipping feet (2° in 40 s); fused with the gyro, whose
     bias it learns while the robot stands, the heading error stays within what the complementary
     filter lets in of that slow drift, r·(t - τ·(1 - exp(-t/τ))), and the tilt follows gravity."""
-    from daemon.odometry import BIAS_TIME, HEADING_TIME
+    from climbd.daemon.algorithms.odometry import BIAS_TIME, HEADING_TIME
 
     kin = Kinematics(profiles.load(robots / "widowx.toml"))
     legs_yaw, _ = _slipping_turn(LegOdometry(kin), kin, imu=False)

@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon import cli
-from daemon.cloudio import write_cloud
-from daemon.profile import load
-from drivers.base import mount_extrinsics
-from drivers.realsense.models import D435
-from drivers.realsense.software import SoftwareDepthCamera
+from climbd.daemon import cli
+from climbd.daemon.contract.cloudio import write_cloud
+from climbd.daemon.contract.hardware import mount_extrinsics
+from climbd.daemon.contract.profile import load
+from climbd.drivers.realsense.models import D435
+from climbd.drivers.realsense.software import SoftwareDepthCamera
 
 ROOT = Path(__file__).resolve().parent.parent
 WIDOWX = ROOT / "robots" / "widowx.toml"
@@ -26,8 +26,8 @@ PLUGIN = '''
 """Test plugin: reports the centroid and the lowest point of the cloud as graspable points."""
 import msgspec
 import numpy as np
-from daemon.messages import GraspablePoints
-from daemon.plugins import PerceptionPlugin
+from climbd.daemon.contract.messages import GraspablePoints
+from climbd.daemon.contract.plugins import PerceptionPlugin
 
 
 class Config(msgspec.Struct, forbid_unknown_fields=True):
@@ -153,7 +153,14 @@ def test_the_installed_command_runs_in_a_fresh_process(plugin_path, tmp_path, cl
     write_cloud(tmp_path / "c.pcd", cloud, "binary_compressed")
     env = dict(os.environ, PYTHONPATH=f"{plugin_path}{os.pathsep}{ROOT}")
     done = subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "perceive", "centroid", str(tmp_path / "c.pcd")],
+        [
+            sys.executable,
+            "-m",
+            "climbd.daemon.cli",
+            "perceive",
+            "centroid",
+            str(tmp_path / "c.pcd"),
+        ],
         capture_output=True,
         text=True,
         env=env,

@@ -16,12 +16,12 @@ import threading
 
 import numpy as np
 
-from daemon.messages import BodyState, DepthImage, Joists, decode, encode
-from daemon.perception_role import PerceptionRole, make_plugins
-from daemon.plugins import Isolated
-from daemon.profile import load
-from daemon.sim_host import PerceptionGate, feed, sim_camera
-from drivers.realsense.capture import Capture
+from climbd.daemon.cli.sim_host import PerceptionGate, feed, sim_camera
+from climbd.daemon.contract.messages import BodyState, DepthImage, Joists, decode, encode
+from climbd.daemon.contract.profile import load
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.perception_role import PerceptionRole, make_plugins
+from climbd.drivers.realsense.capture import Capture
 
 SIM_SECONDS = 300.0
 PHYSICS_STEP = 0.001

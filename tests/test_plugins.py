@@ -9,8 +9,9 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from daemon import plugins
-from daemon.messages import BodyState, Joists
+from climbd.daemon.contract.messages import BodyState, Joists
+from climbd.daemon.contract.plugins import PerceptionPlugin
+from climbd.daemon.runtime import loader
 
 
 @pytest.fixture()
@@ -22,8 +23,8 @@ def third_party(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
         textwrap.dedent(
             '''
             import msgspec
-            from daemon.messages import Joist, Joists
-            from daemon.plugins import PerceptionPlugin
+            from climbd.daemon.contract.messages import Joist, Joists
+            from climbd.daemon.contract.plugins import PerceptionPlugin
 
             class Config(msgspec.Struct, forbid_unknown_fields=True):
                 min_height: float = 0.05
@@ -61,8 +62,8 @@ def third_party(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 def test_entry_point_plugin_loads_and_runs(third_party: Path) -> None:
     import numpy as np
 
-    assert "tallest" in plugins.available("climbd.perception")
-    plugin = plugins.instantiate("climbd.perception", "tallest", {"min_height": 0.1}, None, "test")
+    assert "tallest" in loader.available("climbd.perception")
+    plugin = loader.instantiate("climbd.perception", "tallest", {"min_height": 0.1}, None, "test")
     assert plugin.config.min_height == 0.1
     points = np.array([[1.0, 0.0, 0.0], [0.8, 0.1, 0.12], [2.0, 0.0, 0.05]])
     out = plugin.process_cloud(points, BodyState(), 3.0)
@@ -71,31 +72,31 @@ def test_entry_point_plugin_loads_and_runs(third_party: Path) -> None:
 
 
 def test_bad_config_names_the_field(third_party: Path) -> None:
-    with pytest.raises(plugins.PluginError, match=r"robots/x.toml: perception tallest.*min_height"):
-        plugins.instantiate(
+    with pytest.raises(loader.PluginError, match=r"robots/x.toml: perception tallest.*min_height"):
+        loader.instantiate(
             "climbd.perception",
             "tallest",
             {"min_height": "high"},
             None,
             "robots/x.toml: perception tallest",
         )
-    with pytest.raises(plugins.PluginError, match="unknown field `colour`"):
-        plugins.instantiate("climbd.perception", "tallest", {"colour": 1}, None, "where")
+    with pytest.raises(loader.PluginError, match="unknown field `colour`"):
+        loader.instantiate("climbd.perception", "tallest", {"colour": 1}, None, "where")
 
 
 def test_missing_plugin_lists_what_exists(third_party: Path) -> None:
-    with pytest.raises(plugins.PluginError, match=r"no plugin named 'nope' \(available: .*tallest"):
-        plugins.load_class("climbd.perception", "nope")
-    with pytest.raises(plugins.PluginError, match="unknown plugin group"):
-        plugins.available("climbd.nothing")
+    with pytest.raises(loader.PluginError, match=r"no plugin named 'nope' \(available: .*tallest"):
+        loader.load_class("climbd.perception", "nope")
+    with pytest.raises(loader.PluginError, match="unknown plugin group"):
+        loader.available("climbd.nothing")
 
 
 def test_raising_plugin_is_isolated(third_party: Path) -> None:
     import numpy as np
 
     failures: list[str] = []
-    plugin = plugins.instantiate("climbd.perception", "exploding", {}, None, "test")
-    isolated = plugins.Isolated("exploding", plugin, lambda name, e: failures.append(name))
+    plugin = loader.instantiate("climbd.perception", "exploding", {}, None, "test")
+    isolated = loader.Isolated("exploding", plugin, lambda name, e: failures.append(name))
     points = np.zeros((3, 3))
     assert isolated.call("process_cloud", points, BodyState(), 0.0) is None
     assert isolated.failed and "ZeroDivisionError: boom" in isolated.status
@@ -107,6 +108,6 @@ def test_raising_plugin_is_isolated(third_party: Path) -> None:
 
 
 def test_empty_config_refuses_keys() -> None:
-    with pytest.raises(plugins.PluginError, match="unknown field"):
-        plugins.make_config(plugins.PerceptionPlugin, {"x": 1}, "here")
-    assert isinstance(plugins.make_config(plugins.PerceptionPlugin, {}, "here"), msgspec.Struct)
+    with pytest.raises(loader.PluginError, match="unknown field"):
+        loader.make_config(PerceptionPlugin, {"x": 1}, "here")
+    assert isinstance(loader.make_config(PerceptionPlugin, {}, "here"), msgspec.Struct)

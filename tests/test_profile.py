@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon import profile as profiles
-from daemon.messages import EstopPolicy
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import EstopPolicy
 
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 
@@ -197,14 +197,21 @@ def test_include_missing_and_cycle(tmp_path: Path) -> None:
 def test_profile_check_command(tmp_path: Path) -> None:
     bad = write(tmp_path, replace_once(base_text(), "id = 3\n", "id = 1\n"))
     ok = subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "profile", "check", str(ROBOTS / "widowx.toml")],
+        [
+            sys.executable,
+            "-m",
+            "climbd.daemon.cli",
+            "profile",
+            "check",
+            str(ROBOTS / "widowx.toml"),
+        ],
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert ok.returncode == 0 and "ok" in ok.stdout
     res = subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "profile", "check", str(bad)],
+        [sys.executable, "-m", "climbd.daemon.cli", "profile", "check", str(bad)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -231,7 +238,7 @@ def test_profile_check_command(tmp_path: Path) -> None:
 def test_profile_check_validates_plugins(tmp_path: Path, old: str, new: str, fragment: str) -> None:
     bad = write(tmp_path, replace_once(base_text(), old, new))
     res = subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "profile", "check", str(bad)],
+        [sys.executable, "-m", "climbd.daemon.cli", "profile", "check", str(bad)],
         capture_output=True,
         text=True,
         timeout=60,

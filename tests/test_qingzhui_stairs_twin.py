@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from stair_run import StairRun, stair_world
 
-from daemon.estimation import GRAVITY
-from daemon.messages import Mode
+from climbd.daemon.algorithms.estimation import GRAVITY
+from climbd.daemon.contract.messages import Mode
 
 APPROACH, CLIMB = 3.0, 5.0
 """Seconds of walking: to the first riser (the estimate's check), then onto the second tread."""

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 from qingzhui_twin import QingzhuiRig, flat_world
 
-from daemon.messages import MotionCommand
-from daemon.plugins import Isolated
-from plugins.gaits.periodic import Tripod
+from climbd.daemon.contract.messages import MotionCommand
+from climbd.daemon.runtime.loader import Isolated
+from climbd.plugins.gaits.periodic import Tripod
 
 
 def _joint_log(seconds: float) -> np.ndarray:

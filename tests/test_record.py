@@ -18,10 +18,10 @@ import pytest
 from conftest import lossless
 from mcap.reader import make_reader
 
-from daemon import messages as m
-from daemon.bus import Bus, Endpoints, zenoh_config
-from daemon.record import McapSink, Sample, WriteFailed
-from daemon.replay import RecordingError, pace, read
+from climbd.daemon.cli.record import McapSink, Sample, WriteFailed
+from climbd.daemon.cli.replay import RecordingError, pace, read
+from climbd.daemon.contract import messages as m
+from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -73,7 +73,7 @@ def same(a: m.Message, b: m.Message) -> bool:
 
 def climbd(*args: str, **kw) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli", *args],
+        [sys.executable, "-m", "climbd.daemon.cli", *args],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -209,11 +209,11 @@ def test_replay_republishes_in_order_at_the_chosen_speed(
 
 def test_twin_recording_replays_to_the_same_joist_detections(tmp_path: Path, endpoint: str) -> None:
     """Joists detected live from the twin's ray-cast depth are recorded and replayed unchanged."""
-    from daemon.profile import load
-    from daemon.record import Recorder
-    from daemon.replay import Replayer
-    from drivers.sim.twin import Twin
-    from plugins.perception.joist_perception import JoistPerception
+    from climbd.daemon.cli.record import Recorder
+    from climbd.daemon.cli.replay import Replayer
+    from climbd.daemon.contract.profile import load
+    from climbd.drivers.sim.twin import Twin
+    from climbd.plugins.perception.joist_perception import JoistPerception
 
     profile = load(ROOT / "robots" / "widowx.toml")
     twin = Twin(profile, "attic_paper", stepped=True, bus=False)
@@ -284,8 +284,8 @@ def test_disk_full_stops_the_recording_cleanly_and_keeps_a_readable_file(tmp_pat
 import resource, signal, sys
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit}))
-from daemon import messages as m
-from daemon.record import McapSink, Sample, WriteFailed
+from climbd.daemon.contract import messages as m
+from climbd.daemon.cli.record import McapSink, Sample, WriteFailed
 sink = McapSink(sys.argv[1], list(m.ALL_MESSAGES))
 try:
     for n in range(10_000):

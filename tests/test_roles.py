@@ -15,14 +15,15 @@ import numpy as np
 from conftest import free_port
 from zenoh_roles import Observer, Proc
 
-from daemon import profile as profiles
-from daemon.control import Controller
-from daemon.loop import ControlLoop, SteppedClock
-from daemon.messages import EStop, FootTargets, Health, Joists, Mode, ModeState
-from daemon.plugins import GaitPlugin, Isolated
-from daemon.safety import Safety
-from daemon.status import fleet
-from drivers.base import FakeJointBus
+from climbd.daemon.cli.status import fleet
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import EStop, FootTargets, Health, Joists, Mode, ModeState
+from climbd.daemon.contract.plugins import GaitPlugin
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.fake import FakeJointBus
 
 GRID = "features/grid"
 

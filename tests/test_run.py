@@ -20,7 +20,7 @@ class Daemon:
 
     def __init__(self, *args: str) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "daemon.cli", "run", *args],
+            [sys.executable, "-m", "climbd.daemon.cli", "run", *args],
             cwd=ROOT,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -58,7 +58,7 @@ class Daemon:
 
 def climbd(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "daemon.cli", *args],
+        [sys.executable, "-m", "climbd.daemon.cli", *args],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -149,7 +149,7 @@ def test_notify_socket_gets_ready(tmp_path: Path, endpoint: str) -> None:
         [
             sys.executable,
             "-m",
-            "daemon.cli",
+            "climbd.daemon.cli",
             "run",
             "--profile",
             "robots/widowx.toml",

@@ -5,9 +5,9 @@ from __future__ import annotations
 import msgspec
 import pytest
 
-from daemon import profile as profiles
-from daemon.messages import EstopPolicy, JointHealth, Mode
-from daemon.safety import DERATE_SCALE, Safety
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import EstopPolicy, JointHealth, Mode
+from climbd.daemon.runtime.safety import DERATE_SCALE, Safety
 
 
 @pytest.fixture()

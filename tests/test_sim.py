@@ -12,15 +12,15 @@ import pyrealsense2 as rs
 import pytest
 from conftest import ROOT
 
-from daemon.kinematics import Kinematics
-from daemon.profile import load
-from drivers.sim import servos
-from drivers.sim.depth import NOISE
-from drivers.sim.model import GRIP_FORCE, build
-from drivers.sim.topview import render_top_view
-from drivers.sim.twin import Twin
-from drivers.sim.worlds import JoistRow, World, WorldError, holds_heightfield, stock_worlds
-from drivers.sim.worlds import load as load_world
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.profile import load
+from climbd.drivers.sim import servos
+from climbd.drivers.sim.depth import NOISE
+from climbd.drivers.sim.model import GRIP_FORCE, build
+from climbd.drivers.sim.topview import render_top_view
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.worlds import JoistRow, World, WorldError, holds_heightfield, stock_worlds
+from climbd.drivers.sim.worlds import load as load_world
 
 
 @pytest.fixture(scope="module")

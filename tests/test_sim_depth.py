@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from daemon.kinematics import Kinematics
-from daemon.profile import load
-from drivers.sim.camera_process import CameraProcess
-from drivers.sim.depth import RayCastDepth
-from drivers.sim.gl_depth import gl_available
-from drivers.sim.twin import Twin
-from drivers.sim.worlds import JoistRow, World
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.profile import load
+from climbd.drivers.sim.camera_process import CameraProcess
+from climbd.drivers.sim.depth import RayCastDepth
+from climbd.drivers.sim.gl_depth import gl_available
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.worlds import JoistRow, World
 
 
 def _small_camera(robot: str):

@@ -15,9 +15,8 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from daemon.control import Controller
-from daemon.loop import ControlLoop, SteppedClock
-from daemon.messages import (
+from climbd.daemon.contract.hardware import DriverError
+from climbd.daemon.contract.messages import (
     Heartbeat,
     JointCommand,
     Mode,
@@ -25,14 +24,15 @@ from daemon.messages import (
     MotionCommand,
     SessionClaim,
 )
-from daemon.plugins import Isolated
-from daemon.profile import load
-from daemon.safety import Safety
-from drivers.base import DriverError
-from drivers.dynamixel.bus import DynamixelBus
-from drivers.sim.twin import Twin
-from drivers.torque.bus import MitJointBus
-from plugins.gaits.periodic import Tripod, TripodConfig
+from climbd.daemon.contract.profile import load
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.dynamixel.bus import DynamixelBus
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.torque.bus import MitJointBus
+from climbd.plugins.gaits.periodic import Tripod, TripodConfig
 
 STEPPED_MARGIN_MS = 100.0
 DETERMINISM_MARGIN_MS = 2000.0
@@ -257,10 +257,16 @@ def test_qingzhui_torque_legs_answer_mit_frames_from_the_physics():
 
 
 def test_twin_in_its_own_process_serves_the_driver():
-    """``python -m drivers.sim`` prints its pty; the driver in this process reads the resting
+    """``python -m climbd.drivers.sim`` prints its pty; the driver in this process reads the resting
     robot from it; SIGTERM ends it with a summary of simulated and wall time."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "drivers.sim", "--profile", str(ROOT / "robots" / "widowx.toml")]
+        [
+            sys.executable,
+            "-m",
+            "climbd.drivers.sim",
+            "--profile",
+            str(ROOT / "robots" / "widowx.toml"),
+        ]
         + ["--world", "attic", "--no-cameras"],
         stdout=subprocess.PIPE,
         text=True,

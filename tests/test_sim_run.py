@@ -13,7 +13,15 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def climbd(tmp_path: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "run", *args, "--snapshot", str(tmp_path / "top.png")],
+        [
+            sys.executable,
+            "-m",
+            "climbd.daemon.cli",
+            "run",
+            *args,
+            "--snapshot",
+            str(tmp_path / "top.png"),
+        ],
         cwd=tmp_path,
         capture_output=True,
         text=True,

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from daemon import profile as profiles
-from daemon.profile import stock_profiles
-from daemon.smoothing import Smoother, SmoothingError
+from climbd.daemon.algorithms.smoothing import Smoother, SmoothingError
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.profile import stock_profiles
 
 PROFILES = {name: profiles.load(path) for name, path in stock_profiles().items()}
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.messages import Health, LoopStats, Mode
+from climbd.daemon.contract.messages import Health, LoopStats, Mode
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -16,8 +16,8 @@ import pytest
 from qingzhui_twin import QingzhuiRig, estimator_config
 from stair_run import CLOUD_VOXEL, stair_world
 
-from daemon.estimation import StateEstimator, log_so3, rotation
-from plugins.perception.stairs import StairPerception, StairsConfig
+from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, rotation
+from climbd.plugins.perception.stairs import StairPerception, StairsConfig
 
 RUN = Path(__file__).resolve().parent / "data" / "stair_run.npz"
 RISERS_IN_VIEW = ((3.5, 9.0), (39.0, 49.5))

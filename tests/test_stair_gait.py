@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from daemon import profile as profiles
-from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, MotionCommand, Stair, Stairs
-from daemon.plugins import PluginError, load_class
-from plugins.gaits.stair_gait import StairGait, StairGaitConfig, swing_phases, swing_point
-from plugins.gaits.stair_plan import (
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import BodyState, MotionCommand, Stair, Stairs
+from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.runtime.loader import load_class
+from climbd.plugins.gaits.stair_gait import StairGait, StairGaitConfig, swing_phases, swing_point
+from climbd.plugins.gaits.stair_plan import (
     StairGeometry,
     StairModel,
     StepPlanner,

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daemon.estimation import exp_so3, quaternion
-from daemon.messages import BodyState
-from daemon.plugins import load_class
-from plugins.perception.stairs import (
+from climbd.daemon.algorithms.estimation import exp_so3, quaternion
+from climbd.daemon.contract.messages import BodyState
+from climbd.daemon.runtime.loader import load_class
+from climbd.plugins.perception.stairs import (
     StairPerception,
     StairsConfig,
     icp_translation,

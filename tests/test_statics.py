@@ -1,6 +1,6 @@
-"""Eq. 5 leg by leg (``daemon.statics``, the 1 kHz tick's form): the vectorised kinematics' feet,
-Jacobians and foot forces, the legs' own weight by virtual work, and feed-forward torques that
-read back as the forces they ask for."""
+"""Eq. 5 leg by leg (``climbd.daemon.algorithms.statics``, the 1 kHz tick's form): the vectorised
+kinematics' feet, Jacobians and foot forces, the legs' own weight by virtual work, and feed-forward
+torques that read back as the forces they ask for."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_kinematics import KIN, ROBOTS, sample_q, unit
 
-from daemon.estimation import GRAVITY, exp_so3
-from daemon.kinematics import Kinematics
-from daemon.statics import Statics
+from climbd.daemon.algorithms.estimation import GRAVITY, exp_so3
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.algorithms.statics import Statics
 
 MASSES = [0.58, 0.51, 0.37]
 """Qingzhui's link masses in the twin (kg: thigh offset, thigh, shank)."""

@@ -11,9 +11,9 @@ import signal
 import pytest
 from zenoh_roles import Observer, Proc
 
-from daemon import profile as profiles
-from daemon.messages import EStop, Heartbeat, Mode, ModeState
-from daemon.teleop import ScriptError, parse_script
+from climbd.daemon.cli.teleop import ScriptError, parse_script
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import EStop, Heartbeat, Mode, ModeState
 
 HOLD_SCRIPT = """\
 0.0 claim

@@ -117,7 +117,9 @@ class ThirdPartyClient:
 def test_third_party_client_reads_telemetry_and_drives(endpoint: str, tmp_path) -> None:
     schema_file = tmp_path / "climbd-schema.json"
     subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "schema", "-o", str(schema_file)], cwd=ROOT, check=True
+        [sys.executable, "-m", "climbd.daemon.cli", "schema", "-o", str(schema_file)],
+        cwd=ROOT,
+        check=True,
     )
     schema = json.loads(schema_file.read_text())
     defs = schema["$defs"]

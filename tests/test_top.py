@@ -10,8 +10,8 @@ from pathlib import Path
 
 from conftest import free_port
 
-from daemon import messages as m
-from daemon.top import CLEAR, RobotView, render
+from climbd.daemon.cli.top import CLEAR, RobotView, render
+from climbd.daemon.contract import messages as m
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -63,7 +63,7 @@ def test_frame_shows_mode_rates_joints_features_and_session() -> None:
 
 def _start(*args: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli", "run", *args, "--quiet"],
+        [sys.executable, "-m", "climbd.daemon.cli", "run", *args, "--quiet"],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -100,7 +100,7 @@ def test_top_once_and_live_against_running_robots() -> None:
         _wait(procs[2], "perception role")
         time.sleep(4.0)  # both stand (2 s profile stand time) and the grid flows
         res = subprocess.run(
-            [sys.executable, "-m", "daemon.cli", "top", "--all", "--once", "--window", "3"]
+            [sys.executable, "-m", "climbd.daemon.cli", "top", "--all", "--once", "--window", "3"]
             + ["--connect", widowx_ep, "--connect", hubrobo_ep, "--connect", perception_ep],
             cwd=ROOT,
             capture_output=True,
@@ -108,7 +108,16 @@ def test_top_once_and_live_against_running_robots() -> None:
             timeout=60,
         )
         live = subprocess.Popen(
-            [sys.executable, "-m", "daemon.cli", "top", "--robot", "hubrobo", "--interval", "0.2"]
+            [
+                sys.executable,
+                "-m",
+                "climbd.daemon.cli",
+                "top",
+                "--robot",
+                "hubrobo",
+                "--interval",
+                "0.2",
+            ]
             + ["--connect", hubrobo_ep],
             cwd=ROOT,
             stdout=subprocess.PIPE,

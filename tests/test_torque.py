@@ -16,17 +16,17 @@ import msgspec
 import numpy as np
 import pytest
 
-from daemon import profile as profiles
-from daemon.control import Controller
-from daemon.loop import ControlLoop, MonotonicClock
-from daemon.messages import JointCommand, Mode
-from daemon.profile import ActuatorRanges
-from daemon.safety import Safety
-from drivers.base import DriverError
-from drivers.sim import mit_motors
-from drivers.sim.mit_motors import MitMotorChain
-from drivers.torque import links, mit
-from drivers.torque.bus import MitJointBus, joint_channels
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.hardware import DriverError
+from climbd.daemon.contract.messages import JointCommand, Mode
+from climbd.daemon.contract.profile import ActuatorRanges
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.sim import mit_motors
+from climbd.drivers.sim.mit_motors import MitMotorChain
+from climbd.drivers.torque import links, mit
+from climbd.drivers.torque.bus import MitJointBus, joint_channels
 
 RANGES = ActuatorRanges()
 _channels = itertools.count()
@@ -130,13 +130,19 @@ def udp_channels(count: int) -> list[str]:
 
 
 def test_motors_in_their_own_process_follow_the_driver(qingzhui, robots) -> None:
-    """``python -m drivers.sim.mit_motors`` serves the profile's motors from a process of its own
-    on two udp_can channels (legs alternating, as the driver spreads them); the driver opens
+    """``python -m climbd.drivers.sim.mit_motors`` serves the profile's motors from a process of
+    its own on two udp_can channels (legs alternating, as the driver spreads them); the driver opens
     them, drives them to a goal, and the emulator exits cleanly on SIGTERM."""
     channels = udp_channels(2)
     theirs = [links.peer_channel(c) for c in channels]
     motors = subprocess.Popen(
-        [sys.executable, "-m", "drivers.sim.mit_motors", "--profile", str(robots / "qingzhui.toml")]
+        [
+            sys.executable,
+            "-m",
+            "climbd.drivers.sim.mit_motors",
+            "--profile",
+            str(robots / "qingzhui.toml"),
+        ]
         + ["--channel", *theirs],
         stdout=subprocess.PIPE,
         text=True,
@@ -233,7 +239,7 @@ def test_a_channel_whose_motors_answered_is_not_waited_on(qingzhui, monkeypatch)
         opened[channel] = EchoLink(channel, qingzhui.bus.master_id)
         return opened[channel]
 
-    monkeypatch.setattr("drivers.torque.bus.open_link", echo)
+    monkeypatch.setattr("climbd.drivers.torque.bus.open_link", echo)
     bus = MitJointBus(patient(qingzhui), [f"can{i}" for i in range(6)])
     bus.open()
     for link in opened.values():

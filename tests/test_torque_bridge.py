@@ -1,4 +1,4 @@
-"""The torque bridge: ``python -m drivers.torque.bridge`` serving MIT motors (emulated in a
+"""The torque bridge: ``python -m climbd.drivers.torque.bridge`` serving MIT motors (emulated in a
 thread here, over udp_can) to the control role's ``BridgeJointBus``."""
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from test_torque import assert_stands_at_one_khz, udp_channels
 
-from daemon import profile as profiles
-from daemon.messages import JointCommand
-from drivers.base import DriverError
-from drivers.sim.mit_motors import MitMotorChain
-from drivers.torque import links
-from drivers.torque.bridge import BridgeJointBus
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.hardware import DriverError
+from climbd.daemon.contract.messages import JointCommand
+from climbd.drivers.sim.mit_motors import MitMotorChain
+from climbd.drivers.torque import links
+from climbd.drivers.torque.bridge import BridgeJointBus
 
 WATCHDOG = 0.2
 """The bridge's watchdog in the test that trips it (a loaded test machine can stall the test's
@@ -64,11 +64,13 @@ def bridged(profile_path: Path, watchdog: float = 5.0, motors_in_process: bool =
                 "--channel",
                 links.peer_channel(can_channel),
             )
-            stack.enter_context(started("drivers.sim.mit_motors", *emulator, ready=emulator[-1]))
+            stack.enter_context(
+                started("climbd.drivers.sim.mit_motors", *emulator, ready=emulator[-1])
+            )
         listen = links.peer_channel(bridge_channel)
         bridge = stack.enter_context(
             started(
-                "drivers.torque.bridge",
+                "climbd.drivers.torque.bridge",
                 *("--profile", str(profile_path), "--interface", links.UDP_INTERFACE),
                 *("--channel", can_channel, "--listen", listen, "--watchdog", str(watchdog)),
                 ready=listen,

@@ -11,20 +11,21 @@ import msgspec
 import numpy as np
 import pytest
 
-from daemon.messages import BodyState, TrussMembers, decode, encode
-from daemon.plugins import PluginError, instantiate
-from drivers.sim import truss_scene as ts
-from plugins.perception.truss import TrussConfig, TrussModeller, TrussPerception
-from plugins.perception.truss.cloud import ball_normals, voxel_downsample
-from plugins.perception.truss.completion import (
+from climbd.daemon.contract.messages import BodyState, TrussMembers, decode, encode
+from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.runtime.loader import instantiate
+from climbd.drivers.sim import truss_scene as ts
+from climbd.plugins.perception.truss import TrussConfig, TrussModeller, TrussPerception
+from climbd.plugins.perception.truss.cloud import ball_normals, voxel_downsample
+from climbd.plugins.perception.truss.completion import (
     Member,
     complete,
     gap_reach,
     merge_members,
     node_ends,
 )
-from plugins.perception.truss.cylinders import Cylinder, Segment, hypotheses, refine
-from plugins.perception.truss.evaluate import evaluate
+from climbd.plugins.perception.truss.cylinders import Cylinder, Segment, hypotheses, refine
+from climbd.plugins.perception.truss.evaluate import evaluate
 
 CAMERA = ts.DepthCamera().scaled(0.5)
 
@@ -286,7 +287,7 @@ def test_climbd_perceive_truss_prints_members_as_json(tmp_path):
     path = tmp_path / "truss.npy"
     np.save(path, scene.cloud.astype(np.float32))
     done = subprocess.run(
-        [sys.executable, "-m", "daemon.cli", "perceive", "truss", str(path)],
+        [sys.executable, "-m", "climbd.daemon.cli", "perceive", "truss", str(path)],
         capture_output=True,
         text=True,
         timeout=120,

@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from drivers.sim import truss_scene as ts
+from climbd.drivers.sim import truss_scene as ts
 
 CAMERA = ts.DepthCamera().scaled(0.25)
 

@@ -21,14 +21,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from daemon.messages import BodyState, DepthImage, TrussMembers, decode, encode
-from daemon.perception_role import make_camera, make_plugins
-from daemon.profile import PluginSpec, load
-from daemon.sim_host import SimHost, feed
-from drivers.realsense.capture import Capture
-from drivers.sim.twin import Twin
-from plugins.perception.truss import TrussConfig, TrussModeller, TrussPerception
-from plugins.perception.truss.evaluate import evaluate
+from climbd.daemon.cli.sim_host import SimHost, feed
+from climbd.daemon.contract.messages import BodyState, DepthImage, TrussMembers, decode, encode
+from climbd.daemon.contract.profile import PluginSpec, load
+from climbd.daemon.runtime.perception_role import make_camera, make_plugins
+from climbd.drivers.realsense.capture import Capture
+from climbd.drivers.sim.twin import Twin
+from climbd.plugins.perception.truss import TrussConfig, TrussModeller, TrussPerception
+from climbd.plugins.perception.truss.evaluate import evaluate
 
 VIEWS = [(-0.35, 0.0), (0.1, 1.3), (0.1, -1.3), (2.6, 0.9), (2.6, -0.9)]
 """Body positions (x, y, m) the robot looks at the truss from, facing its centre."""

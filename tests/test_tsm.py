@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from plugins.gaits.tsm import tumble_stability_margin, tumble_stability_margins
+from climbd.plugins.gaits.tsm import tumble_stability_margin, tumble_stability_margins
 
 SQUARE = np.array([[0.1, 0.1, 0.0], [-0.1, 0.1, 0.0], [-0.1, -0.1, 0.0], [0.1, -0.1, 0.0]])
 UP = np.array([0.0, 0.0, 1.0])

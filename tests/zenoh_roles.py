@@ -12,8 +12,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from daemon.bus import Bus, Endpoints, zenoh_config
-from daemon.messages import Health, Heartbeat, Message, ModeState
+from climbd.daemon.contract.messages import Health, Heartbeat, Message, ModeState
+from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -25,7 +25,7 @@ class Proc:
         self, *args: str, prefix: tuple[str, ...] = (), env: dict[str, str] | None = None
     ) -> None:
         self.proc = subprocess.Popen(
-            [*prefix, sys.executable, "-m", "daemon.cli", *args],
+            [*prefix, sys.executable, "-m", "climbd.daemon.cli", *args],
             cwd=ROOT,
             env={**os.environ, **env} if env else None,
             stdin=subprocess.DEVNULL,

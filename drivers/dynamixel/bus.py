@@ -24,12 +24,12 @@ from pathlib import Path
 import dynamixel_sdk as sdk
 import numpy as np
 
-from daemon.messages import JointCommand, JointHealth, JointState
-from daemon.profile import Profile
-from drivers.base import DriverError
-from drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
-from drivers.dynamixel.packet import packet_handler
-from drivers.dynamixel.units import JointMap, little_endian, little_endian_bytes
+from climbd.daemon.contract.hardware import DriverError
+from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
+from climbd.daemon.contract.profile import Profile
+from climbd.drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
+from climbd.drivers.dynamixel.packet import packet_handler
+from climbd.drivers.dynamixel.units import JointMap, little_endian, little_endian_bytes
 
 log = logging.getLogger(__name__)
 

@@ -1,16 +1,16 @@
 """Raw Dynamixel units ↔ SI joint units, vectorised over the joints of a bus.
 
 A joint's position is its servo horn angle about the centre tick (rad), the joint convention
-of every driver (daemon/profile.py ``Joint``): zero offsets and directions belong to the leg's
-kinematics, not to the bus. This module is the only place where device units exist.
+of every driver (daemon/contract/profile.py ``Joint``): zero offsets and directions belong to the
+leg's kinematics, not to the bus. This module is the only place where device units exist.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from daemon.profile import Joint
-from drivers.dynamixel.models import Model
+from climbd.daemon.contract.profile import Joint
+from climbd.drivers.dynamixel.models import Model
 
 
 class JointMap:

@@ -20,9 +20,9 @@ from typing import Any, Protocol
 import numpy as np
 import pyrealsense2 as rs
 
-from daemon.profile import CameraConfig
-from drivers.base import DepthFrame, DriverError, Intrinsics, mount_extrinsics
-from drivers.realsense.models import L515, model
+from climbd.daemon.contract.hardware import DepthFrame, DriverError, Intrinsics, mount_extrinsics
+from climbd.daemon.contract.profile import CameraConfig
+from climbd.drivers.realsense.models import L515, model
 
 log = logging.getLogger("climbd.realsense")
 

@@ -12,8 +12,8 @@ import threading
 
 import msgspec
 
-from daemon.messages import Health
-from drivers.base import Camera, DepthFrame
+from climbd.daemon.contract.hardware import Camera, DepthFrame
+from climbd.daemon.contract.messages import Health
 
 log = logging.getLogger("climbd.capture")
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from drivers.base import Intrinsics
+from climbd.daemon.contract.hardware import Intrinsics
 
 
 @dataclass(frozen=True)

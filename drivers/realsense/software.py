@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pyrealsense2 as rs
 
-from daemon.profile import CameraConfig
-from drivers.base import DriverError, Intrinsics
-from drivers.realsense.camera import RealSenseCamera
-from drivers.realsense.models import model
+from climbd.daemon.contract.hardware import DriverError, Intrinsics
+from climbd.daemon.contract.profile import CameraConfig
+from climbd.drivers.realsense.camera import RealSenseCamera
+from climbd.drivers.realsense.models import model
 
 
 def rs_intrinsics(intrinsics: Intrinsics) -> rs.intrinsics:

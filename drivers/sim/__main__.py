@@ -1,6 +1,6 @@
 """Run the physics twin in its own process, in real time, until SIGTERM/SIGINT.
 
-``python -m drivers.sim --profile robots/widowx.toml --world attic`` prints the port the
+``python -m climbd.drivers.sim --profile robots/widowx.toml --world attic`` prints the port the
 emulated bus answers on (a pty path, or a python-can virtual channel for torque legs) on the
 first line of stdout, so a daemon in another process (another interpreter, no shared GIL)
 opens it exactly as it opens hardware. On exit it prints the simulated and wall seconds.
@@ -14,13 +14,13 @@ import sys
 import threading
 import time
 
-from daemon.profile import ProfileError, load
-from drivers.sim.twin import Twin
-from drivers.sim.worlds import WorldError
+from climbd.daemon.contract.profile import ProfileError, load
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.worlds import WorldError
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m drivers.sim", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m climbd.drivers.sim", description=__doc__)
     parser.add_argument("--profile", required=True, help="robot profile (robots/*.toml)")
     parser.add_argument("--world", default="attic", help="stock world name or world file")
     parser.add_argument("--no-cameras", action="store_true", help="do not render depth")

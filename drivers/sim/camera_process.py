@@ -16,14 +16,14 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
-from daemon.profile import Profile
-from drivers.base import DepthFrame
-from drivers.sim.worlds import World
+from climbd.daemon.contract.hardware import DepthFrame
+from climbd.daemon.contract.profile import Profile
+from climbd.drivers.sim.worlds import World
 
 
 def _serve(conn: Connection, profile: Profile, world: World, timestep: float, options: dict):
     """Child: render each requested (camera, qpos, time) and answer with the uint16 image."""
-    from drivers.sim.twin import Twin
+    from climbd.drivers.sim.twin import Twin
 
     twin = Twin(profile, world, stepped=True, timestep=timestep, bus=False, **options)
     conn.send(True)

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from daemon.profile import CameraConfig
-from drivers.base import DepthFrame, Intrinsics, mount_extrinsics
-from drivers.realsense.models import model as depth_model
-from drivers.sim.gl_depth import GlDepthPass, gl_available
+from climbd.daemon.contract.hardware import DepthFrame, Intrinsics, mount_extrinsics
+from climbd.daemon.contract.profile import CameraConfig
+from climbd.drivers.realsense.models import model as depth_model
+from climbd.drivers.sim.gl_depth import GlDepthPass, gl_available
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import functools
 import mujoco
 import numpy as np
 
-from drivers.base import Intrinsics
+from climbd.daemon.contract.hardware import Intrinsics
 
 
 @functools.cache

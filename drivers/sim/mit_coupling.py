@@ -18,8 +18,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.sim.mit_motors import MitMotorChain
-from drivers.sim.twin import Twin
+from climbd.drivers.sim.mit_motors import MitMotorChain
+from climbd.drivers.sim.twin import Twin
 
 SETTLE_TIMEOUT = 5.0
 """Wall seconds the emulator thread has to take the driver's frames before a step fails."""

@@ -13,7 +13,7 @@ between frames unless an external model (the physics twin) sets their state inst
     chain.silence(2); chain.corrupt(3); chain.bus_off()      # fault injection
     chain.stop()
 
-``python -m drivers.sim.mit_motors --profile robots/qingzhui.toml --channel
+``python -m climbd.drivers.sim.mit_motors --profile robots/qingzhui.toml --channel
 127.0.0.1:47002/127.0.0.1:47001`` serves a profile's motors from a process of their own
 (``udp_can`` by default, the driver on the reversed channel; any python-can interface with
 ``--interface``, e.g. ``socketcan --channel vcan0`` where there is vcan), so a driver is
@@ -31,10 +31,10 @@ from dataclasses import dataclass, field
 
 import can
 
-from daemon.profile import ActuatorRanges, ProfileError, load
-from drivers.torque.bus import joint_channels
-from drivers.torque.links import UDP_INTERFACE, FrameLink, open_link
-from drivers.torque.mit import (
+from climbd.daemon.contract.profile import ActuatorRanges, ProfileError, load
+from climbd.drivers.torque.bus import joint_channels
+from climbd.drivers.torque.links import UDP_INTERFACE, FrameLink, open_link
+from climbd.drivers.torque.mit import (
     CAN_ERR_BUSOFF,
     ENTER_MOTOR_MODE,
     EXIT_MOTOR_MODE,
@@ -183,7 +183,9 @@ class MitMotorChain:
 def main(argv: list[str] | None = None) -> int:
     """Serve a profile's motors on its CAN channels until SIGTERM/SIGINT; the channels' names
     on stdout once they answer."""
-    parser = argparse.ArgumentParser(prog="python -m drivers.sim.mit_motors", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="python -m climbd.drivers.sim.mit_motors", description=__doc__
+    )
     parser.add_argument("--profile", required=True, help="robot profile (robots/*.toml)")
     parser.add_argument(
         "--channel",

@@ -1,8 +1,8 @@
 """MuJoCo model of a robot (built from its profile) standing in a world (built from its file).
 
 The MJCF is generated in code. Each leg is a chain of three hinges in the leg frame (mount
-position, mount yaw) with daemon/kinematics.py's angles: coxa about z, femur and tibia about
-−y (+ up, tibia relative to femur); or abduction about the leg's x, thigh and shank about +y
+position, mount yaw) with daemon/algorithms/kinematics.py's angles: coxa about z, femur and tibia
+about −y (+ up, tibia relative to femur); or abduction about the leg's x, thigh and shank about +y
 (+ down) where the kinematic shank angle is absolute (paper 004 eqs. 1–3), so the physical
 knee hinge turns by θ_s − θ_t (``JointMap``). At zero a leg lies straight out.
 Joint-space ``q`` (what drivers and servos see) relates to the physical hinges through the
@@ -25,10 +25,16 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from daemon.messages import EstopPolicy
-from daemon.profile import Profile
-from drivers.sim import servos
-from drivers.sim.worlds import World, hold_map_holds, holds_heightfield, wall_pose, yaw_matrix
+from climbd.daemon.contract.messages import EstopPolicy
+from climbd.daemon.contract.profile import Profile
+from climbd.drivers.sim import servos
+from climbd.drivers.sim.worlds import (
+    World,
+    hold_map_holds,
+    holds_heightfield,
+    wall_pose,
+    yaw_matrix,
+)
 
 GRIP_FORCE = 9.0
 """Maximum grip force of a HubRobo spine gripper (N, paper 001)."""
@@ -40,7 +46,8 @@ AXES = {
     "coxa_femur_tibia": ("0 0 1", "0 -1 0", "0 -1 0"),
     "abduction_thigh_shank": ("1 0 0", "0 1 0", "0 1 0"),
 }
-"""Hinge axes per leg kind, matching daemon/kinematics.py: femur/tibia + up, thigh/shank + down."""
+"""Hinge axes per leg kind, matching daemon/algorithms/kinematics.py: femur/tibia + up, thigh/shank
++ down."""
 FOOT_MASS = 0.005
 """Rubber foot tip (kg)."""
 BRACKET_MASS = 0.012

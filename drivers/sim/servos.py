@@ -57,7 +57,7 @@ def torque_motor(effort: float, velocity: float) -> ServoModel:
 
 def servo_model(name: str, source: str = "profile") -> ServoModel:
     """The physics of a Dynamixel model: the emulator's datasheet figures plus our extras."""
-    from drivers.sim.dynamixel.tables import SPECS
+    from climbd.drivers.sim.dynamixel.tables import SPECS
 
     if name not in SPECS or name not in _EXTRAS:
         known = sorted(set(SPECS) & set(_EXTRAS))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.sim.worlds import World, holds_heightfield, yaw_matrix
+from climbd.drivers.sim.worlds import World, holds_heightfield, yaw_matrix
 
 Segment = tuple[Sequence[float], Sequence[float]]
 

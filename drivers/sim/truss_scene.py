@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from daemon.messages import BodyState
+from climbd.daemon.contract.messages import BodyState
 
 SCAFFOLD_TUBE_RADIUS = 0.02415
 """Standard scaffold tube, 48.3 mm outer diameter (EN 39)."""

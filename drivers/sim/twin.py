@@ -13,7 +13,7 @@
     twin.stop()
 
 Joint-space values ``q`` are servo horn angles about the centre (rad), in profile order: the
-kinematic angle is θ = direction · (q − zero_offset), as in daemon/kinematics.py.
+kinematic angle is θ = direction · (q − zero_offset), as in daemon/algorithms/kinematics.py.
 Servos follow the chain's
 goal positions, torque enable, moving speed and torque limit; the twin writes back present
 position, speed, load, temperature (a thermal model) and voltage. Without a bus
@@ -42,21 +42,21 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from daemon.kinematics import Kinematics
-from daemon.profile import Profile
-from daemon.profile import load as load_profile
-from drivers.base import DepthFrame, ImuSample
-from drivers.sim import servos
-from drivers.sim.camera_process import CameraProcess
-from drivers.sim.depth import RayCastDepth
-from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
-from drivers.sim.mit_motors import MitMotorChain
-from drivers.sim.model import GRIP_FORCE, RobotModel, build
-from drivers.sim.worlds import World
-from drivers.sim.worlds import load as load_world
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.hardware import DepthFrame, ImuSample
+from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import load as load_profile
+from climbd.drivers.sim import servos
+from climbd.drivers.sim.camera_process import CameraProcess
+from climbd.drivers.sim.depth import RayCastDepth
+from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
+from climbd.drivers.sim.mit_motors import MitMotorChain
+from climbd.drivers.sim.model import GRIP_FORCE, RobotModel, build
+from climbd.drivers.sim.worlds import World
+from climbd.drivers.sim.worlds import load as load_world
 
 if TYPE_CHECKING:
-    from drivers.realsense.software import SoftwareDepthCamera
+    from climbd.drivers.realsense.software import SoftwareDepthCamera
 
 log = logging.getLogger("climbd.sim")
 
@@ -728,7 +728,7 @@ class Twin:
     def software_camera(self, camera: str, **options) -> SoftwareDepthCamera:
         """A pyrealsense2 software device fed with ``camera``'s frames, as the perception role
         reads a USB camera; ``options`` go to SoftwareDepthCamera (e.g. ``record_to``)."""
-        from drivers.realsense.software import SoftwareDepthCamera
+        from climbd.drivers.realsense.software import SoftwareDepthCamera
 
         cam = self.cameras[camera]
         config = next(c for c in self.profile.cameras if c.name == camera)

@@ -6,7 +6,7 @@ GIL while the tick computes, and its forced switches land in the tick), a proces
 bridge runs ``MitJointBus`` on the CAN channels; the control role's ``BridgeJointBus`` sends
 it each tick's command and takes back the state the motors answered it with, a tick later:
 
-    python -m drivers.torque.bridge --profile robots/qingzhui.toml \\
+    python -m climbd.drivers.torque.bridge --profile robots/qingzhui.toml \\
         --listen 127.0.0.1:47170/127.0.0.1:47171
     climbd run robots/qingzhui.toml --driver torque-bridge --port 127.0.0.1:47171/127.0.0.1:47170
 
@@ -30,12 +30,12 @@ import time
 import can
 import msgspec
 
-from daemon.messages import EstopPolicy, JointCommand, JointHealth, JointState
-from daemon.profile import Profile, ProfileError, load
-from drivers.base import DriverError
-from drivers.torque.bus import MitJointBus, waiting_for_replies
-from drivers.torque.links import udp_socket
-from drivers.torque.mit import non_finite
+from climbd.daemon.contract.hardware import DriverError
+from climbd.daemon.contract.messages import EstopPolicy, JointCommand, JointHealth, JointState
+from climbd.daemon.contract.profile import Profile, ProfileError, load
+from climbd.drivers.torque.bus import MitJointBus, waiting_for_replies
+from climbd.drivers.torque.links import udp_socket
+from climbd.drivers.torque.mit import non_finite
 
 log = logging.getLogger("climbd.torque.bridge")
 
@@ -306,7 +306,7 @@ class BridgeJointBus:
 def main(argv: list[str] | None = None) -> int:
     """Serve a profile's torque legs to one control role until SIGTERM/SIGINT."""
     parser = argparse.ArgumentParser(
-        prog="python -m drivers.torque.bridge", description=__doc__.splitlines()[0]
+        prog="python -m climbd.drivers.torque.bridge", description=__doc__.splitlines()[0]
     )
     parser.add_argument("--profile", required=True, help="robot profile (robots/*.toml)")
     parser.add_argument("--listen", required=True, help="LOCAL_HOST:PORT/CONTROL_HOST:PORT")

@@ -2,7 +2,7 @@
 
 Per joint the command is position, velocity, feed-forward torque, kp and kd; the state back
 is position, velocity and the measured torque, all at the actuator's output shaft about its
-encoder zero (the joint convention of every driver; daemon/kinematics.py maps it to the
+encoder zero (the joint convention of every driver; daemon/algorithms/kinematics.py maps it to the
 leg's kinematic angles with the profile's zero offsets and directions). A tick writes one
 frame per motor; each answers once, and ``read`` collects the answers to the last write
 (polling with zero-gain frames, which motors out of motor mode ignore, when torque is off).
@@ -21,11 +21,11 @@ import can
 import msgspec
 import numpy as np
 
-from daemon.messages import JointCommand, JointHealth, JointState
-from daemon.profile import Profile
-from drivers.base import DriverError
-from drivers.torque.links import Frame, FrameLink, open_link
-from drivers.torque.mit import (
+from climbd.daemon.contract.hardware import DriverError
+from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
+from climbd.daemon.contract.profile import Profile
+from climbd.drivers.torque.links import Frame, FrameLink, open_link
+from climbd.drivers.torque.mit import (
     CAN_ERR_BUSOFF,
     ENTER_MOTOR_MODE,
     EXIT_MOTOR_MODE,

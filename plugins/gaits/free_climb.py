@@ -45,8 +45,8 @@ from typing import Annotated, ClassVar
 import msgspec
 import numpy as np
 
-from daemon.kinematics import Kinematics
-from daemon.messages import (
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
     GraspablePoints,
@@ -54,9 +54,9 @@ from daemon.messages import (
     MotionCommand,
     Stability,
 )
-from daemon.plugins import GaitPlugin
-from daemon.profile import Profile
-from plugins.gaits.tsm import tumble_stability_margin, tumble_stability_margins
+from climbd.daemon.contract.plugins import GaitPlugin
+from climbd.daemon.contract.profile import Profile
+from climbd.plugins.gaits.tsm import tumble_stability_margin, tumble_stability_margins
 
 NORMAL = np.array([0.0, 0.0, 1.0])
 GOAL = np.array([1.0, 0.0, 0.0])

@@ -31,18 +31,25 @@ from typing import ClassVar
 import msgspec
 import numpy as np
 
-from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, FootTargets, Joist, Joists, Message, MotionCommand
-from daemon.plugins import GaitPlugin, PluginError
-from plugins.gaits.joist_crossing import (
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.messages import (
+    BodyState,
+    FootTargets,
+    Joist,
+    Joists,
+    Message,
+    MotionCommand,
+)
+from climbd.daemon.contract.plugins import GaitPlugin, PluginError
+from climbd.plugins.gaits.joist_crossing import (
     Bar,
     CrossingError,
     CrossingGeometry,
     CrossingParams,
     CrossingPlan,
 )
-from plugins.gaits.periodic import HOME_TOLERANCE, Tripod, TripodConfig, layout_offsets
-from plugins.gaits.swing import lift, progress
+from climbd.plugins.gaits.periodic import HOME_TOLERANCE, Tripod, TripodConfig, layout_offsets
+from climbd.plugins.gaits.swing import lift, progress
 
 log = logging.getLogger("climbd.gait.joist_climb")
 

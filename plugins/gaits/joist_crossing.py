@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from daemon.kinematics import Kinematics
-from plugins.gaits.swing import progress
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.plugins.gaits.swing import progress
 
 
 class CrossingError(RuntimeError):
@@ -91,8 +91,8 @@ class CrossingParams:
 class LegChains:
     """Batched coxa–femur–tibia kinematics: reachability and joint positions for many poses.
 
-    Same convention and knee branch as daemon/kinematics.py (whose ``ik`` works on one pose);
-    used to check phases, where hundreds of candidate poses are checked at once.
+    Same convention and knee branch as daemon/algorithms/kinematics.py (whose ``ik`` works on one
+    pose); used to check phases, where hundreds of candidate poses are checked at once.
     """
 
     def __init__(self, kin: Kinematics) -> None:

@@ -28,10 +28,10 @@ from typing import Annotated, ClassVar
 import msgspec
 import numpy as np
 
-from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, FootTargets, Message, MotionCommand
-from daemon.plugins import GaitPlugin, PluginError
-from plugins.gaits.swing import lift, progress
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.messages import BodyState, FootTargets, Message, MotionCommand
+from climbd.daemon.contract.plugins import GaitPlugin, PluginError
+from climbd.plugins.gaits.swing import lift, progress
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 Fraction = Annotated[float, msgspec.Meta(gt=0, lt=1)]

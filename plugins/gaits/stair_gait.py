@@ -32,11 +32,18 @@ from typing import ClassVar, NamedTuple
 import msgspec
 import numpy as np
 
-from daemon.estimation import rotation, tripod_groups
-from daemon.kinematics import Kinematics
-from daemon.messages import BodyState, FootTargets, Message, MotionCommand, Stairs, StairStep
-from daemon.plugins import GaitPlugin, PluginError
-from plugins.gaits.stair_plan import (
+from climbd.daemon.algorithms.estimation import rotation, tripod_groups
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.messages import (
+    BodyState,
+    FootTargets,
+    Message,
+    MotionCommand,
+    Stairs,
+    StairStep,
+)
+from climbd.daemon.contract.plugins import GaitPlugin, PluginError
+from climbd.plugins.gaits.stair_plan import (
     NonNegative,
     Positive,
     StairGeometry,
@@ -44,7 +51,7 @@ from plugins.gaits.stair_plan import (
     StepPlan,
     StepPlanner,
 )
-from plugins.gaits.swing import progress
+from climbd.plugins.gaits.swing import progress
 
 CROSSING = 0.5
 """Share of the swing a foot spends crossing at its apex; its rise and descent share the rest."""

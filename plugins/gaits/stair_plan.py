@@ -42,8 +42,8 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from daemon.kinematics import Kinematics
-from daemon.messages import Stairs
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.messages import Stairs
 
 CANDIDATES = 4
 """Step pairs whose second swing the plan checks at a time, best first."""

@@ -21,7 +21,7 @@ import cv2
 import msgspec
 import numpy as np
 
-from daemon.messages import BodyState, ElevationGrid
+from climbd.daemon.contract.messages import BodyState, ElevationGrid
 
 
 class ElevationConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

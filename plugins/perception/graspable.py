@@ -35,9 +35,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError
 
-from daemon.messages import BodyState, GraspablePoints
-from daemon.plugins import PerceptionPlugin
-from plugins.perception.gripper_mask import GripperGeometry, gripper_mask
+from climbd.daemon.contract.messages import BodyState, GraspablePoints
+from climbd.daemon.contract.plugins import PerceptionPlugin
+from climbd.plugins.perception.gripper_mask import GripperGeometry, gripper_mask
 
 
 class GraspableConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -13,10 +13,10 @@ from typing import ClassVar
 import msgspec
 import numpy as np
 
-from daemon.messages import BodyState, ElevationGrid, Joists
-from daemon.plugins import PerceptionPlugin
-from plugins.perception.elevation import ElevationConfig, ElevationMap, Grid
-from plugins.perception.joists import JoistConfig, JoistDetector
+from climbd.daemon.contract.messages import BodyState, ElevationGrid, Joists
+from climbd.daemon.contract.plugins import PerceptionPlugin
+from climbd.plugins.perception.elevation import ElevationConfig, ElevationMap, Grid
+from climbd.plugins.perception.joists import JoistConfig, JoistDetector
 
 
 class JoistPerceptionConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -28,7 +28,7 @@ class JoistPerceptionConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=
 
 def ground_cloud(frame, body: BodyState) -> tuple[np.ndarray, BodyState]:
     """A depth frame's points and pose moved from the body centre to the ground below it."""
-    from daemon.cloud import frame_to_points
+    from climbd.daemon.algorithms.cloud import frame_to_points
 
     points = frame_to_points(frame)
     points[:, 2] += np.float32(body.position[2])

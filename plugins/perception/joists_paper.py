@@ -15,9 +15,9 @@ from collections import deque
 import cv2
 import numpy as np
 
-from daemon.messages import BodyState, Joist
-from plugins.perception.elevation import ElevationConfig, rotation_of
-from plugins.perception.joists import JoistConfig, detect_lines, edge_drawing, height_image
+from climbd.daemon.contract.messages import BodyState, Joist
+from climbd.plugins.perception.elevation import ElevationConfig, rotation_of
+from climbd.plugins.perception.joists import JoistConfig, detect_lines, edge_drawing, height_image
 
 
 def strip_mean_eq1(grid: np.ndarray, x1: float, y1: float, x2: float, y2: float) -> float:

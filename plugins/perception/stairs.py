@@ -14,9 +14,9 @@ import msgspec
 import numpy as np
 from scipy.spatial import cKDTree
 
-from daemon.estimation import rotation
-from daemon.messages import BodyState, Stair, Stairs
-from daemon.plugins import PerceptionPlugin
+from climbd.daemon.algorithms.estimation import rotation
+from climbd.daemon.contract.messages import BodyState, Stair, Stairs
+from climbd.daemon.contract.plugins import PerceptionPlugin
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 Fraction = Annotated[float, msgspec.Meta(ge=0, lt=0.5)]

@@ -27,13 +27,13 @@ Wire timing: every reply reaches the pty when its last byte would arrive on a re
 bytes × 10 / baud for the instruction and the reply plus the servo's return delay
 (2 µs × Return Delay Time; factory default 250 = 500 µs until the host sets it).
 
-Command line: ``python -m drivers.sim.dynamixel --profile robots/widowx.toml`` prints the
+Command line: ``python -m climbd.drivers.sim.dynamixel --profile robots/widowx.toml`` prints the
 port path and serves until interrupted.
 """
 
-from drivers.sim.dynamixel.chain import ServoChain
-from drivers.sim.dynamixel.server import DynamixelEmulator
-from drivers.sim.dynamixel.servo import EmulatedServo
-from drivers.sim.dynamixel.tables import SPECS, ServoSpec
+from climbd.drivers.sim.dynamixel.chain import ServoChain
+from climbd.drivers.sim.dynamixel.server import DynamixelEmulator
+from climbd.drivers.sim.dynamixel.servo import EmulatedServo
+from climbd.drivers.sim.dynamixel.tables import SPECS, ServoSpec
 
 __all__ = ["SPECS", "DynamixelEmulator", "EmulatedServo", "ServoChain", "ServoSpec"]

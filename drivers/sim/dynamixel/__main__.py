@@ -7,12 +7,14 @@ import signal
 import sys
 import threading
 
-from daemon.profile import ProfileError, load
-from drivers.sim.dynamixel import DynamixelEmulator, ServoChain
+from climbd.daemon.contract.profile import ProfileError, load
+from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m drivers.sim.dynamixel", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="python -m climbd.drivers.sim.dynamixel", description=__doc__
+    )
     parser.add_argument("--profile", required=True, help="robot profile (robots/*.toml)")
     parser.add_argument("--baud", type=int, default=None, help="bus baud rate (default: profile)")
     parser.add_argument(

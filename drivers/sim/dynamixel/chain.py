@@ -23,10 +23,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.sim.dynamixel import servo as sv
-from drivers.sim.dynamixel.servo import EmulatedServo
-from drivers.sim.dynamixel.tables import spec as model_spec
-from drivers.sim.dynamixel.wire import BROADCAST, STATUS, Instruction, crc16, packet1, packet2
+from climbd.drivers.sim.dynamixel import servo as sv
+from climbd.drivers.sim.dynamixel.servo import EmulatedServo
+from climbd.drivers.sim.dynamixel.tables import spec as model_spec
+from climbd.drivers.sim.dynamixel.wire import (
+    BROADCAST,
+    STATUS,
+    Instruction,
+    crc16,
+    packet1,
+    packet2,
+)
 
 PING, READ, WRITE, REG_WRITE, ACTION, REBOOT = 0x01, 0x02, 0x03, 0x04, 0x05, 0x08
 SYNC_READ, SYNC_WRITE, FAST_SYNC_READ = 0x82, 0x83, 0x8A

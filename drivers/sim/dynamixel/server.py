@@ -21,8 +21,8 @@ import time
 import tty
 from collections import deque
 
-from drivers.sim.dynamixel.chain import ServoChain
-from drivers.sim.dynamixel.wire import Framer, Instruction
+from climbd.drivers.sim.dynamixel.chain import ServoChain
+from climbd.drivers.sim.dynamixel.wire import Framer, Instruction
 
 log = logging.getLogger(__name__)
 
@@ -49,9 +49,9 @@ class DynamixelEmulator:
 
     In the host's process, a client that busy-polls the port (dynamixel_sdk's stock
     PortHandler) starves this thread of the GIL for tens of ms: select(0) releases and retakes
-    it before the waiter runs. Clients that block in select (drivers.dynamixel.bus.LatencyPort)
-    are served at once; for a busy-polling client run ``python -m drivers.sim.dynamixel``.
-    """
+    it before the waiter runs. Clients that block in select
+    (climbd.drivers.dynamixel.bus.LatencyPort) are served at once; for a busy-polling client run
+    ``python -m climbd.drivers.sim.dynamixel``."""
 
     def __init__(
         self,

@@ -12,7 +12,7 @@ import math
 import threading
 from dataclasses import dataclass
 
-from drivers.sim.dynamixel.tables import Field, ServoSpec
+from climbd.drivers.sim.dynamixel.tables import Field, ServoSpec
 
 # Protocol 1.0 status error bits and Protocol 2.0 hardware error status bits (e-Manual).
 P1_VOLTAGE, P1_ANGLE, P1_OVERHEAT, P1_RANGE = 0x01, 0x02, 0x04, 0x08

@@ -17,7 +17,7 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
-from daemon.cloudio import CloudFileError, read_cloud
+from climbd.daemon.contract.cloudio import CloudFileError, read_cloud
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -289,7 +289,11 @@ def hold_map_tile(cloud: Path) -> np.ndarray:
 
 @functools.lru_cache(maxsize=4)
 def _detected_tile(cloud: Path) -> np.ndarray:
-    from plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
+    from climbd.plugins.perception.graspable import (
+        GraspableConfig,
+        GraspableDetector,
+        regression_frame,
+    )
 
     try:
         pts = read_cloud(cloud)
@@ -304,7 +308,7 @@ def _detected_tile(cloud: Path) -> np.ndarray:
 
 def hold_map_holds(world: World) -> np.ndarray:
     """The hold map of ``world`` (k×3, wall frame): x, y and the hold's top height (m)."""
-    from plugins.gaits.hold_map import tile_map
+    from climbd.plugins.gaits.hold_map import tile_map
 
     h = world.hold_map
     path = Path(h.cloud)

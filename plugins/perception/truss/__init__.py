@@ -4,7 +4,7 @@
 pure algorithm from a dense cloud to members, usable on its own.
 """
 
-from plugins.perception.truss.model import TrussConfig, TrussModel, TrussModeller
-from plugins.perception.truss.plugin import TrussPerception
+from climbd.plugins.perception.truss.model import TrussConfig, TrussModel, TrussModeller
+from climbd.plugins.perception.truss.plugin import TrussPerception
 
 __all__ = ["TrussConfig", "TrussModel", "TrussModeller", "TrussPerception"]

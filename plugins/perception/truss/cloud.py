@@ -6,7 +6,7 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial.transform import Rotation
 
-from daemon.messages import BodyState
+from climbd.daemon.contract.messages import BodyState
 
 
 def body_to_odometry(points: np.ndarray, body: BodyState) -> np.ndarray:

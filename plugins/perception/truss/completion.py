@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plugins.perception.truss.cylinders import Cylinder, Segment, perpendicular_basis
+from climbd.plugins.perception.truss.cylinders import Cylinder, Segment, perpendicular_basis
 
 
 @dataclass(frozen=True)

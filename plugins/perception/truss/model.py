@@ -14,8 +14,8 @@ import msgspec
 import numpy as np
 from scipy.spatial import cKDTree
 
-from plugins.perception.truss.cloud import ball_normals, voxel_downsample, voxel_normals
-from plugins.perception.truss.completion import (
+from climbd.plugins.perception.truss.cloud import ball_normals, voxel_downsample, voxel_normals
+from climbd.plugins.perception.truss.completion import (
     Member,
     complete,
     from_segment,
@@ -23,8 +23,13 @@ from plugins.perception.truss.completion import (
     node_ends,
     suppress_duplicates,
 )
-from plugins.perception.truss.cylinders import Segment, refine, segment_cylinders, surface_fit
-from plugins.perception.truss.planes import accept_plane, find_planes, plane_heights
+from climbd.plugins.perception.truss.cylinders import (
+    Segment,
+    refine,
+    segment_cylinders,
+    surface_fit,
+)
+from climbd.plugins.perception.truss.planes import accept_plane, find_planes, plane_heights
 
 
 class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

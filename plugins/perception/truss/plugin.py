@@ -6,11 +6,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from daemon.messages import BodyState, TrussMember, TrussMembers
-from daemon.plugins import PerceptionPlugin
-from plugins.perception.truss.cloud import VoxelMap, body_to_odometry
-from plugins.perception.truss.completion import Member
-from plugins.perception.truss.model import TrussConfig, TrussModeller, coverage
+from climbd.daemon.contract.messages import BodyState, TrussMember, TrussMembers
+from climbd.daemon.contract.plugins import PerceptionPlugin
+from climbd.plugins.perception.truss.cloud import VoxelMap, body_to_odometry
+from climbd.plugins.perception.truss.completion import Member
+from climbd.plugins.perception.truss.model import TrussConfig, TrussModeller, coverage
 
 
 def to_message(member: Member, points: np.ndarray, bin_size: float) -> TrussMember:

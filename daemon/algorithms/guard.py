@@ -1,0 +1,57 @@
+"""The limit guard: the last check on every joint command before it reaches a driver.
+
+Ruckig's community edition ignores position limits, so the guard clamps each command into
+the profile's position limits and reports which joints it clamped. A command with a wrong
+length or a non-finite value is rejected outright (GuardError): nothing sensible can be
+sent, and the controller must hold.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from climbd.daemon.contract.profile import Profile
+
+
+class GuardError(ValueError):
+    """A joint command the guard refuses; the message names the joints."""
+
+
+class Guard:
+    """Position-limit clamp and sanity check of joint commands for ``profile``."""
+
+    def __init__(self, profile: Profile) -> None:
+        joints = profile.joints
+        self.names = [j.name for j in joints]
+        self.lower = np.array([j.limits.lower for j in joints], float)
+        self.upper = np.array([j.limits.upper for j in joints], float)
+        self._bounds = list(zip(self.lower.tolist(), self.upper.tolist(), strict=True))
+        self.clamps = 0
+
+    def clamp(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Clamp ``q`` into the position limits: (clamped copy, per-joint clamped mask)."""
+        q = np.asarray(q, float)
+        if q.shape != self.lower.shape:
+            raise GuardError(f"joint command has shape {q.shape}, expected ({self.lower.size},)")
+        out = np.array(self.limit(q.tolist()))
+        return out, out != q
+
+    def limit(self, q: list[float]) -> list[float]:
+        """``clamp`` on a list (the control tick's path): a new list inside the limits."""
+        if len(q) != len(self._bounds):
+            raise GuardError(
+                f"joint command has shape ({len(q)},), expected ({len(self._bounds)},)"
+            )
+        if not math.isfinite(sum(q)):
+            bad = [name for name, x in zip(self.names, q, strict=True) if not math.isfinite(x)]
+            if bad:
+                raise GuardError(f"non-finite joint command for {', '.join(bad)}")
+        out = [
+            lo if x < lo else hi if x > hi else x
+            for x, (lo, hi) in zip(q, self._bounds, strict=True)
+        ]
+        if out != q:
+            self.clamps += 1
+        return out

@@ -1,0 +1,48 @@
+"""``climbd profile check FILE``: validate a robot profile and say what is wrong, where."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from climbd.daemon.contract import profile as profiles
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("action", choices=["check"], help="what to do with the profile")
+    parser.add_argument("file", nargs="+", help="robots/*.toml profile file(s)")
+
+
+def check_plugins(profile: profiles.Profile) -> None:
+    """Every plugin the profile names exists and takes its config, as the daemon checks at start."""
+    from climbd.daemon.contract.plugins import PluginError
+    from climbd.daemon.runtime.loader import load_class, make_config
+
+    groups = (("perception", profile.plugins.perception), ("gaits", profile.plugins.gaits))
+    for group, specs in groups:
+        for i, spec in enumerate(specs):
+            where = f"{profile.source}: $.plugins.{group}[{i}]"
+            try:
+                cls = load_class(f"climbd.{group}", spec.name)
+            except PluginError as e:
+                raise PluginError(f"{where}.name: {e}") from None
+            make_config(cls, spec.config, f"{where}.config")
+
+
+def main(args: argparse.Namespace) -> int:
+    from climbd.daemon.contract.plugins import PluginError
+
+    status = 0
+    for path in args.file:
+        try:
+            p = profiles.load(path)
+            check_plugins(p)
+        except (profiles.ProfileError, PluginError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            status = 1
+            continue
+        print(
+            f"{path}: ok — {p.name} ({p.model}), {len(p.legs)} legs, {len(p.joints)} joints, "
+            f"{p.rate_hz:g} Hz, bus {p.bus.kind}, e-stop {p.safety.estop_policy.value}"
+        )
+    return status

@@ -1,0 +1,112 @@
+"""Hardware interfaces every driver implements and everything above a driver uses.
+
+``JointBus``, ``Camera`` and ``Imu`` are the seams of ros2_control's hardware interfaces: the
+runtime and the algorithms see only these types, in SI units and the body frame; a driver
+converts its device's units at its own boundary.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
+from climbd.daemon.contract.profile import CameraConfig
+
+
+class DriverError(RuntimeError):
+    """A device problem the safety supervisor must hear about; the message names the device."""
+
+
+@runtime_checkable
+class JointBus(Protocol):
+    """The joints of one robot, in profile order, in SI units at this boundary."""
+
+    def open(self) -> None: ...
+
+    def read(self) -> JointState: ...
+
+    def write(self, command: JointCommand) -> None: ...
+
+    def torque(self, on: bool) -> None: ...
+
+    def health(self) -> list[JointHealth]: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of a depth stream (pixels); distortion is ignored for depth."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    ppx: float
+    ppy: float
+
+
+@dataclass(frozen=True)
+class DepthFrame:
+    """One depth image: uint16 depth × ``depth_scale`` = metres; 0 means no return.
+
+    ``extrinsics`` is the 4×4 camera-to-body transform (optical frame: x right, y down,
+    z forward) at ``timestamp`` (device clock, s).
+    """
+
+    depth: np.ndarray
+    depth_scale: float
+    intrinsics: Intrinsics
+    extrinsics: np.ndarray
+    timestamp: float
+    number: int = 0
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """A depth camera: ``frames()`` yields frames until ``close()``."""
+
+    def open(self) -> None: ...
+
+    def frames(self) -> Iterator[DepthFrame]: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    """Angular velocity (rad/s), linear acceleration (m/s², incl. gravity), body frame."""
+
+    timestamp: float
+    gyro: np.ndarray
+    accel: np.ndarray
+
+
+@runtime_checkable
+class Imu(Protocol):
+    def read(self) -> ImuSample: ...
+
+
+def mount_extrinsics(camera: CameraConfig) -> np.ndarray:
+    """4×4 camera-optical-to-body transform from the profile mount (tilt down about body y)."""
+    optical_to_forward = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    m = camera.mount
+    tilt, yaw, roll = np.radians([m.tilt_deg, m.yaw_deg, m.roll_deg])
+    rx = np.array(
+        [[1, 0, 0], [0, math.cos(roll), -math.sin(roll)], [0, math.sin(roll), math.cos(roll)]]
+    )
+    ry = np.array(
+        [[math.cos(tilt), 0, math.sin(tilt)], [0, 1, 0], [-math.sin(tilt), 0, math.cos(tilt)]]
+    )
+    rz = np.array(
+        [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]
+    )
+    t = np.eye(4)
+    t[:3, :3] = rz @ ry @ rx @ optical_to_forward
+    t[:3, 3] = m.position
+    return t

@@ -1,0 +1,531 @@
+"""The control role's tick: read → estimate → behave → IK → smooth → guard → write.
+
+One ``Controller`` per robot. ``tick(t, dt)`` runs on the ControlLoop's thread; the ``on_*``
+handlers run on the asyncio thread (fed by the bus) and only record what arrived, under the
+safety supervisor's lock, so a tick always sees a consistent picture. Nothing here raises
+out of ``tick``: a device error becomes FAULT, a plugin error becomes HOLD.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from climbd.daemon.algorithms.estimation import (
+    StateEstimator,
+    SupportTorques,
+    rotation,
+    support_forces,
+)
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.algorithms.motion import MotionPipeline
+from climbd.daemon.algorithms.odometry import LegOdometry
+from climbd.daemon.algorithms.smoothing import SmoothingError
+from climbd.daemon.contract.hardware import DriverError, Imu, ImuSample, JointBus
+from climbd.daemon.contract.messages import (
+    BodyState,
+    EStop,
+    EstopPolicy,
+    Health,
+    Heartbeat,
+    JointCommand,
+    JointState,
+    Message,
+    Mode,
+    ModeRequest,
+    ModeState,
+    MotionCommand,
+    MotionStats,
+    SessionClaim,
+    Stairs,
+)
+from climbd.daemon.contract.profile import Profile
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.safety import Safety
+
+log = logging.getLogger("climbd.control")
+
+STAND_TOLERANCE = 0.01
+"""Joint error (rad) under which the stand is complete and the robot holds."""
+
+HEALTH_PERIOD = 0.5
+"""Seconds between Health/ModeState publications."""
+
+ODOMETRY_RATE_HZ = 200.0
+"""Leg odometry runs at most this often, and at every change of the stance set."""
+
+SIT_SETTLE = 0.5
+"""Seconds the sitting pose is held before torque goes off, so the body settles first."""
+
+REST_FRACTION = 0.35
+"""Body height at rest (sitting, before torque off) as a fraction of the standing height."""
+
+LOAD_RAMP = 0.1
+"""Seconds over which a foot's share of the weight feed-forward fades in once it touches down
+(a step in torque would jolt the body); at lift-off it goes at once, or it would press the swing
+foot down and read as a load the estimator takes for stance (a gait that marks the foot
+``unload`` first has it handed on before)."""
+
+UNLOAD_TIME = 0.4
+"""Seconds an unloading foot's share fades over at the slowest: the others may touch too lightly
+to sense (the feed-forward holds the body at its height), and the body settles onto them."""
+
+TOUCH_SUPPORT = 10.0
+"""Support (N) a stance foot must carry by its position loop alone (force sensing: eq. 5 minus
+the feed-forward's share) before its feed-forward fades in: a late foot is not pushed down."""
+
+
+def fusable(stairs: Stairs) -> bool:
+    """Whether a Stairs carries an alignment filter 2 can take: a finite shift (3) and unit
+    directions (k x 3); anything else from the wire is dropped rather than poison the estimate."""
+    if len(stairs.alignment) != 3 or any(len(d) != 3 for d in stairs.constrained):
+        return False
+    dirs = np.array(stairs.constrained, float).reshape(-1, 3)
+    norms = np.linalg.norm(dirs, axis=1)
+    return bool(np.isfinite(stairs.alignment).all() and np.allclose(norms, 1.0, atol=1e-6))
+
+
+@dataclass
+class Timed:
+    """A message and the controller-clock time it arrived."""
+
+    message: Message
+    at: float
+
+
+class Controller:
+    """Runs one robot's control tick against a JointBus under the safety supervisor."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        bus: JointBus,
+        safety: Safety,
+        now: Callable[[], float],
+        gait: Isolated | None = None,
+        publish: Callable[[Message], None] | None = None,
+        state_rate_hz: float = 100.0,
+        estimator: StateEstimator | None = None,
+        imu: Imu | None = None,
+        feed_forward: bool = False,
+    ) -> None:
+        self.profile = profile
+        self.bus = bus
+        self.safety = safety
+        self.now = now
+        self.gait = gait
+        self.publish = publish or (lambda message: None)
+        self.kinematics = Kinematics(profile)
+        self.motion: MotionPipeline | None = None
+        self.dt = 1.0 / profile.rate_hz
+        self.stand_q = self.kinematics.stand_joints()
+        self.mode = Mode.OFF
+        self.target: np.ndarray | None = None
+        self.measured: JointState | None = None
+        self.command: JointCommand | None = None
+        self.motion_command: Timed | None = None
+        self.features: dict[str, Timed] = {}
+        self._alignment: Stairs | None = None
+        self.body = BodyState()
+        self.estimator = estimator
+        self.odometry = LegOdometry(self.kinematics) if estimator is None else None
+        self.stance = np.ones(len(profile.legs), bool)
+        self._stance_changed = False
+        self._odometry_every = max(1, round(profile.rate_hz / ODOMETRY_RATE_HZ))
+        self.imu = imu
+        self.messages: list[str] = []
+        self.loop_stats: Callable | None = None
+        self.unauthorised: Callable[[], int] = lambda: 0
+        self.sit_q = self._sit_joints()
+        self.shutdown: str | None = None
+        self.sat_down = False
+        self._sat_at: float | None = None
+        self._health_every = max(1, round(profile.rate_hz / profile.bus.health_rate_hz))
+        self._state_every = max(1, round(profile.rate_hz / state_rate_hz))
+        self._ticks = 0
+        self._last_health_publish = -1e9
+        self.fault_reset = False
+        self.feed_forward = feed_forward and profile.bus.kind == "torque"
+        self.stiffness = profile.bus.stiffness if getattr(bus, "compliant", False) else 0.0
+        self.support: SupportTorques | None = None
+        self.load = np.zeros(len(profile.legs))
+        self.landed = np.zeros(len(profile.legs), bool)
+        self.unload = np.zeros(len(profile.legs), bool)
+
+    def _sit_joints(self) -> np.ndarray:
+        """Joint pose with the body lowered to rest: where a torque_off robot is switched off."""
+        feet = self.kinematics.stand_feet()
+        feet[:, 2] = -REST_FRACTION * self.profile.stand.body_height
+        q, reachable = self.kinematics.ik(feet)
+        return q if bool(np.all(reachable)) else self.stand_q
+
+    # --- shutdown (asyncio thread) ----------------------------------------------------
+
+    def begin_shutdown(self, t: float) -> None:
+        """Start the safe stop: hold (and for ``torque_off``, sit down first, then torque off)."""
+        if not self.safety.torque_on or self.safety.mode in (Mode.ESTOP, Mode.FAULT, Mode.OFF):
+            self.shutdown = "done"
+            return
+        sit = self.safety.policy == EstopPolicy.TORQUE_OFF
+        self.shutdown = "sit" if sit else "hold"
+        self.safety.hold(t, "shutdown")
+
+    @property
+    def shutdown_done(self) -> bool:
+        return self.shutdown == "done"
+
+    def finish_shutdown(self) -> None:
+        """Have the next tick apply the e-stop policy, whatever the pose (the motion timed out).
+
+        The loop thread owns the joint bus, so the asyncio side only asks."""
+        if self.shutdown != "done":
+            self.shutdown = "force"
+
+    # --- handlers (asyncio thread) ----------------------------------------------------
+
+    def on_motion(self, cmd: MotionCommand) -> None:
+        if self.safety.accepts(cmd.session):
+            self.motion_command = Timed(cmd, self.now())
+
+    def on_mode(self, req: ModeRequest) -> None:
+        now = self.now()
+        if req.reset:
+            if self.safety.accepts(req.session):
+                self.safety.reset(now, req.session)
+                self.fault_reset = True  # the loop thread owns the bus: the next tick clears
+        else:
+            self.safety.request(req.mode, now, req.session)
+
+    def on_estop(self, msg: EStop) -> None:
+        now = self.now()
+        if msg.engage:
+            self.safety.estop(now, msg.source, msg.reason)
+
+    def on_claim(self, msg: SessionClaim) -> None:
+        now = self.now()
+        if msg.release:
+            self.safety.release(msg.session)
+        else:
+            self.safety.claim(msg.session, msg.client, now, msg.override)
+
+    def on_heartbeat(self, msg: Heartbeat) -> None:
+        self.safety.heartbeat(msg.session, self.now())
+
+    def on_feature(self, msg: Message) -> None:
+        self.features[msg.TOPIC] = Timed(msg, self.now())
+        if isinstance(msg, Stairs) and fusable(msg):
+            self._alignment = msg  # filter 2's input, fused by the loop thread
+
+    # --- the tick (loop thread) -------------------------------------------------------
+
+    def tick(self, t: float, dt: float) -> None:
+        """One control cycle; never raises: a bug in a tick is a FAULT, not a dead loop."""
+        try:
+            self._tick(t, dt)
+        except Exception as e:
+            if self.safety.mode != Mode.FAULT:
+                log.exception("control tick failed")
+            self.safety.fault(t, f"control tick failed: {type(e).__name__}: {e}")
+
+    def _tick(self, t: float, dt: float) -> None:
+        self._ticks += 1
+        try:
+            state = self.bus.read()
+        except DriverError as e:
+            self._fault(t, f"joint bus read failed: {e}")
+            if self.safety.mode != self.mode and self.measured is not None:
+                self._enter(self.safety.mode, np.asarray(self.measured.position), t)
+            return
+        self.measured = state
+        q = np.asarray(state.position)
+        if self.estimator is not None:
+            self._estimate(t, dt, q, state)
+        elif self._ticks % self._odometry_every == 0 or self._stance_changed:
+            sample = self._read_imu()
+            if sample is None:
+                self.body = self.odometry.update(q, self.stance, t)
+            else:
+                self.body = self.odometry.update(q, self.stance, t, sample.gyro, sample.accel)
+            self._stance_changed = False
+        if self.fault_reset:
+            self.fault_reset = False
+            self._clear_faults(t)
+        safety = self.safety
+        safety.check_heartbeat(t)
+        if self._ticks % self._health_every == 0:
+            try:
+                safety.judge(self.bus.health(), t)
+            except DriverError as e:
+                self._fault(t, f"joint bus health failed: {e}")
+        mode = safety.mode
+        if mode != self.mode:
+            self._enter(mode, q, t)
+        command = self._behave(t, dt, q)
+        if command is not None:
+            self._feed_forward(q, command)
+            try:
+                self.bus.write(command)
+            except DriverError as e:
+                self._fault(t, f"joint bus write failed: {e}")
+                return
+            self.command = command
+        if self._ticks % self._state_every == 0:
+            self.publish(state)
+            self.publish(self.body)
+        if t - self._last_health_publish >= HEALTH_PERIOD:
+            self._last_health_publish = t
+            self.publish_health(t)
+
+    def _estimate(self, t: float, dt: float, q: np.ndarray, state: JointState) -> None:
+        """Body state from the stance feet and the IMU (paper 004 eqs. 5-9, filter 1), with the
+        latest stair cloud's ICP alignment (filter 2)."""
+        sample = self._read_imu()
+        gyro = sample.gyro if sample is not None else None
+        accel = sample.accel if sample is not None else None
+        stairs, self._alignment = self._alignment, None
+        if stairs is not None:
+            self.estimator.icp_correction(
+                np.asarray(stairs.alignment), np.asarray(stairs.constrained)
+            )
+        self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t, self.stance)
+
+    def _read_imu(self) -> ImuSample | None:
+        """The IMU's sample now, or None without an IMU or when it fails (noted in messages)."""
+        try:
+            return self.imu.read() if self.imu is not None else None
+        except DriverError as e:
+            self.messages.append(f"imu: {e}")
+            return None
+
+    def _feed_forward(self, q: np.ndarray, command: JointCommand) -> None:
+        """Each stance foot's share of the weight (paper 004 eq. 5 inverted): torque legs with
+        ``feed_forward`` get it as feed-forward torque, so they hold the body's height at the
+        profile's gains; compliant position servos get their goals offset by torque / stiffness,
+        the sag that load would deflect them by."""
+        if not (self.feed_forward or self.stiffness):
+            return
+        masses = self.estimator.config.link_masses if self.estimator is not None else []
+        if self.support is None or self.support.link_masses != masses:
+            self.support = SupportTorques(self.kinematics, self.profile.mass, masses)
+        rot = rotation(np.asarray(self.body.orientation, float))
+        if self.feed_forward:
+            self.landed = self.stance & (self.landed | (self._own_support(q, rot) > TOUCH_SUPPORT))
+        else:
+            self.landed = self.stance
+        self._transfer_load()
+        legs = self.estimator.legs if self.estimator is not None else None
+        tau = self.support(q, self.load, rot, legs)
+        if self.feed_forward:
+            command.effort = tau.tolist()
+        else:
+            sagged = np.asarray(command.position) + tau / self.stiffness
+            command.position = self.motion.guard.limit(sagged.tolist())
+
+    def _transfer_load(self) -> None:
+        """Landed feet take their share over LOAD_RAMP; an unloading foot gives its share up as
+        fast as the others take it (no faster than LOAD_RAMP, no slower than UNLOAD_TIME), so
+        the weight feed-forward stays whole across a double-support transfer."""
+        load = np.minimum(self.load + self.dt / LOAD_RAMP, self.landed & ~self.unload)
+        fading = self.landed & self.unload
+        if fading.any():
+            needed = (self.support.carriers - load[~fading].sum()) / np.count_nonzero(fading)
+            was = self.load[fading]
+            given = np.clip(needed, was - self.dt / LOAD_RAMP, was - self.dt / UNLOAD_TIME)
+            load[fading] = np.maximum(given, 0.0)
+        self.load = load
+
+    def _own_support(self, q: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """Support (N) each foot carries by its position loop alone: sensed minus feed-forward."""
+        if self.estimator is not None:
+            support = self.estimator.support
+        else:
+            forces = self.kinematics.foot_forces(q, self.measured.effort)
+            support = np.nan_to_num(support_forces(forces, rot))
+        return support - self.support.shares(self.load)
+
+    def _clear_faults(self, t: float) -> None:
+        """The operator's reset, while nothing moves (not STAND/ACTIVE): a bus that can bring
+        back servos a fault switched off does (Dynamixel: REBOOT of latched X-series servos)."""
+        clear = getattr(self.bus, "clear_faults", None)
+        if clear is None:
+            return
+        if self.safety.mode in (Mode.STAND, Mode.ACTIVE):
+            log.warning(
+                "fault reset ignored in %s: servos are reset only at rest", self.safety.mode.value
+            )
+            return
+        try:
+            names = clear()
+        except DriverError as e:
+            self._fault(t, f"fault reset failed: {e}")
+            return
+        if names:
+            log.warning("fault reset brings back %s", ", ".join(names))
+
+    def _fault(self, t: float, reason: str) -> None:
+        if self.safety.mode != Mode.FAULT:
+            log.error("%s", reason)
+        self.safety.fault(t, reason)
+
+    def _enter(self, mode: Mode, q: np.ndarray, t: float) -> None:
+        """Mode entry actions. While the joints are powered the command stops where it was (not
+        where load deflected the joints: that would sink a loaded robot at every HOLD); else it
+        starts from the measured state. Either way, no jump."""
+        previous, self.mode = self.mode, mode
+        if previous == Mode.ACTIVE and self.gait is not None:
+            self.gait.call("stop")
+        self.stance[:] = True
+        self.unload[:] = False
+        self._stance_changed = True
+        self.publish(ModeState(stamp=t, mode=mode, reason=self.safety.reason))
+        if mode == Mode.OFF or (
+            mode in (Mode.ESTOP, Mode.FAULT) and self.safety.policy == EstopPolicy.TORQUE_OFF
+        ):
+            self._torque(False, t)
+            self.target = None
+            return
+        if mode in (Mode.STAND, Mode.ACTIVE, Mode.HOLD, Mode.ESTOP, Mode.FAULT):
+            powered = self.motion if self.safety.torque_on else None
+            if not self.safety.torque_on:
+                self._torque(True, t)
+            self.motion = MotionPipeline(self.profile, self.dt)
+            self.motion.start(q if powered is None else powered.command)
+        if mode == Mode.STAND:
+            self.target = self.stand_q
+        elif mode == Mode.ACTIVE:
+            self.target = None
+            if self.gait is None:
+                self.safety.hold(t, "no gait configured")
+                return
+            self.gait.call("start", self.body, self.kinematics.fk(q))
+        else:
+            self.target = self.motion.command.copy()
+        log.debug("entered %s from %s", mode.value, previous.value)
+
+    def _torque(self, on: bool, t: float) -> None:
+        try:
+            self.bus.torque(on)
+            self.safety.torque_on = on
+        except DriverError as e:
+            self._fault(t, f"torque {'on' if on else 'off'} failed: {e}")
+
+    def _behave(self, t: float, dt: float, q: np.ndarray) -> JointCommand | None:
+        mode = self.mode
+        motion = self.motion
+        if motion is None or not self.safety.torque_on:
+            return None
+        motion.set_speed_scale(self.safety.speed_scale)
+        if self.shutdown is not None and mode == Mode.HOLD:
+            return self._shutdown_step(t, q)
+        try:
+            if mode == Mode.ACTIVE:
+                world = self._world(t)
+                stale = [k for k in self.gait.plugin.needs if k not in world]
+                if stale:
+                    self.safety.hold(t, f"{self.gait.name} needs {', '.join(stale)}: stale")
+                    return motion.joint_step(q)
+                feet = self.gait.call("step", t, dt, self.body, world, self._command(t))
+                if feet is None:
+                    self.safety.hold(t, f"gait {self.gait.name} failed: {self.gait.status}")
+                    return motion.joint_step(q)
+                if hasattr(self.gait.plugin, "telemetry") and self._ticks % self._state_every == 0:
+                    for message in self.gait.call("telemetry") or ():
+                        self.publish(message)
+                if self.gait.plugin.done:
+                    self.safety.hold(t, f"behaviour {self.gait.name} done")
+                command = motion.feet_step(feet)
+                stance = np.asarray(feet.stance, bool)
+                self._stance_changed = not np.array_equal(stance, self.stance)
+                self.stance = stance
+                self.unload = stance & np.asarray(feet.unload or False, bool)
+                return command
+            command = motion.joint_step(self.target)
+        except SmoothingError as e:
+            self.messages.append(f"smoothing: {e}")
+            self.safety.hold(t, f"smoothing failed: {e}")
+            return None
+        if mode == Mode.STAND and self.stand_reached(q):
+            self.safety.request(Mode.HOLD, t, reason="stand complete")
+        return command
+
+    def _shutdown_step(self, t: float, q: np.ndarray) -> JointCommand | None:
+        """Hold, or sit down and settle (the commanded pose, not the loaded servos' error,
+        decides when the sit is done), then switch off under ``torque_off``."""
+        if self.shutdown == "hold":
+            self.shutdown = "done"
+            return self.motion.joint_step(self.target)
+        if self.shutdown == "force":
+            if self.safety.policy == EstopPolicy.TORQUE_OFF:
+                self._torque(False, t)
+            self.shutdown = "done"
+            return None
+        if self.shutdown == "sit":
+            if self.reached(self.motion.command, self.sit_q):
+                self._sat_at = t if self._sat_at is None else self._sat_at
+                if t - self._sat_at >= SIT_SETTLE:
+                    self._torque(False, t)
+                    self.shutdown = "done"
+                    self.sat_down = True
+                    return None
+            return self.motion.joint_step(self.sit_q)
+        return self.motion.joint_step(self.target)
+
+    @staticmethod
+    def reached(q: np.ndarray, target: np.ndarray) -> bool:
+        return bool(np.max(np.abs(q - target)) < STAND_TOLERANCE)
+
+    def stand_reached(self, q: np.ndarray) -> bool:
+        """The command has arrived at the stand pose and the joints followed it there."""
+        followed = np.max(np.abs(q - self.stand_q)) < self.profile.safety.stand_tolerance
+        return self.reached(self.motion.command, self.stand_q) and bool(followed)
+
+    def _command(self, t: float) -> MotionCommand | None:
+        timed = self.motion_command
+        if timed is None or t - timed.at > self.profile.safety.command_timeout:
+            return None
+        return timed.message
+
+    def _world(self, t: float) -> dict[str, Message]:
+        """Features younger than the profile's limit; older ones count as absent."""
+        limit = self.profile.safety.feature_max_age
+        return {k: v.message for k, v in list(self.features.items()) if t - v.at <= limit}
+
+    def health(self, t: float) -> Health:
+        joints = []
+        try:
+            joints = self.bus.health()
+        except DriverError as e:
+            self.messages.append(str(e))
+        plugins = {self.gait.name: self.gait.status} if self.gait is not None else {}
+        return Health(
+            stamp=t,
+            role="control",
+            mode=self.safety.mode,
+            joints=joints,
+            loop=self.loop_stats() if self.loop_stats is not None else Health().loop,
+            motion=self.motion_stats(),
+            plugins=plugins,
+            refused_commands=self.safety.refused,
+            unauthorised_commands=self.unauthorised(),
+            features={k: t - v.at for k, v in list(self.features.items())},
+            session=held.client if (held := self.safety.session) is not None else "",
+            messages=self.messages[-10:],
+        )
+
+    def motion_stats(self) -> MotionStats:
+        m = self.motion
+        if m is None:
+            return MotionStats()
+        return MotionStats(
+            unreachable_legs=m.unreachable_legs,
+            unreachable_ticks=m.unreachable_ticks,
+            clamps=m.guard.clamps,
+            smoothing_fallbacks=m.smoother.fallbacks,
+        )
+
+    def publish_health(self, t: float) -> None:
+        self.publish(self.health(t))
+        self.publish(ModeState(stamp=t, mode=self.safety.mode, reason=self.safety.reason))

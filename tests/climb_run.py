@@ -1,0 +1,158 @@
+"""Paper 001's free-climbing planners run in the twin: HubRobo on the hold-map slope (§4).
+
+The planner (plugins/gaits/free_climb.py) plans in the wall frame over the map's holds; each
+control tick its feet and base become joint goals through the daemon's IK (the body keeps the
+wall's orientation) and its grips become the twin's grippers, which hold only on hold geoms
+and slip above 9 N. The swing foot aims at its hold from where the body is (as a hold seen
+from the body would be), so the stance legs' sag does not shorten every landing and add up.
+A swing starts only once the twin reports every gripper holding. What is
+logged is the twin's truth: base position, the TSM of the grippers that hold, slips. The next
+swing is planned on the planner's worker thread while the twin executes the current one, and
+awaited in simulated time where it is needed (deterministic runs); ``close`` stops the worker.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgspec
+import mujoco
+import numpy as np
+
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import load as load_profile
+from climbd.drivers.sim.model import GRIP_FORCE
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.worlds import hold_map_holds, hold_map_tile, wall_pose
+from climbd.drivers.sim.worlds import load as load_world
+from climbd.plugins.gaits.free_climb import (
+    NORMAL,
+    ClimbConfig,
+    ClimbPlanner,
+    ClimbRunner,
+    PlanAhead,
+)
+from climbd.plugins.gaits.tsm import tumble_stability_margin
+
+HUBROBO = Path(__file__).resolve().parents[2] / "robots" / "hubrobo.toml"
+GRIP_WAIT = 1.0
+"""Longest wait (s) for every gripper to report holding before the next swing."""
+
+
+@dataclass
+class ClimbLog:
+    """Twin truth per control tick: time (s), base x up the slope (m, from the start), TSM of
+    the holding grippers (m); plus slips, grips that never engaged, steps and waits."""
+
+    t: list[float] = field(default_factory=list)
+    x: list[float] = field(default_factory=list)
+    tsm: list[float] = field(default_factory=list)
+    slips: int = 0
+    missed: int = 0
+    steps: int = 0
+    waits: int = 0
+    max_load: float = 0.0
+
+    @property
+    def distance(self) -> float:
+        """Base travel up the slope (m) over the run."""
+        return self.x[-1] - self.x[0]
+
+
+class SlopeClimb:
+    """One climb: a twin of HubRobo on ``slope_map`` with hold map ``seed``, gripping its
+    standing feet, and a periodic or non-periodic planner over the same holds."""
+
+    def __init__(self, periodic: bool, seed: int, profile: Profile | None = None) -> None:
+        self.profile = profile or load_profile(HUBROBO)
+        self.kin = Kinematics(self.profile)
+        world = load_world("slope_map")
+        feet = self.kin.stand_feet(ClimbConfig().base_height)
+        feet[:, 2] = 0.0
+        hold_map = msgspec.structs.replace(world.hold_map, seed=seed, extra=feet[:, :2].tolist())
+        world = msgspec.structs.replace(world, hold_map=hold_map)
+        q0 = self.kin.ik(feet - [0.0, 0.0, ClimbConfig().base_height])[0]
+        self.twin = Twin(self.profile, world, stepped=True, bus=False, initial_joints=q0)
+        model = self.twin.model
+        self.mass = float(model.body_subtreemass[self.twin.robot.base_body])
+        self.config = ClimbConfig(mass=self.mass, gravity=world.gravity)
+        self.origin, self.rotation = wall_pose(hold_map)
+        r_foot = self.twin.robot.foot_radius
+        tops = hold_map_tile(Path(world.source).parent / hold_map.cloud)[:, 2]
+        self.z0 = float(tops.mean()) + r_foot
+        holds = hold_map_holds(world)
+        holds[:, 2] += r_foot - self.z0
+        self.holds = holds
+        self.planner = ClimbPlanner(self.kin, self.config, periodic)
+        base = self.planner.base_for(feet)
+        self.runner = ClimbRunner(self.planner, feet, base, PlanAhead(self.planner, wait=True))
+        self._place(base, q0)
+        self.force = self.mass * (self.rotation.T @ model.opt.gravity)
+
+    def _place(self, base: np.ndarray, q: np.ndarray) -> None:
+        """Put the base at ``base`` (wall frame) with joints ``q``, feet on their holds, and
+        close the four grippers."""
+        twin, d = self.twin, self.twin.data
+        q = self.kin.ik(self.runner.feet - base)[0]
+        d.qpos[:3] = self.to_world(base)
+        d.qpos[3:7] = self.twin.robot.start[3:]
+        d.qpos[self.twin.robot.qpos_adr] = twin.map.hinge(q)
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(twin.model, d)
+        twin.goal[:] = twin.setpoint[:] = q
+        twin.command(q)
+        twin.grip[:] = True
+        twin.advance_to(0.3)
+        if not twin.holding().all():
+            raise RuntimeError(f"twin climb: start grips not engaged: {twin.holding()}")
+
+    def close(self) -> None:
+        """Stop the planner's worker thread."""
+        self.runner.close()
+
+    def to_world(self, p: np.ndarray) -> np.ndarray:
+        """World position of a planner-frame point."""
+        return self.origin + self.rotation @ (np.asarray(p) + [0.0, 0.0, self.z0])
+
+    def to_wall(self, p: np.ndarray) -> np.ndarray:
+        """Planner-frame position of world points (…×3)."""
+        return (np.asarray(p) - self.origin) @ self.rotation - [0.0, 0.0, self.z0]
+
+    def measured_tsm(self) -> float:
+        """TSM (m) of the twin now: its CoM, the feet whose grippers hold, its weight."""
+        d, r = self.twin.data, self.twin.robot
+        held = self.twin.holding()
+        com = self.to_wall(d.subtree_com[r.base_body])
+        feet = self.to_wall(d.site_xpos[r.foot_sites])[held]
+        return tumble_stability_margin(com, feet, self.force, GRIP_FORCE, NORMAL)
+
+    def run(self, seconds: float, dt: float = 0.01) -> ClimbLog:
+        """Climb for ``seconds`` of simulated time with control period ``dt`` (s)."""
+        twin, runner, log = self.twin, self.runner, ClimbLog()
+        t0 = twin.time
+        waited = 0.0
+        while twin.time - t0 < seconds - 1e-9:
+            if runner.step is None and not twin.holding().all() and waited < GRIP_WAIT:
+                waited += dt
+            else:
+                if runner.step is None and not twin.holding().all():
+                    log.missed += 1
+                waited = 0.0
+                tick = runner.tick(dt, self.holds)
+                legs = tick.feet - tick.base
+                if tick.swing is not None:
+                    legs[tick.swing] = tick.feet[tick.swing] - self.to_wall(twin.data.qpos[:3])
+                q, _ = self.kin.ik(legs)
+                twin.command(q)
+                twin.grip[:] = tick.grip
+            twin.advance_to(twin.time + dt)
+            log.t.append(twin.time - t0)
+            log.x.append(float(self.to_wall(twin.data.qpos[:3])[0]))
+            log.tsm.append(self.measured_tsm())
+            log.max_load = max(log.max_load, float(twin.grip_load.max()))
+        log.slips = int(twin.slips.sum())
+        log.steps = sum(not s.wait for s in runner.steps)
+        log.waits = sum(s.wait for s in runner.steps)
+        return log
