@@ -65,10 +65,10 @@ def real_time_with_daemon(robot: str, seconds: float, cameras: str) -> dict:
     ``cameras``: ``gl`` (rasterised in the twin's camera process), ``gl-here`` (rasterised in
     this process), ``rays`` (mj_multiRay in this process, as the last release did) or ``none``
     (the baseline)."""
-    from climbd.daemon.cli.run import StartupError, make_joint_bus
     from climbd.daemon.cli.sim_host import SimHost
     from climbd.daemon.contract.messages import Mode, encode
     from climbd.daemon.runtime.control import Controller
+    from climbd.daemon.runtime.control_role import StartupError, make_joint_bus
     from climbd.daemon.runtime.loop import ControlLoop
     from climbd.daemon.runtime.safety import Safety
 
@@ -163,7 +163,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=10, help="depth frames per resolution")
     parser.add_argument("--daemon-seconds", type=float, default=6.0)
     args = parser.parse_args()
-    from climbd.daemon.cli.run import StartupError
+    from climbd.daemon.runtime.control_role import StartupError
 
     print("## real-time factor, stepped (twin alone; baseline bare mj_step, same model)\n")
     print("| robot | world | twin RTF | bare mj_step RTF | twin / bare |")

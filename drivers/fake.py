@@ -1,4 +1,4 @@
-"""In-memory fakes of the hardware interfaces (JointBus, Camera, Imu).
+"""In-memory fakes of the hardware interfaces (JointBus, Camera, Imu), and a flat-floor camera.
 
 The fakes follow ros2_control's generic mock system: a command echoes back as state through
 a first-order lag. They serve unit tests of what sits above a driver, never of a driver.
@@ -7,13 +7,20 @@ a first-order lag. They serve unit tests of what sits above a driver, never of a
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from climbd.daemon.contract.hardware import DepthFrame, DriverError, ImuSample, Intrinsics
+from climbd.daemon.contract.hardware import (
+    DepthFrame,
+    DriverError,
+    ImuSample,
+    Intrinsics,
+    mount_extrinsics,
+)
 from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
 from climbd.daemon.contract.profile import Profile
 
@@ -161,3 +168,48 @@ class FakeImu:
 
     def read(self) -> ImuSample:
         return ImuSample(self.clock(), np.zeros(3), np.array([0.0, 0.0, 9.80665]))
+
+
+class FloorCamera:
+    """A test source: the profile camera looking at flat ground ``height`` m below the body.
+
+    Depth is exact ray-plane intersection from the mount's pose and nominal intrinsics, paced at
+    the camera's frame rate with monotonic timestamps: the perception path runs as with a camera.
+    """
+
+    def __init__(self, camera, intrinsics: Intrinsics, height: float, depth_scale: float = 1e-3):
+        self.config = camera
+        self.intrinsics = intrinsics
+        self.extrinsics = mount_extrinsics(camera)
+        self.depth_scale = depth_scale
+        self.period = 1.0 / camera.fps
+        self.depth = self._render(height)
+        self._open = threading.Event()
+
+    def _render(self, height: float) -> np.ndarray:
+        k = self.intrinsics
+        u, v = np.meshgrid(np.arange(k.width), np.arange(k.height))
+        rays = np.stack([(u - k.ppx) / k.fx, (v - k.ppy) / k.fy, np.ones(u.shape)], axis=-1)
+        rot, origin = self.extrinsics[:3, :3], self.extrinsics[:3, 3]
+        down = rays @ rot[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = (-height - origin[2]) / down
+        valid = (down < 0) & (z > self.config.min_range) & (z < self.config.max_range)
+        return np.where(valid, np.round(z / self.depth_scale), 0).astype(np.uint16)
+
+    def open(self) -> None:
+        self._open.set()
+
+    def frames(self) -> Iterator[DepthFrame]:
+        n = 0
+        next_at = time.monotonic()
+        while self._open.is_set():
+            time.sleep(max(0.0, next_at - time.monotonic()))
+            next_at += self.period
+            yield DepthFrame(
+                self.depth, self.depth_scale, self.intrinsics, self.extrinsics, time.monotonic(), n
+            )
+            n += 1
+
+    def close(self) -> None:
+        self._open.clear()

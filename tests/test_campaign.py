@@ -411,7 +411,7 @@ def can_bus_off(robot, make, tmp_path, endpoint) -> str:
 
 def camera_unplugged(robot, make, tmp_path, endpoint) -> str:
     from climbd.daemon.contract.hardware import mount_extrinsics
-    from climbd.drivers.realsense.capture import Capture
+    from climbd.daemon.runtime.capture import Capture
     from climbd.drivers.realsense.models import model
     from climbd.drivers.realsense.software import SoftwareDepthCamera
 
@@ -573,6 +573,7 @@ class Crashing(PerceptionPlugin):
     """A perception plugin that raises on its third frame."""
 
     name = "crashing"
+    publishes = (m.Joists,)
 
     def __init__(self) -> None:
         super().__init__()
@@ -588,8 +589,9 @@ class Crashing(PerceptionPlugin):
 def perception_crash(robot, make, tmp_path, endpoint) -> str:
     import argparse
 
-    from climbd.daemon.runtime.perception_role import PerceptionRole, make_camera
-    from climbd.drivers.realsense.capture import Capture
+    from climbd.daemon.cli.run import make_camera
+    from climbd.daemon.runtime.capture import Capture
+    from climbd.daemon.runtime.perception_role import PerceptionRole
 
     profile = load(ROOT / "robots" / f"{robot}.toml")
     role = PerceptionRole(profile, argparse.Namespace())

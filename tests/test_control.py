@@ -11,6 +11,7 @@ from climbd.daemon.contract.messages import (
     EStop,
     FootTargets,
     Heartbeat,
+    JointCommand,
     Mode,
     ModeRequest,
     SessionClaim,
@@ -300,3 +301,35 @@ def test_unloading_feet_pass_their_share_on_before_they_lift(widowx) -> None:
     step = np.abs(np.diff(shares, axis=0)).max()
     assert step <= full / (LOAD_RAMP * widowx.rate_hz) * 1.001, (step, full)
     np.testing.assert_allclose(shares[-1], [full, 0.0] * 3, atol=1e-9)
+
+
+def test_feed_forward_beyond_the_effort_limit_is_clipped_before_the_driver(robots) -> None:
+    """The guard is the last thing that touches a command: a feed-forward stage that asks each
+    of Qingzhui's joints for three times its effort limit (and a NaN-free velocity) reaches the
+    driver clipped to ±limit, with the positions still inside their limits."""
+    profile = profiles.load(robots / "qingzhui.toml")
+    rig = Rig(profile)
+    written: list[JointCommand] = []
+    write = rig.bus.write
+
+    def record(command: JointCommand) -> None:
+        written.append(command)
+        write(command)
+
+    rig.bus.write = record
+    limit = np.array([j.limits.effort for j in profile.joints])
+    signs = np.where(np.arange(len(limit)) % 2 == 0, 1.0, -1.0)
+
+    def greedy(command: JointCommand) -> None:
+        command.effort = (3.0 * signs * limit).tolist()
+
+    rig.controller.feed_forward = True
+    rig.controller._feed_forward = greedy
+    rig.stand()
+    assert written, "nothing reached the driver"
+    efforts = np.array([c.effort for c in written])
+    assert np.allclose(efforts, signs * limit), efforts[-1]
+    lower = np.array([j.limits.lower for j in profile.joints])
+    upper = np.array([j.limits.upper for j in profile.joints])
+    positions = np.array([c.position for c in written])
+    assert np.all((positions >= lower) & (positions <= upper))

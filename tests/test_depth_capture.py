@@ -11,8 +11,8 @@ import pytest
 from climbd.daemon.contract.hardware import DriverError
 from climbd.daemon.contract.messages import Health
 from climbd.daemon.contract.profile import CameraConfig
+from climbd.daemon.runtime.capture import Capture
 from climbd.drivers.realsense.camera import PlaybackSource, RealSenseCamera
-from climbd.drivers.realsense.capture import Capture
 from climbd.drivers.realsense.models import L515
 from climbd.drivers.realsense.software import SoftwareDepthCamera
 

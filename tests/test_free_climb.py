@@ -29,6 +29,7 @@ from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
 from climbd.daemon.runtime.safety import Safety
 from climbd.drivers.fake import FakeJointBus
 from climbd.drivers.sim.worlds import DATA
+from climbd.drivers.sim.worlds.hold_tiles import tile_map
 from climbd.plugins.gaits.free_climb import (
     GOAL,
     PERIODIC_ORDER,
@@ -42,7 +43,6 @@ from climbd.plugins.gaits.free_climb import (
     stance_key,
     swing_lift,
 )
-from climbd.plugins.gaits.hold_map import tile_map
 from climbd.plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
 
 ROOT = Path(__file__).resolve().parent.parent

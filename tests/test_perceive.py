@@ -27,15 +27,16 @@ PLUGIN = '''
 import msgspec
 import numpy as np
 from climbd.daemon.contract.messages import GraspablePoints
-from climbd.daemon.contract.plugins import PerceptionPlugin
+from climbd.daemon.algorithms.cloud import CloudPerception
 
 
 class Config(msgspec.Struct, forbid_unknown_fields=True):
     min_points: int = 1
 
 
-class Centroid(PerceptionPlugin):
+class Centroid(CloudPerception):
     name = "centroid"
+    publishes = (GraspablePoints,)
     Config = Config
 
     def process_cloud(self, points, body, stamp):

@@ -19,9 +19,9 @@ import numpy as np
 from climbd.daemon.cli.sim_host import PerceptionGate, feed, sim_camera
 from climbd.daemon.contract.messages import BodyState, DepthImage, Joists, decode, encode
 from climbd.daemon.contract.profile import load
+from climbd.daemon.runtime.capture import Capture
 from climbd.daemon.runtime.loader import Isolated
 from climbd.daemon.runtime.perception_role import PerceptionRole, make_plugins
-from climbd.drivers.realsense.capture import Capture
 
 SIM_SECONDS = 300.0
 PHYSICS_STEP = 0.001
@@ -125,7 +125,7 @@ def test_a_frame_with_nothing_in_range_is_answered():
             camera.push(depth, 0.1 * (k + 1))
             frame = capture.latest(timeout=5.0)
             assert frame is not None
-            answers.append(plugin.call("process", frame, body))
+            answers.append(plugin.call(plugin.plugin.process, frame, body))
     finally:
         capture.stop()
     assert plugin.status == "ok", plugin.status

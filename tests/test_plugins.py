@@ -24,14 +24,15 @@ def third_party(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
             '''
             import msgspec
             from climbd.daemon.contract.messages import Joist, Joists
-            from climbd.daemon.contract.plugins import PerceptionPlugin
+            from climbd.daemon.algorithms.cloud import CloudPerception
 
             class Config(msgspec.Struct, forbid_unknown_fields=True):
                 min_height: float = 0.05
 
-            class TallestPoint(PerceptionPlugin):
+            class TallestPoint(CloudPerception):
                 """Reports the tallest point as a joist straight ahead."""
                 Config = Config
+                publishes = (Joists,)
 
                 def process_cloud(self, points, body, stamp):
                     z = float(points[:, 2].max())
@@ -41,7 +42,7 @@ def third_party(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
                         distance=float(points[points[:, 2].argmax(), 0]), yaw=0.0, height=z,
                         endpoints=[])])
 
-            class Exploding(PerceptionPlugin):
+            class Exploding(CloudPerception):
                 def process_cloud(self, points, body, stamp):
                     raise ZeroDivisionError("boom")
             '''
@@ -98,10 +99,10 @@ def test_raising_plugin_is_isolated(third_party: Path) -> None:
     plugin = loader.instantiate("climbd.perception", "exploding", {}, None, "test")
     isolated = loader.Isolated("exploding", plugin, lambda name, e: failures.append(name))
     points = np.zeros((3, 3))
-    assert isolated.call("process_cloud", points, BodyState(), 0.0) is None
+    assert isolated.call(plugin.process_cloud, points, BodyState(), 0.0) is None
     assert isolated.failed and "ZeroDivisionError: boom" in isolated.status
     assert failures == ["exploding"]
-    assert isolated.call("process_cloud", points, BodyState(), 0.0) is None
+    assert isolated.call(plugin.process_cloud, points, BodyState(), 0.0) is None
     assert isolated.failures == 1, "a failed plugin is skipped, not called again"
     isolated.reset()
     assert not isolated.failed

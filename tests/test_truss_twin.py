@@ -21,11 +21,12 @@ import mujoco
 import numpy as np
 import pytest
 
+from climbd.daemon.cli.run import make_camera
 from climbd.daemon.cli.sim_host import SimHost, feed
 from climbd.daemon.contract.messages import BodyState, DepthImage, TrussMembers, decode, encode
 from climbd.daemon.contract.profile import PluginSpec, load
-from climbd.daemon.runtime.perception_role import make_camera, make_plugins
-from climbd.drivers.realsense.capture import Capture
+from climbd.daemon.runtime.capture import Capture
+from climbd.daemon.runtime.perception_role import make_plugins
 from climbd.drivers.sim.twin import Twin
 from climbd.plugins.perception.truss import TrussConfig, TrussModeller, TrussPerception
 from climbd.plugins.perception.truss.evaluate import evaluate
@@ -85,7 +86,7 @@ def published() -> tuple[list, Twin, TrussPerception]:
             assert frame is not None, f"no frame from view {k}"
             position, orientation = twin.body_pose()
             body = BodyState(position=position.tolist(), orientation=orientation.tolist())
-            messages.append(plugin.call("process", frame, body))
+            messages.append(plugin.call(plugin.plugin.process, frame, body))
     finally:
         capture.stop()
         host.stop()

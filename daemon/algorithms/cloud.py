@@ -17,6 +17,8 @@ import msgspec
 import numpy as np
 
 from climbd.daemon.contract.hardware import DepthFrame, Intrinsics
+from climbd.daemon.contract.messages import BodyState, Message
+from climbd.daemon.contract.plugins import PerceptionPlugin
 
 
 class CropBox(msgspec.Struct, forbid_unknown_fields=True, kw_only=True, frozen=True):
@@ -229,3 +231,11 @@ def crop(points: np.ndarray, box: CropBox) -> np.ndarray:
     keep &= (y >= box.y_min) & (y <= box.y_max)
     keep &= (z >= box.z_min) & (z <= box.z_max)
     return points[keep]
+
+
+class CloudPerception(PerceptionPlugin):
+    """A perception plugin that works on points: ``process`` projects the frame's valid pixels
+    to body-frame points and hands them to ``process_cloud``."""
+
+    def process(self, frame: DepthFrame, body: BodyState) -> Message | None:
+        return self.process_cloud(frame_to_points(frame), body, frame.timestamp)

@@ -1,17 +1,19 @@
 """The limit guard: the last check on every joint command before it reaches a driver.
 
 Ruckig's community edition ignores position limits, so the guard clamps each command into
-the profile's position limits and reports which joints it clamped. A command with a wrong
-length or a non-finite value is rejected outright (GuardError): nothing sensible can be
-sent, and the controller must hold.
+the profile's position limits, its velocity and feed-forward effort into their limits, and
+counts the commands it clamped. A command with a wrong length or a non-finite value is
+rejected outright (GuardError): nothing sensible can be sent, and the controller must hold.
 """
 
 from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 
+from climbd.daemon.contract.messages import JointCommand
 from climbd.daemon.contract.profile import Profile
 
 
@@ -28,7 +30,35 @@ class Guard:
         self.lower = np.array([j.limits.lower for j in joints], float)
         self.upper = np.array([j.limits.upper for j in joints], float)
         self._bounds = list(zip(self.lower.tolist(), self.upper.tolist(), strict=True))
+        self._velocity = [j.limits.velocity for j in joints]
+        self._effort = [j.limits.effort for j in joints]
         self.clamps = 0
+
+    def command(self, command: JointCommand) -> JointCommand:
+        """``command`` with position, velocity and effort inside the profile's limits (a new
+        message); the last thing that touches a command before the driver writes it."""
+        position = self.limit(command.position)
+        velocity = self._symmetric(command.velocity, self._velocity, "velocity")
+        effort = self._symmetric(command.effort, self._effort, "effort")
+        return msgspec.structs.replace(command, position=position, velocity=velocity, effort=effort)
+
+    def _symmetric(
+        self, values: list[float] | None, bounds: list[float], what: str
+    ) -> list[float] | None:
+        """``values`` clamped into ±``bounds``; an empty list (not commanded) stays empty."""
+        if not values:
+            return values
+        if len(values) != len(bounds):
+            raise GuardError(
+                f"joint command {what} has {len(values)} values, expected {len(bounds)}"
+            )
+        if not math.isfinite(sum(values)):
+            bad = [n for n, x in zip(self.names, values, strict=True) if not math.isfinite(x)]
+            raise GuardError(f"non-finite joint command {what} for {', '.join(bad)}")
+        out = [-b if x < -b else b if x > b else x for x, b in zip(values, bounds, strict=True)]
+        if out != values:
+            self.clamps += 1
+        return out
 
     def clamp(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Clamp ``q`` into the position limits: (clamped copy, per-joint clamped mask)."""

@@ -1,4 +1,5 @@
-"""What runs every STAND/ACTIVE/HOLD tick after the behaviour: IK -> ruckig -> guard.
+"""What runs every STAND/ACTIVE/HOLD tick after the behaviour: IK -> ruckig -> feed-forward
+-> guard, in that order: the guard is the last thing that touches a command.
 
 ``feet_step`` takes a gait's FootTargets, solves IK, feeds ruckig the target joint state
 (position, and the velocity and acceleration of the target stream by finite differences so
@@ -10,6 +11,7 @@ A leg whose target is unreachable keeps its last reachable target and is reporte
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -25,16 +27,23 @@ class MotionError(SmoothingError):
     command the guard refuses. A SmoothingError, so a controller holds on any of them."""
 
 
+FeedForward = Callable[[JointCommand], None]
+"""Adds feed-forward to a smoothed command in place (effort, or a compliant servo's sag)."""
+
+
 class MotionPipeline:
-    """IK, ruckig smoothing and the limit guard for one robot at control period ``dt``.
+    """IK, ruckig smoothing, feed-forward and the limit guard for one robot at period ``dt``.
 
     The tick works on plain lists (scalar IK, list-based smoother and guard): for one
     robot's 12-18 joints that is cheaper than numpy's per-call overhead.
     """
 
-    def __init__(self, profile: Profile, dt: float) -> None:
+    def __init__(
+        self, profile: Profile, dt: float, feed_forward: FeedForward | None = None
+    ) -> None:
         self.profile = profile
         self.dt = dt
+        self.feed_forward = feed_forward
         self.kinematics = Kinematics(profile)
         self.smoother = Smoother(profile, dt)
         self.guard = Guard(profile)
@@ -48,7 +57,8 @@ class MotionPipeline:
 
     @property
     def command(self) -> np.ndarray:
-        """The last joint command (after the guard), profile order."""
+        """The last smoothed joint positions (the trajectory, before feed-forward and the
+        guard), profile order."""
         return np.array(self._command)
 
     @property
@@ -118,8 +128,13 @@ class MotionPipeline:
         return self._finish(*self.smoother.advance(target))
 
     def _finish(self, q: list[float], qd: list[float]) -> JointCommand:
+        """Feed-forward, then the guard: position, velocity and effort inside the limits."""
+        command = JointCommand(position=q, velocity=qd)
+        self._command = q
+        if self.feed_forward is not None:
+            self.feed_forward(command)
         try:
-            self._command = self.guard.limit(q)
+            command = self.guard.command(command)
         except GuardError as e:
             raise MotionError(f"guard: {e}") from None
-        return JointCommand(position=list(self._command), velocity=qd)
+        return command

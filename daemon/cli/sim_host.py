@@ -17,12 +17,17 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from climbd.daemon.algorithms.estimation import rotation
-from climbd.daemon.contract.messages import DepthImage, Message
+from climbd.daemon.algorithms.estimation import EstimatorConfig, rotation
+from climbd.daemon.contract.hardware import Imu, ImuSample
+from climbd.daemon.contract.messages import DepthImage, Feature, Joists, Message
 from climbd.daemon.contract.profile import CameraConfig, Profile
+
+if TYPE_CHECKING:  # the twin (MuJoCo) loads only when a --sim run starts one
+    from climbd.drivers.sim.twin import Twin
 
 log = logging.getLogger("climbd.sim")
 
@@ -105,6 +110,16 @@ class PerceptionGate:
             return False
 
 
+class TwinImu:
+    """The twin's IMU behind the hardware ``Imu`` interface."""
+
+    def __init__(self, twin: Twin) -> None:
+        self.twin = twin
+
+    def read(self) -> ImuSample:
+        return self.twin.imu_sample()
+
+
 class SimHost:
     """The twin, its clock, its driver port, and the depth bridge of one control role."""
 
@@ -184,13 +199,27 @@ class SimHost:
             )
         )
 
-    def on_feature(self, message: Message) -> None:
+    def on_feature(self, message: Feature) -> None:
         """A perception feature arrived: the frame it answers is done (lock-step)."""
         if self.stepped:
-            self.gate.answered(getattr(message, "frame_stamp", -math.inf))
-        joists = getattr(message, "joists", None)
-        if joists:
-            self._remember_joists(joists)
+            self.gate.answered(message.frame_stamp)
+        if isinstance(message, Joists) and message.joists:
+            self._remember_joists(message.joists)
+
+    def imu(self) -> Imu:
+        """The twin's IMU behind the hardware ``Imu`` interface."""
+        return TwinImu(self.twin)
+
+    def estimator_start(self) -> tuple[EstimatorConfig, np.ndarray, np.ndarray]:
+        """Paper 004's estimator calibrated from the twin's build (link masses, foot radius),
+        and the body's start pose."""
+        model = self.twin.model
+        masses = [
+            float(model.body_mass[model.body(j.name).id]) for j in self.profile.legs[0].joints
+        ]
+        config = EstimatorConfig(foot_radius=self.twin.robot.foot_radius, link_masses=masses)
+        pos, quat = self.twin.body_pose()
+        return config, pos, quat
 
     def _remember_joists(self, joists) -> None:
         """Detected joists in the world frame (for the top view), from the true body pose."""

@@ -67,6 +67,17 @@ class DepthFrame:
     number: int = 0
 
 
+@dataclass
+class CameraHealth:
+    """What the safety supervisor and health topic need: link state and frame accounting."""
+
+    connected: bool = False
+    frames: int = 0
+    dropped: int = 0
+    reconnects: int = 0
+    last_error: str = ""
+
+
 @runtime_checkable
 class Camera(Protocol):
     """A depth camera: ``frames()`` yields frames until ``close()``."""
@@ -110,3 +121,46 @@ def mount_extrinsics(camera: CameraConfig) -> np.ndarray:
     t[:3, :3] = rz @ ry @ rx @ optical_to_forward
     t[:3, 3] = m.position
     return t
+
+
+# Optional abilities: a driver declares one by implementing it; the runtime checks each once,
+# at start-up, with isinstance (ros2_control's optional command and state interfaces).
+
+
+@runtime_checkable
+class CompliantServos(Protocol):
+    """Servos that yield under load (a compliance slope or margin, as Dynamixel AX/MX have):
+    ``compliant`` says whether this bus runs them so, and the controller then offsets stance
+    goals by the sag their stiffness predicts."""
+
+    compliant: bool
+
+
+@runtime_checkable
+class ClearableFaults(Protocol):
+    """A joint bus that can clear latched servo faults (an explicit operator reset); returns
+    the names of the joints it brought back."""
+
+    def clear_faults(self) -> list[str]: ...
+
+
+@runtime_checkable
+class ServedBetweenTicks(Protocol):
+    """A joint bus that takes its replies between ticks, until ``deadline`` (monotonic s)."""
+
+    def serve_until(self, deadline: float) -> None: ...
+
+
+@runtime_checkable
+class CountsSent(Protocol):
+    """A joint bus that counts what it sent, so a lock-step twin can wait until its emulated
+    bus has handled all of it."""
+
+    sent: int
+
+
+@runtime_checkable
+class ReportsCameraHealth(Protocol):
+    """A camera that reports its link state and frame accounting."""
+
+    def health(self) -> CameraHealth: ...

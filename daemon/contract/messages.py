@@ -229,7 +229,14 @@ class Heartbeat(Message):
 # --- perception features ----------------------------------------------------------------
 
 
-class ElevationGrid(Message):
+class Feature(Message):
+    """Base of what perception plugins publish: ``frame_stamp`` is the stamp of the depth frame
+    the feature was computed from (the camera's clock), ``stamp`` when it was published."""
+
+    frame_stamp: float = 0.0
+
+
+class ElevationGrid(Feature):
     """Height map in the body frame: ``heights`` is row-major float32 little-endian, NaN unknown.
 
     Cell (row, col) covers x = origin_x + row * resolution, y = origin_y + col * resolution.
@@ -237,7 +244,6 @@ class ElevationGrid(Message):
 
     TOPIC: ClassVar[str] = "features/grid"
     RATE: ClassVar[str] = "camera rate, up to 30 Hz"
-    frame_stamp: float = 0.0
     origin_x: float = 0.0
     origin_y: float = 0.0
     resolution: float = 0.01
@@ -262,21 +268,19 @@ class Joist(msgspec.Struct, kw_only=True):
     confidence: float = 1.0
 
 
-class Joists(Message):
+class Joists(Feature):
     """Joists seen in one frame, nearest first."""
 
     TOPIC: ClassVar[str] = "features/joists"
     RATE: ClassVar[str] = "camera rate"
-    frame_stamp: float = 0.0
     joists: list[Joist] = []
 
 
-class GraspablePoints(Message):
+class GraspablePoints(Feature):
     """Graspable points (paper 001) in the body frame, metres, one (x, y, z) each."""
 
     TOPIC: ClassVar[str] = "features/graspable"
     RATE: ClassVar[str] = "camera rate"
-    frame_stamp: float = 0.0
     points: list[list[float]] = []
 
 
@@ -306,12 +310,11 @@ class TrussMember(msgspec.Struct, kw_only=True):
     confidence: float = 1.0
 
 
-class TrussMembers(Message):
+class TrussMembers(Feature):
     """Members of the truss model, in the odometry frame (frames accumulated with BodyState)."""
 
     TOPIC: ClassVar[str] = "features/truss"
     RATE: ClassVar[str] = "on model update"
-    frame_stamp: float = 0.0
     members: list[TrussMember] = []
 
 
@@ -324,7 +327,7 @@ class Stair(msgspec.Struct, kw_only=True):
     edge: list[list[float]]
 
 
-class Stairs(Message):
+class Stairs(Feature):
     """Stairs in the odometry frame, bottom step first. ``alignment``: the translation (m,
     odometry frame) that moved this frame's cloud onto the stitched map, solved only along
     ``constrained``, the unit directions the stairs in view pin (treads z, risers the ascent);
@@ -332,10 +335,13 @@ class Stairs(Message):
 
     TOPIC: ClassVar[str] = "features/stairs"
     RATE: ClassVar[str] = "camera rate"
-    frame_stamp: float = 0.0
     steps: list[Stair] = []
     alignment: list[float] = []
     constrained: list[list[float]] = []
+
+
+FEATURES: tuple[type[Feature], ...] = (ElevationGrid, Joists, GraspablePoints, TrussMembers, Stairs)
+"""The features of the contract's own perception plugins."""
 
 
 class StairStep(Message):

@@ -11,7 +11,8 @@ from typing import Any, ClassVar
 import msgspec
 import numpy as np
 
-from climbd.daemon.contract.messages import BodyState, FootTargets, Message, MotionCommand
+from climbd.daemon.contract.hardware import DepthFrame
+from climbd.daemon.contract.messages import BodyState, Feature, FootTargets, Message, MotionCommand
 
 
 class PluginError(RuntimeError):
@@ -23,24 +24,26 @@ class EmptyConfig(msgspec.Struct, forbid_unknown_fields=True):
 
 
 class PerceptionPlugin:
-    """Base of perception plugins: body-frame points in, one feature message (or None) out.
+    """Base of perception plugins: a depth frame in, one feature message (or None) out.
 
-    ``process`` takes a DepthFrame (see daemon/contract/hardware.py) and the body state at the
-    frame's timestamp; ``process_cloud`` takes an N×3 array of body-frame points (m) and is what
-    ``climbd perceive`` calls on a file.
+    ``process`` takes a DepthFrame and the body state at the frame's timestamp;
+    ``process_cloud`` takes an N×3 array of body-frame points (m) and is what ``climbd
+    perceive`` calls on a file (``climbd.daemon.algorithms.cloud.CloudPerception`` turns the
+    one into the other). ``publishes`` declares the feature types the plugin returns: the
+    perception role publishes those and the control role subscribes to them, so a third-party
+    plugin may bring a message type of its own.
     """
 
     name: ClassVar[str] = ""
     Config: ClassVar[type[msgspec.Struct]] = EmptyConfig
+    publishes: ClassVar[tuple[type[Feature], ...]] = ()
 
     def __init__(self, config: msgspec.Struct | None = None, profile: Any = None) -> None:
         self.config = config if config is not None else self.Config()
         self.profile = profile
 
-    def process(self, frame: Any, body: BodyState) -> Message | None:
-        from climbd.daemon.algorithms.cloud import frame_to_points
-
-        return self.process_cloud(frame_to_points(frame), body, frame.timestamp)
+    def process(self, frame: DepthFrame, body: BodyState) -> Message | None:
+        raise NotImplementedError
 
     def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> Message | None:
         raise NotImplementedError
@@ -74,6 +77,11 @@ class GaitPlugin:
     def stop(self) -> None:
         """Release what ``start`` acquired (e.g. a planning thread); called when the robot
         leaves ACTIVE. A gait that acquires nothing keeps this default."""
+
+    def telemetry(self) -> list[Message]:
+        """Messages the behaviour reports besides its targets (plans, decisions); the control
+        role publishes them at its state rate. None by default."""
+        return []
 
     def step(
         self,

@@ -24,7 +24,14 @@ from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.motion import MotionPipeline
 from climbd.daemon.algorithms.odometry import LegOdometry
 from climbd.daemon.algorithms.smoothing import SmoothingError
-from climbd.daemon.contract.hardware import DriverError, Imu, ImuSample, JointBus
+from climbd.daemon.contract.hardware import (
+    ClearableFaults,
+    CompliantServos,
+    DriverError,
+    Imu,
+    ImuSample,
+    JointBus,
+)
 from climbd.daemon.contract.messages import (
     BodyState,
     EStop,
@@ -122,6 +129,7 @@ class Controller:
         self.motion: MotionPipeline | None = None
         self.dt = 1.0 / profile.rate_hz
         self.stand_q = self.kinematics.stand_joints()
+        self._q = self.stand_q.copy()
         self.mode = Mode.OFF
         self.target: np.ndarray | None = None
         self.measured: JointState | None = None
@@ -149,7 +157,9 @@ class Controller:
         self._last_health_publish = -1e9
         self.fault_reset = False
         self.feed_forward = feed_forward and profile.bus.kind == "torque"
-        self.stiffness = profile.bus.stiffness if getattr(bus, "compliant", False) else 0.0
+        self.stiffness = (
+            profile.bus.stiffness if isinstance(bus, CompliantServos) and bus.compliant else 0.0
+        )
         self.support: SupportTorques | None = None
         self.load = np.zeros(len(profile.legs))
         self.landed = np.zeros(len(profile.legs), bool)
@@ -263,9 +273,9 @@ class Controller:
         mode = safety.mode
         if mode != self.mode:
             self._enter(mode, q, t)
+        self._q = q
         command = self._behave(t, dt, q)
         if command is not None:
-            self._feed_forward(q, command)
             try:
                 self.bus.write(command)
             except DriverError as e:
@@ -300,13 +310,12 @@ class Controller:
             self.messages.append(f"imu: {e}")
             return None
 
-    def _feed_forward(self, q: np.ndarray, command: JointCommand) -> None:
+    def _feed_forward(self, command: JointCommand) -> None:
         """Each stance foot's share of the weight (paper 004 eq. 5 inverted): torque legs with
         ``feed_forward`` get it as feed-forward torque, so they hold the body's height at the
         profile's gains; compliant position servos get their goals offset by torque / stiffness,
-        the sag that load would deflect them by."""
-        if not (self.feed_forward or self.stiffness):
-            return
+        the sag that load would deflect them by. The motion pipeline calls it before its guard."""
+        q = self._q
         masses = self.estimator.config.link_masses if self.estimator is not None else []
         if self.support is None or self.support.link_masses != masses:
             self.support = SupportTorques(self.kinematics, self.profile.mass, masses)
@@ -321,8 +330,7 @@ class Controller:
         if self.feed_forward:
             command.effort = tau.tolist()
         else:
-            sagged = np.asarray(command.position) + tau / self.stiffness
-            command.position = self.motion.guard.limit(sagged.tolist())
+            command.position = (np.asarray(command.position) + tau / self.stiffness).tolist()
 
     def _transfer_load(self) -> None:
         """Landed feet take their share over LOAD_RAMP; an unloading foot gives its share up as
@@ -349,8 +357,7 @@ class Controller:
     def _clear_faults(self, t: float) -> None:
         """The operator's reset, while nothing moves (not STAND/ACTIVE): a bus that can bring
         back servos a fault switched off does (Dynamixel: REBOOT of latched X-series servos)."""
-        clear = getattr(self.bus, "clear_faults", None)
-        if clear is None:
+        if not isinstance(self.bus, ClearableFaults):
             return
         if self.safety.mode in (Mode.STAND, Mode.ACTIVE):
             log.warning(
@@ -358,7 +365,7 @@ class Controller:
             )
             return
         try:
-            names = clear()
+            names = self.bus.clear_faults()
         except DriverError as e:
             self._fault(t, f"fault reset failed: {e}")
             return
@@ -376,7 +383,7 @@ class Controller:
         starts from the measured state. Either way, no jump."""
         previous, self.mode = self.mode, mode
         if previous == Mode.ACTIVE and self.gait is not None:
-            self.gait.call("stop")
+            self.gait.call(self.gait.plugin.stop)
         self.stance[:] = True
         self.unload[:] = False
         self._stance_changed = True
@@ -391,7 +398,10 @@ class Controller:
             powered = self.motion if self.safety.torque_on else None
             if not self.safety.torque_on:
                 self._torque(True, t)
-            self.motion = MotionPipeline(self.profile, self.dt)
+            needed = self.feed_forward or self.stiffness
+            self.motion = MotionPipeline(
+                self.profile, self.dt, self._feed_forward if needed else None
+            )
             self.motion.start(q if powered is None else powered.command)
         if mode == Mode.STAND:
             self.target = self.stand_q
@@ -400,7 +410,7 @@ class Controller:
             if self.gait is None:
                 self.safety.hold(t, "no gait configured")
                 return
-            self.gait.call("start", self.body, self.kinematics.fk(q))
+            self.gait.call(self.gait.plugin.start, self.body, self.kinematics.fk(q))
         else:
             self.target = self.motion.command.copy()
         log.debug("entered %s from %s", mode.value, previous.value)
@@ -427,12 +437,14 @@ class Controller:
                 if stale:
                     self.safety.hold(t, f"{self.gait.name} needs {', '.join(stale)}: stale")
                     return motion.joint_step(q)
-                feet = self.gait.call("step", t, dt, self.body, world, self._command(t))
+                feet = self.gait.call(
+                    self.gait.plugin.step, t, dt, self.body, world, self._command(t)
+                )
                 if feet is None:
                     self.safety.hold(t, f"gait {self.gait.name} failed: {self.gait.status}")
                     return motion.joint_step(q)
-                if hasattr(self.gait.plugin, "telemetry") and self._ticks % self._state_every == 0:
-                    for message in self.gait.call("telemetry") or ():
+                if self._ticks % self._state_every == 0:
+                    for message in self.gait.call(self.gait.plugin.telemetry) or ():
                         self.publish(message)
                 if self.gait.plugin.done:
                     self.safety.hold(t, f"behaviour {self.gait.name} done")

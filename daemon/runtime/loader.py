@@ -8,10 +8,11 @@ runtime never imports a plugin or a driver by name.
 from __future__ import annotations
 
 import logging
+import time
 import traceback
 from collections.abc import Callable
 from importlib.metadata import entry_points
-from typing import Any
+from typing import Any, Generic, ParamSpec, TypeVar
 
 import msgspec
 
@@ -20,6 +21,10 @@ from climbd.daemon.contract.plugins import EmptyConfig, PluginError
 GROUPS = ("climbd.perception", "climbd.gaits", "climbd.drivers")
 
 log = logging.getLogger("climbd.plugins")
+
+P = TypeVar("P")
+R = TypeVar("R")
+A = ParamSpec("A")
 
 
 def available(group: str) -> dict[str, Any]:
@@ -60,41 +65,49 @@ def instantiate(group: str, name: str, overrides: dict[str, Any], profile: Any, 
         raise PluginError(f"{where}: plugin {name!r} failed to start: {e}") from e
 
 
-class Isolated:
-    """Runs a plugin's calls so that one that raises is logged once, marked failed, and skipped.
+class Isolated(Generic[P]):
+    """Runs a plugin's typed calls so that one that raises is logged once, marked failed, and
+    skipped; each call is timed (``slowest``, s) for the health topic.
 
     ``status`` is "ok", "failed: <error>" and goes into Health.plugins. ``on_failure`` lets
     the daemon react (a failed gait puts the robot in HOLD).
     """
 
     def __init__(
-        self, name: str, plugin: Any, on_failure: Callable[[str, BaseException], None] | None = None
+        self, name: str, plugin: P, on_failure: Callable[[str, BaseException], None] | None = None
     ) -> None:
         self.name = name
         self.plugin = plugin
         self.status = "ok"
         self.failures = 0
+        self.slowest = 0.0
+        self.slowest_call = ""
         self._on_failure = on_failure
 
     @property
     def failed(self) -> bool:
         return self.status != "ok"
 
-    def call(self, method: str, *args: Any) -> Any:
-        """Call ``plugin.method(*args)``; on an exception return None and mark the plugin failed."""
+    def call(self, method: Callable[A, R], *args: A.args, **kwargs: A.kwargs) -> R | None:
+        """``method(*args)``, a bound method of the plugin; on an exception return None and mark
+        the plugin failed."""
         if self.failed:
             return None
+        start = time.perf_counter()
         try:
-            return getattr(self.plugin, method)(*args)
+            return method(*args, **kwargs)
         except Exception as e:
             self.failures += 1
+            name = method.__name__
             self.status = f"failed: {type(e).__name__}: {e}"
-            log.error(
-                "plugin %s failed in %s: %s\n%s", self.name, method, e, traceback.format_exc()
-            )
+            log.error("plugin %s failed in %s: %s\n%s", self.name, name, e, traceback.format_exc())
             if self._on_failure is not None:
                 self._on_failure(self.name, e)
             return None
+        finally:
+            elapsed = time.perf_counter() - start
+            if elapsed > self.slowest:
+                self.slowest, self.slowest_call = elapsed, method.__name__
 
     def reset(self) -> None:
         """Re-admit a failed plugin (an explicit operator action)."""

@@ -18,11 +18,17 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Sequence
+from typing import Any
 
-import numpy as np
-
-from climbd.daemon.contract.hardware import DepthFrame, Intrinsics, mount_extrinsics
+from climbd.daemon.contract import messages as m
+from climbd.daemon.contract.hardware import Camera, DriverError
+from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
+from climbd.daemon.contract.profile import Profile
+from climbd.daemon.runtime.capture import Capture
+from climbd.daemon.runtime.control_role import StartupError
+from climbd.daemon.runtime.loader import Isolated, instantiate
+from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
 log = logging.getLogger("climbd.perception")
 
@@ -30,79 +36,15 @@ HEALTH_PERIOD = 0.5
 """Seconds between Health publications."""
 
 
-class FloorCamera:
-    """A test source: the profile camera looking at flat ground ``height`` m below the body.
-
-    Depth is exact ray-plane intersection from the mount's pose and nominal intrinsics, paced at
-    the camera's frame rate with monotonic timestamps: the perception path runs as with a camera.
-    """
-
-    def __init__(self, camera, intrinsics: Intrinsics, height: float, depth_scale: float = 1e-3):
-        self.config = camera
-        self.intrinsics = intrinsics
-        self.extrinsics = mount_extrinsics(camera)
-        self.depth_scale = depth_scale
-        self.period = 1.0 / camera.fps
-        self.depth = self._render(height)
-        self._open = threading.Event()
-
-    def _render(self, height: float) -> np.ndarray:
-        k = self.intrinsics
-        u, v = np.meshgrid(np.arange(k.width), np.arange(k.height))
-        rays = np.stack([(u - k.ppx) / k.fx, (v - k.ppy) / k.fy, np.ones(u.shape)], axis=-1)
-        rot, origin = self.extrinsics[:3, :3], self.extrinsics[:3, 3]
-        down = rays @ rot[2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = (-height - origin[2]) / down
-        valid = (down < 0) & (z > self.config.min_range) & (z < self.config.max_range)
-        return np.where(valid, np.round(z / self.depth_scale), 0).astype(np.uint16)
-
-    def open(self) -> None:
-        self._open.set()
-
-    def frames(self) -> Iterator[DepthFrame]:
-        n = 0
-        next_at = time.monotonic()
-        while self._open.is_set():
-            time.sleep(max(0.0, next_at - time.monotonic()))
-            next_at += self.period
-            yield DepthFrame(
-                self.depth, self.depth_scale, self.intrinsics, self.extrinsics, time.monotonic(), n
-            )
-            n += 1
-
-    def close(self) -> None:
-        self._open.clear()
+Feed = tuple[type[m.Message], Callable[[Any], None]]
+"""A subscription the camera needs (the twin's ``sim/depth`` into a software device)."""
 
 
-def make_camera(profile, source: str, camera_name: str | None, playback: str | None):
-    """The camera the role reads: the profile's (by driver entry point), the ``floor`` source, or
-    the twin's depth over Zenoh (``sim``)."""
-    from climbd.daemon.runtime.loader import load_class
-    from climbd.drivers.realsense.models import model
-
-    cameras = {c.name: c for c in profile.cameras}
-    if not cameras:
-        raise RuntimeError(f"{profile.source}: cameras: the perception role needs a camera")
-    name = camera_name or next(iter(cameras))
-    if name not in cameras:
-        raise RuntimeError(f"{profile.source}: cameras: no camera {name!r} ({', '.join(cameras)})")
-    config = cameras[name]
-    if source == "floor":
-        intrinsics = model(config.model).intrinsics(config.width, config.height)
-        return FloorCamera(config, intrinsics, profile.stand.body_height)
-    if source == "sim":
-        from climbd.daemon.cli.sim_host import sim_camera
-
-        return sim_camera(profile, config)
-    cls = load_class("climbd.drivers", config.kind)
-    options = {"playback": playback} if playback else {}
-    return cls.from_profile(config, **options)
-
-
-def make_plugins(profile, names: list[str] | None, on_failure):
-    """The perception plugins to run, isolated: ``names`` or the profile's list."""
-    from climbd.daemon.runtime.loader import Isolated, instantiate
+def make_plugins(
+    profile: Profile, names: list[str] | None, on_failure: Callable[[str, BaseException], None]
+) -> list[Isolated[PerceptionPlugin]]:
+    """The perception plugins to run, isolated: ``names`` or the profile's list; each must
+    declare the feature types it publishes."""
 
     specs = {s.name: s for s in profile.plugins.perception}
     chosen = names or list(specs)
@@ -113,6 +55,8 @@ def make_plugins(profile, names: list[str] | None, on_failure):
         overrides = specs[name].config if name in specs else {}
         where = f"{profile.source}: plugins.perception {name}"
         plugin = instantiate("climbd.perception", name, overrides, profile, where)
+        if not plugin.publishes:
+            raise PluginError(f"{where}: declares no feature types (publishes) to publish")
         out.append(Isolated(name, plugin, on_failure))
     return out
 
@@ -120,28 +64,55 @@ def make_plugins(profile, names: list[str] | None, on_failure):
 class PerceptionRole:
     """Wires camera, capture, plugins and Zenoh together for one run of the perception role."""
 
-    def __init__(self, profile, args: argparse.Namespace) -> None:
+    def __init__(
+        self,
+        profile: Profile,
+        args: argparse.Namespace,
+        camera: Camera | None = None,
+        feeds: Sequence[Feed] = (),
+    ) -> None:
+        """``camera`` is what the role reads (the CLI makes it); ``feeds`` are subscriptions it
+        needs."""
         self.profile = profile
         self.args = args
-        self.body = None
+        self.camera = camera
+        self.feeds = feeds
+        self.body: m.BodyState | None = None
         self.published = 0
+        self.undeclared = 0
         self._stop = threading.Event()
 
-    def _work(self, capture, plugins, publish) -> None:
-        """Worker thread: newest frame → every healthy plugin → publish what they return."""
-        from climbd.daemon.contract.messages import BodyState
-
+    def _work(
+        self,
+        capture: Capture,
+        plugins: list[Isolated[PerceptionPlugin]],
+        publish: Callable[[m.Message], None],
+    ) -> None:
+        """Worker thread: newest frame → every healthy plugin → publish what they return, if it
+        is of a type the plugin declares."""
         idle = False
         while not self._stop.is_set() and capture.running:
             frame = capture.latest(timeout=0.2)
             if frame is None:
                 continue
-            body = self.body or BodyState(stamp=frame.timestamp)
+            body = self.body or m.BodyState(stamp=frame.timestamp)
             for iso in plugins:
-                feature = iso.call("process", frame, body)
-                if feature is not None:
-                    publish(feature)
-                    self.published += 1
+                feature = iso.call(iso.plugin.process, frame, body)
+                if feature is None:
+                    continue
+                if not isinstance(feature, iso.plugin.publishes):
+                    if not self.undeclared:
+                        log.error(
+                            "plugin %s returned %s, which it does not declare (publishes %s): "
+                            "dropped",
+                            iso.name,
+                            type(feature).__name__,
+                            ", ".join(t.__name__ for t in iso.plugin.publishes),
+                        )
+                    self.undeclared += 1
+                    continue
+                publish(feature)
+                self.published += 1
             if not idle and all(iso.failed for iso in plugins):
                 idle = True
                 log.error(
@@ -151,18 +122,13 @@ class PerceptionRole:
                 )
 
     async def run(self) -> int:
-        from climbd.daemon.cli.run import StartupError
-        from climbd.daemon.contract import messages as m
-        from climbd.daemon.contract.hardware import DriverError
-        from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
-        from climbd.drivers.realsense.capture import Capture
-
-        profile, args = self.profile, self.args
+        profile, args, camera = self.profile, self.args, self.camera
+        if camera is None:
+            raise StartupError(f"{profile.source}: the perception role was given no camera")
         aio = asyncio.get_running_loop()
         try:
-            camera = make_camera(profile, args.source, args.camera, args.playback)
             plugins = make_plugins(profile, args.plugin, lambda name, e: None)
-        except (RuntimeError, ValueError) as e:  # PluginError, DriverError: a setup to fix
+        except (RuntimeError, ValueError) as e:  # PluginError: a setup to fix
             print(f"error: {e}", file=sys.stderr)
             return 2
         endpoints = None
@@ -178,10 +144,8 @@ class PerceptionRole:
             self.body = body
 
         bus.subscribe(m.BodyState, on_body, latest_only=True)
-        if args.source == "sim":
-            from climbd.daemon.cli.sim_host import feed
-
-            bus.subscribe(m.DepthImage, feed(camera, camera.config))
+        for message, callback in self.feeds:
+            bus.subscribe(message, callback)
         bus.alive("perception")
         capture = Capture(camera, camera.config.name)
         try:

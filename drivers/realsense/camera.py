@@ -12,7 +12,6 @@ import logging
 import queue
 import threading
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
 from typing import Any, Protocol
@@ -20,7 +19,13 @@ from typing import Any, Protocol
 import numpy as np
 import pyrealsense2 as rs
 
-from climbd.daemon.contract.hardware import DepthFrame, DriverError, Intrinsics, mount_extrinsics
+from climbd.daemon.contract.hardware import (
+    CameraHealth,
+    DepthFrame,
+    DriverError,
+    Intrinsics,
+    mount_extrinsics,
+)
 from climbd.daemon.contract.profile import CameraConfig
 from climbd.drivers.realsense.models import L515, model
 
@@ -119,17 +124,6 @@ class PlaybackSource:
         playback = device.as_playback()
         playback.set_real_time(self.real_time)
         return device
-
-
-@dataclass
-class CameraHealth:
-    """What the safety supervisor and health topic need: link state and frame accounting."""
-
-    connected: bool = False
-    frames: int = 0
-    dropped: int = 0
-    reconnects: int = 0
-    last_error: str = ""
 
 
 class _Handoff:

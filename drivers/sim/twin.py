@@ -42,11 +42,10 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.hardware import DepthFrame, ImuSample
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.contract.profile import load as load_profile
-from climbd.drivers.sim import servos
+from climbd.drivers.sim import rest_pose, servos
 from climbd.drivers.sim.camera_process import CameraProcess
 from climbd.drivers.sim.depth import RayCastDepth
 from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
@@ -357,23 +356,18 @@ class Twin:
     def rest_joints(self) -> np.ndarray:
         """The robot lying on its belly, feet on the ground at the nearest reach its limits allow.
 
-        Reaches from the stand's ``foot_reach`` outward are tried with the daemon's IK.
+        Reaches from the stand's ``foot_reach`` outward are tried with the closed-form leg IK
+        of drivers/sim/rest_pose.py (the daemon's conventions, same knee branch).
         """
-        kin = Kinematics(self.profile)
-        stand = self.profile.stand
-        span = min(sum(leg.links) for leg in self.profile.legs)
-        for reach in np.linspace(stand.foot_reach, 0.95 * span, 12):
-            feet_leg = np.zeros((kin.n_legs, 3))
-            feet_leg[:, 0] = reach
-            feet = kin.to_body(feet_leg)
-            feet[:, 2] = self.robot.foot_radius - self.robot.body_half_height
-            q, ok = kin.ik(feet)
-            if ok.all():
-                return q
-        raise ValueError(
-            f"twin of {self.profile.name}: no rest pose (belly down, feet on the ground) within "
-            "the joint limits; pass initial_joints"
+        found = rest_pose.rest_joints(
+            self.profile, self.robot.foot_radius - self.robot.body_half_height
         )
+        if found is None:
+            raise ValueError(
+                f"twin of {self.profile.name}: no rest pose (belly down, feet on the ground) "
+                "within the joint limits; pass initial_joints"
+            )
+        return found[0]
 
     def _drop_onto_ground(self) -> None:
         """Raise the base until no robot geom touches the world, then 1 mm more."""

@@ -35,8 +35,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError
 
+from climbd.daemon.algorithms.cloud import CloudPerception
 from climbd.daemon.contract.messages import BodyState, GraspablePoints
-from climbd.daemon.contract.plugins import PerceptionPlugin
 from climbd.plugins.perception.gripper_mask import GripperGeometry, gripper_mask
 
 
@@ -369,10 +369,11 @@ class GraspableDetector:
         return Detection(targets, body, spacing)
 
 
-class GraspablePerception(PerceptionPlugin):
+class GraspablePerception(CloudPerception):
     """Perception plugin publishing paper 001's graspable points (GraspablePoints, body frame)."""
 
     name: ClassVar[str] = "graspable"
+    publishes = (GraspablePoints,)
     Config: ClassVar[type[msgspec.Struct]] = GraspableConfig
 
     def __init__(self, config: GraspableConfig | None = None, profile: object = None) -> None:

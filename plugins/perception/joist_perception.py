@@ -13,6 +13,7 @@ from typing import ClassVar
 import msgspec
 import numpy as np
 
+from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.contract.messages import BodyState, ElevationGrid, Joists
 from climbd.daemon.contract.plugins import PerceptionPlugin
 from climbd.plugins.perception.elevation import ElevationConfig, ElevationMap, Grid
@@ -28,8 +29,6 @@ class JoistPerceptionConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=
 
 def ground_cloud(frame, body: BodyState) -> tuple[np.ndarray, BodyState]:
     """A depth frame's points and pose moved from the body centre to the ground below it."""
-    from climbd.daemon.algorithms.cloud import frame_to_points
-
     points = frame_to_points(frame)
     points[:, 2] += np.float32(body.position[2])
     x, y, _ = body.position
@@ -41,6 +40,7 @@ class ElevationPerception(PerceptionPlugin):
 
     name: ClassVar[str] = "elevation"
     Config: ClassVar[type[msgspec.Struct]] = ElevationConfig
+    publishes = (ElevationGrid,)
 
     def __init__(self, config: ElevationConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
@@ -60,6 +60,7 @@ class JoistPerception(PerceptionPlugin):
 
     name: ClassVar[str] = "joists"
     Config: ClassVar[type[msgspec.Struct]] = JoistPerceptionConfig
+    publishes = (Joists,)
 
     def __init__(self, config: JoistPerceptionConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)

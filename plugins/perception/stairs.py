@@ -14,9 +14,9 @@ import msgspec
 import numpy as np
 from scipy.spatial import cKDTree
 
+from climbd.daemon.algorithms.cloud import CloudPerception
 from climbd.daemon.algorithms.estimation import rotation
 from climbd.daemon.contract.messages import BodyState, Stair, Stairs
-from climbd.daemon.contract.plugins import PerceptionPlugin
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 Fraction = Annotated[float, msgspec.Meta(ge=0, lt=0.5)]
@@ -235,10 +235,11 @@ def voxel_thin(points: np.ndarray, voxel: float) -> np.ndarray:
     return points[np.sort(first)]
 
 
-class StairPerception(PerceptionPlugin):
+class StairPerception(CloudPerception):
     """Stitches clouds into a global stair map and reports its steps (``Stairs``)."""
 
     name: ClassVar[str] = "stairs"
+    publishes = (Stairs,)
     Config: ClassVar[type[msgspec.Struct]] = StairsConfig
 
     def __init__(self, config: StairsConfig | None = None, profile=None) -> None:

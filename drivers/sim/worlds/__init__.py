@@ -18,6 +18,7 @@ import msgspec
 import numpy as np
 
 from climbd.daemon.contract.cloudio import CloudFileError, read_cloud
+from climbd.drivers.sim.worlds.hold_tiles import REGENERATE, read_tile, tile_file, tile_map
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -96,7 +97,8 @@ class HoldsSlope(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 class HoldMap(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Paper 001 §4.1's slope: a board at ``incline_deg`` carrying one hold per graspable point
-    of a hold map, tiled (seeded) from the detection on ``cloud`` (PCD, relative to the file).
+    of a hold map, tiled (seeded) from the detection on ``cloud`` (PCD, relative to the file),
+    read from the tile shipped beside it (``<stem>.tile.txt``, see ``hold_tiles``).
 
     The relief is the holds: each is a column of the palm's radius ``hold_radius`` standing
     on the board as high as its point stood above the cloud's board, so the graspable set and
@@ -283,33 +285,34 @@ def holds_heightfield(holds: HoldsSlope, base: Path) -> tuple[np.ndarray, float,
 
 def hold_map_tile(cloud: Path) -> np.ndarray:
     """Graspable points detected on ``cloud`` (paper 001 §2) on its regression plane: x, y and
-    the height (m) above the cloud's board (its 5th-percentile level)."""
+    the height (m) above the cloud's board (its 5th-percentile level). Read from the tile
+    shipped beside the cloud (``<stem>.tile.txt``, written by ``bench/hold_tiles.py`` with the
+    detector, which the twin may not import)."""
     return _detected_tile(Path(cloud).resolve()).copy()
 
 
 @functools.lru_cache(maxsize=4)
 def _detected_tile(cloud: Path) -> np.ndarray:
-    from climbd.plugins.perception.graspable import (
-        GraspableConfig,
-        GraspableDetector,
-        regression_frame,
-    )
-
+    path = tile_file(cloud)
     try:
-        pts = read_cloud(cloud)
-    except CloudFileError as e:
-        raise WorldError(f"$.hold_map.cloud: {e}") from None
-    frame = regression_frame(pts, np.zeros(3))
-    board = float(np.percentile(frame.to_plane(pts)[:, 2], 5))
-    tile = frame.to_plane(GraspableDetector(GraspableConfig()).detect(pts).points)
-    tile[:, 2] -= board
+        tile = read_tile(path)
+    except FileNotFoundError:
+        raise WorldError(
+            f"$.hold_map.cloud: no detected tile {path} for {cloud.name}; "
+            f"write it with {REGENERATE} {cloud}"
+        ) from None
+    except (OSError, ValueError) as e:
+        raise WorldError(f"$.hold_map.cloud: detected tile {path}: {e}") from None
+    if len(tile) < 2:
+        raise WorldError(
+            f"$.hold_map.cloud: detected tile {path}: need at least 2 graspable points, "
+            f"found {len(tile)}"
+        )
     return tile
 
 
 def hold_map_holds(world: World) -> np.ndarray:
     """The hold map of ``world`` (k×3, wall frame): x, y and the hold's top height (m)."""
-    from climbd.plugins.gaits.hold_map import tile_map
-
     h = world.hold_map
     path = Path(h.cloud)
     if not path.is_absolute():

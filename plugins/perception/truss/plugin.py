@@ -6,8 +6,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from climbd.daemon.algorithms.cloud import CloudPerception
 from climbd.daemon.contract.messages import BodyState, TrussMember, TrussMembers
-from climbd.daemon.contract.plugins import PerceptionPlugin
 from climbd.plugins.perception.truss.cloud import VoxelMap, body_to_odometry
 from climbd.plugins.perception.truss.completion import Member
 from climbd.plugins.perception.truss.model import TrussConfig, TrussModeller, coverage
@@ -24,11 +24,12 @@ def to_message(member: Member, points: np.ndarray, bin_size: float) -> TrussMemb
     )
 
 
-class TrussPerception(PerceptionPlugin):
+class TrussPerception(CloudPerception):
     """Builds the truss model from every frame so far (the paper's dense SLAM cloud, here our
     odometry poses) and publishes its members every ``model_every`` frames."""
 
     name: ClassVar[str] = "truss"
+    publishes = (TrussMembers,)
     Config: ClassVar[type[TrussConfig]] = TrussConfig
 
     def __init__(self, config: TrussConfig | None = None, profile: Any = None) -> None:

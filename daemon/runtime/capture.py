@@ -12,7 +12,7 @@ import threading
 
 import msgspec
 
-from climbd.daemon.contract.hardware import Camera, DepthFrame
+from climbd.daemon.contract.hardware import Camera, DepthFrame, ReportsCameraHealth
 from climbd.daemon.contract.messages import Health
 
 log = logging.getLogger("climbd.capture")
@@ -83,8 +83,7 @@ class Capture:
     def report(self, health: Health) -> Health:
         """``health`` with this capture's drops added and its camera problem named, if any."""
         messages = list(health.messages)
-        camera_health = getattr(self.camera, "health", None)
-        status = camera_health() if camera_health is not None else None
+        status = self.camera.health() if isinstance(self.camera, ReportsCameraHealth) else None
         if status is not None and not status.connected and status.last_error:
             messages.append(f"camera {self.name}: {status.last_error}")
         if self.error:
