@@ -121,6 +121,7 @@ def run_scenario(
     twin.start()
     scene = _Scene(twin, [s for row in rows for s in specs(row)], perception)
     behaviour = JoistClimb(JoistClimbConfig(goal_distance=goal, **config), WIDOWX)
+    behaviour.stepped = True  # simulated time: plans are waited for
     try:
         run = _through_driver if driver else _in_process
         unreachable, held = run(twin, scene, behaviour, seconds)

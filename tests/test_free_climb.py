@@ -382,11 +382,11 @@ def test_planning_runs_off_the_tick_and_stance_holds_while_a_plan_is_late(tile):
     gated.wait_started(1)
     holding(*tick(), feet)
     gated.gates[0].set()
-    gait.runner.ahead.wait = True  # take the plan as soon as it is done
+    gait.runner.ahead.worker.wait = True  # take the plan as soon as it is done
     out, stability = tick()
     assert stability.swing >= 0 and not stability.plan_late
     assert out.grip.count(False) == 1
-    gait.runner.ahead.wait = False
+    gait.runner.ahead.worker.wait = False
     swing = stability.swing
     for _ in range(round(CFG.swing_period / DT) - 1):  # the swing runs while plan 2 is held
         out, stability = tick()
@@ -397,7 +397,7 @@ def test_planning_runs_off_the_tick_and_stance_holds_while_a_plan_is_late(tile):
     for _ in range(10):  # the swing is over, its successor not ready: stance held
         holding(*tick(), landed)
     gated.gates[1].set()
-    gait.runner.ahead.wait = True
+    gait.runner.ahead.worker.wait = True
     out, stability = tick()
     assert stability.swing >= 0 and not stability.plan_late
     gated.wait_started(3)

@@ -52,6 +52,7 @@ class Run:
 def run(joists: list[JoistSpec], goal: float | None, seconds: float = 120.0, **config) -> Run:
     """Run the behaviour until done (or ``seconds``), checking every tick."""
     b = JoistClimb(JoistClimbConfig(goal_distance=goal, **config), WIDOWX)
+    b.stepped = True  # simulated time: plans are waited for
     kin = b.kin
     b.start(body_state(b.pose), kin.stand_feet())
     out = Run(b, b.events)
@@ -200,6 +201,7 @@ def crossing_poses(joist: JoistSpec, odometry_bias: np.ndarray) -> tuple[list, n
     """Events and final pose of a crossing whose odometry is off by ``odometry_bias`` (x, y m,
     yaw rad; a rigid offset that appears when the crossing begins, as a slip would leave it)."""
     b = JoistClimb(JoistClimbConfig(goal_distance=1.6), WIDOWX)
+    b.stepped = True  # simulated time: plans are waited for
     b.start(body_state(b.pose), b.kin.stand_feet())
     world: dict = {}
     bias = np.zeros(3)
@@ -230,6 +232,7 @@ def test_odometry_drift_in_a_crossing_is_undone_by_the_joist_in_view():
 def test_crossing_runs_through_ik_ruckig_and_the_guard_without_an_unreachable_tick():
     joist = JoistSpec(0.7, 0.0, 0.06)
     b = JoistClimb(JoistClimbConfig(goal_distance=1.1), WIDOWX)
+    b.stepped = True  # simulated time: plans are waited for
     clock = SteppedClock()
     bus = FakeJointBus(WIDOWX, tau=0.005, clock=clock.now)
     pipeline = MotionPipeline(WIDOWX, DT)
@@ -322,6 +325,7 @@ def test_the_walk_is_done_only_after_the_feet_have_had_touchdown_time_to_land():
     the daemon's HOLD) waits ``touchdown_time`` after the last foot target stopped moving
     (the stop filter's µm/tick tail counts as still)."""
     b = JoistClimb(JoistClimbConfig(goal_distance=0.3), WIDOWX)
+    b.stepped = True  # simulated time: plans are waited for
     b.start(body_state(b.pose), b.kin.stand_feet())
     last_move, previous = 0.0, None
     for k in range(int(30.0 / DT)):

@@ -112,3 +112,26 @@ def test_empty_config_refuses_keys() -> None:
     with pytest.raises(loader.PluginError, match="unknown field"):
         loader.make_config(PerceptionPlugin, {"x": 1}, "here")
     assert isinstance(loader.make_config(PerceptionPlugin, {}, "here"), msgspec.Struct)
+
+
+def test_isolated_times_each_call_and_names_the_slowest() -> None:
+    """The runtime's view of a plugin's cost: each call is timed and the slowest kept, for the
+    health topic (``plugin_slowest``)."""
+    import time
+
+    from climbd.daemon.runtime.loader import slowest
+
+    class Sleepy:
+        def quick(self) -> int:
+            return 1
+
+        def slow(self, seconds: float) -> int:
+            time.sleep(seconds)
+            return 2
+
+    a, b = loader.Isolated("a", Sleepy()), loader.Isolated("b", Sleepy())
+    assert a.call(a.plugin.quick) == 1 and b.call(b.plugin.slow, 0.05) == 2
+    assert b.slowest >= 0.05 and b.slowest_call == "slow"
+    fields = slowest([a, b])
+    assert fields["plugin_slowest_call"] == "b.slow"
+    assert fields["plugin_slowest"] == {"a": a.slowest, "b": b.slowest}

@@ -115,7 +115,8 @@ class Health(Message):
     stray heartbeat is not a command); ``unauthorised_commands`` counts command puts from peers
     without credentials (read-only telemetry gate); ``features`` gives the age (s) of each
     feature topic the role last received; ``session`` names the client holding the control
-    session ("" when none).
+    session ("" when none); ``plugin_slowest`` gives each plugin's slowest call so far (s), with
+    ``plugin_slowest_call`` naming the plugin and method of the slowest of all.
     """
 
     TOPIC: ClassVar[str] = "state/health"
@@ -126,6 +127,8 @@ class Health(Message):
     loop: LoopStats = msgspec.field(default_factory=LoopStats)
     motion: MotionStats = msgspec.field(default_factory=MotionStats)
     plugins: dict[str, str] = {}
+    plugin_slowest: dict[str, float] = {}
+    plugin_slowest_call: str = ""
     decode_errors: int = 0
     refused_commands: int = 0
     unauthorised_commands: int = 0

@@ -70,6 +70,10 @@ class GaitPlugin:
         self.config = config if config is not None else self.Config()
         self.profile = profile
         self.done = False
+        self.stepped = False
+        """Simulated time (the twin's stepped runs, tests, benches): the behaviour waits for a
+        plan it needs instead of holding for it, so runs are deterministic. The runtime sets it;
+        on a robot it stays False and no plan ever runs in the tick."""
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
         raise NotImplementedError

@@ -50,7 +50,7 @@ from climbd.daemon.contract.messages import (
     Stairs,
 )
 from climbd.daemon.contract.profile import Profile
-from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loader import Isolated, slowest
 from climbd.daemon.runtime.safety import Safety
 
 log = logging.getLogger("climbd.control")
@@ -511,7 +511,7 @@ class Controller:
             joints = self.bus.health()
         except DriverError as e:
             self.messages.append(str(e))
-        plugins = {self.gait.name: self.gait.status} if self.gait is not None else {}
+        isolated = [self.gait] if self.gait is not None else []
         return Health(
             stamp=t,
             role="control",
@@ -519,7 +519,8 @@ class Controller:
             joints=joints,
             loop=self.loop_stats() if self.loop_stats is not None else Health().loop,
             motion=self.motion_stats(),
-            plugins=plugins,
+            plugins={p.name: p.status for p in isolated},
+            **slowest(isolated),
             refused_commands=self.safety.refused,
             unauthorised_commands=self.unauthorised(),
             features={k: t - v.at for k, v in list(self.features.items())},

@@ -182,6 +182,8 @@ class ControlRole:
         gait = make_gait(
             profile, args.gait, lambda name, e: safety.hold(clock.now(), f"gait {name} failed")
         )
+        if gait is not None:  # simulated time waits for plans; on wall time no plan blocks a tick
+            gait.plugin.stepped = sim is not None and sim.stepped
         estimator, imu = self._estimator(sim)
         controller = Controller(
             profile,

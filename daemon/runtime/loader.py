@@ -112,3 +112,12 @@ class Isolated(Generic[P]):
     def reset(self) -> None:
         """Re-admit a failed plugin (an explicit operator action)."""
         self.status = "ok"
+
+
+def slowest(plugins: list[Isolated]) -> dict[str, object]:
+    """The Health fields of the plugins' call timing: each one's slowest call, and the slowest."""
+    worst = max(plugins, key=lambda p: p.slowest, default=None)
+    return {
+        "plugin_slowest": {p.name: p.slowest for p in plugins},
+        "plugin_slowest_call": f"{worst.name}.{worst.slowest_call}" if worst is not None else "",
+    }

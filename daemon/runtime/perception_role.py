@@ -27,7 +27,7 @@ from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.capture import Capture
 from climbd.daemon.runtime.control_role import StartupError
-from climbd.daemon.runtime.loader import Isolated, instantiate
+from climbd.daemon.runtime.loader import Isolated, instantiate, slowest
 from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
 
 log = logging.getLogger("climbd.perception")
@@ -171,6 +171,7 @@ class PerceptionRole:
                     stamp=time.monotonic(),
                     role="perception",
                     plugins={p.name: p.status for p in plugins},
+                    **slowest(plugins),
                     decode_errors=bus.decode_errors,
                 )
                 publish(capture.report(health))

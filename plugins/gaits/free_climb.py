@@ -38,7 +38,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Annotated, ClassVar
 
@@ -46,6 +45,7 @@ import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.algorithms.planning import PlanWorker
 from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
@@ -340,19 +340,18 @@ class ClimbPlanner:
 
 
 class PlanAhead:
-    """The planner on one worker thread, so planning never runs in the control tick; in
-    ``wait`` mode (simulated time) ``take`` waits for the plan, keeping runs deterministic."""
+    """The planner on a ``PlanWorker`` (climbd.daemon.algorithms.planning), so planning never
+    runs in the control tick; in ``wait`` mode (simulated time) ``take`` waits for the plan,
+    keeping runs deterministic."""
 
     def __init__(self, planner: ClimbPlanner, wait: bool = False) -> None:
         self.planner = planner
-        self.wait = wait
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="climb-plan")
-        self._pending: Future | None = None
+        self.worker: PlanWorker[Step | None] = PlanWorker("climb-plan", wait)
 
     @property
     def requested(self) -> bool:
         """A plan has been requested and not yet taken."""
-        return self._pending is not None
+        return self.worker.pending
 
     def request(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> None:
         """Start planning the swing from posture (``feet``, ``base``) over ``holds`` on the
@@ -362,21 +361,21 @@ class PlanAhead:
             a = np.array(a, float)
             a.flags.writeable = False
             frozen.append(a)
-        self._pending = self._worker.submit(self.planner.plan, *frozen)
+        self.worker.request(self.planner.plan, *frozen)
 
     def take(self) -> tuple[bool, Step | None]:
         """(True, step) once the requested plan is done, else (False, None) without waiting
         (``wait`` mode: waits for it); a planner error is raised here, in the caller."""
-        pending = self._pending
-        if pending is None or not (self.wait or pending.done()):
+        outcome = self.worker.take()
+        if outcome is None:
             return False, None
-        self._pending = None
-        return True, pending.result()
+        if outcome.error is not None:
+            raise outcome.error
+        return True, outcome.plan
 
     def close(self) -> None:
         """Stop the worker: a queued plan is dropped, one under way ends on its own."""
-        self._pending = None
-        self._worker.shutdown(wait=False, cancel_futures=True)
+        self.worker.close()
 
 
 @dataclass
@@ -474,8 +473,6 @@ class FreeClimb(GaitPlugin):
         self.holds = np.zeros((0, 3))
         self.last: Tick | None = None
         self.stamp = 0.0
-        self.stepped = False
-        """Simulated time (tests, twin): a tick waits for a plan it needs instead of holding."""
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
         """Take the measured feet (body frame) as gripping; the wall frame starts at the base.

@@ -32,6 +32,7 @@ import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.algorithms.planning import Outcome, PlanWorker
 from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
@@ -150,6 +151,7 @@ class Phase(str, enum.Enum):
     SQUARE = "square"
     APPROACH = "approach"
     SETTLE = "settle"
+    PLAN = "plan"
     CROSS = "cross"
     DONE = "done"
 
@@ -274,6 +276,9 @@ class JoistClimb(GaitPlugin):
         self.turn: InPlaceTurn | None = None
         self._align_from: tuple[float, float, float] | None = None
         self._square_from = 0.0
+        self.planner: PlanWorker[CrossingPlan] = PlanWorker("joist-plan")
+        self._held: tuple[float, FootTargets, np.ndarray, np.ndarray] | None = None
+        self._holding: FootTargets | None = None
 
     # --- frames and perception ------------------------------------------------------------
 
@@ -287,6 +292,13 @@ class JoistClimb(GaitPlugin):
         self.plan = None
         self.done = False
         self.travelled = 0.0
+        self._held = None
+        self.planner.close()
+        self.planner = PlanWorker("joist-plan", wait=self.stepped)
+
+    def stop(self) -> None:
+        """Stop the planning worker (the robot left ACTIVE or the daemon stops)."""
+        self.planner.close()
 
     def _to_ground(self, p: np.ndarray) -> np.ndarray:
         return self.pose[:2] + _rot(self.pose[2]) @ p
@@ -434,10 +446,13 @@ class JoistClimb(GaitPlugin):
                     self._squarings += 1
                     self._square(t, yaw)
                 else:
-                    self._begin_crossing(t, world)
+                    self._begin_crossing(t, world, out)
             return out
         if self.mode == Phase.SQUARE:
             return self._step_square(t, body)
+        if self.mode == Phase.PLAN:
+            self._take_crossing(t)
+            return msgspec.structs.replace(self._holding, stamp=t)
         if self.mode == Phase.CROSS:
             return self._step_cross(t, dt, body, world)
         return self._walk(t, dt, body, 0.0, 0.0, 0.0)
@@ -595,34 +610,61 @@ class JoistClimb(GaitPlugin):
             bars.append(Bar(distance - skew, c.joist_width + 2.0 * skew, joist.height))
         return tuple(sorted(bars, key=lambda bar: bar.face))
 
-    def _plan(self, feet: np.ndarray, height: float) -> CrossingPlan:
-        """A crossing of the row from here: ``feet`` on the ground (n×3: x, y relative to the
-        body, z above the floor)."""
+    def _request_plan(self, feet: np.ndarray, height: float) -> None:
+        """Plan a crossing of the row from here on the worker: ``feet`` on the ground (n×3: x, y
+        relative to the body, z above the floor). Its inputs are taken now, on the tick."""
         geometry = CrossingGeometry(
             bars=self._bars(),
             half_length=float(np.abs(self.kin.mount[:, 0]).max()),
         )
         params = self.config.crossing_params()
-        return CrossingPlan(geometry, params, self.kin, feet, self.tripod.height0, height)
+        self.planner.request(
+            CrossingPlan, geometry, params, self.kin, feet.copy(), self.tripod.height0, height
+        )
 
-    def _begin_crossing(self, t: float, world: dict[str, Message]) -> None:
-        """Plan the crossing from here: the joist (and its row) square ahead, the feet at home."""
+    def _outcome(self) -> Outcome[CrossingPlan] | None:
+        """The requested plan's outcome; a planner bug (not a CrossingError) is raised, so the
+        runtime isolates the behaviour and holds."""
+        outcome = self.planner.take()
+        error = outcome.error if outcome is not None else None
+        if error is not None and not isinstance(error, CrossingError):
+            raise error
+        return outcome
+
+    def _begin_crossing(self, t: float, world: dict[str, Message], holding: FootTargets) -> None:
+        """Plan the crossing from here (the joist and its row square ahead, the feet at home),
+        holding ``holding`` until the plan arrives."""
         self._squarings = 0
         self.row = [self.target]
         self._grow_row(world)
-        try:
-            feet = np.column_stack([self.tripod.feet[:, :2], np.zeros(len(self.tripod.feet))])
-            self.plan = self._plan(feet, self.tripod.height)
-        except CrossingError as e:
+        feet = np.column_stack([self.tripod.feet[:, :2], np.zeros(len(self.tripod.feet))])
+        self._request_plan(feet, self.tripod.height)
+        self._plan_from = self.pose.copy()
+        self._holding = holding
+        if not self._take_crossing(t):
+            self._switch(
+                t,
+                Phase.PLAN,
+                f"holding while the {self.target.height:.3f} m joist's crossing is planned",
+            )
+
+    def _take_crossing(self, t: float) -> bool:
+        """Cross on the plan once it arrives, or go round when none is safe; whether it came."""
+        outcome = self._outcome()
+        if outcome is None:
+            return False
+        if outcome.error is not None:
             self.impassable.append(self.target)
-            self._switch(t, Phase.SIDESTEP, f"cannot cross safely ({e})")
-            return
-        self._plan_origin = self.pose.copy()
+            self._switch(t, Phase.SIDESTEP, f"cannot cross safely ({outcome.error})")
+            return True
+        self.plan = outcome.plan
+        self._plan_origin = self._plan_from
         self._phase = 0
         distance, _ = self.ahead(self.target)
         self._switch(
             t, Phase.CROSS, f"crossing a {self.target.height:.3f} m joist at {distance:.3f} m"
         )
+        return True
 
     def _measured(self, body: BodyState) -> np.ndarray:
         """The estimator's body pose (x, y, yaw) in this behaviour's frame."""
@@ -674,18 +716,30 @@ class JoistClimb(GaitPlugin):
         self.pose = measured
         return True
 
-    def _replan(self, t: float, body: np.ndarray, feet: np.ndarray) -> None:
+    def _replan(self, t: float, targets: FootTargets, body: np.ndarray, feet: np.ndarray) -> None:
         """Plan on from this phase boundary (a joist of the row came into view, or the body
-        drifted): the feet stay where they stand relative to the body."""
-        local = feet - np.array([body[0], body[1], 0.0])
-        try:
-            plan = self._plan(local, float(body[2]))
-        except CrossingError as e:
-            self._event(t, f"cross: no new plan from here ({e}); on as planned")
+        drifted), holding ``targets`` until the plan arrives: the feet stay where they stand
+        relative to the body."""
+        self._request_plan(feet - np.array([body[0], body[1], 0.0]), float(body[2]))
+        self._plan_from = self.pose.copy()
+        self._held = (t, targets, body, feet)
+        self._take_replan(t)
+
+    def _take_replan(self, t: float) -> None:
+        """Go on from the held boundary on the new plan, or on the old one when none fits."""
+        outcome = self._outcome()
+        if outcome is None or self._held is None:
             return
+        since, _, body, _ = self._held
+        self._held = None
+        if outcome.error is not None:
+            self._t_mode += t - since  # the old plan resumes at the boundary it held at
+            self._event(t, f"cross: no new plan from here ({outcome.error}); on as planned")
+            return
+        plan = outcome.plan
         self.travelled += float(body[0])
         self.plan = plan
-        self._plan_origin = self.pose.copy()
+        self._plan_origin = self._plan_from
         self._t_mode = t
         self._phase = 0
         backed = f", backing {plan.recovery:+.3f} m out of a margin" if plan.recovery else ""
@@ -694,23 +748,28 @@ class JoistClimb(GaitPlugin):
     def _step_cross(
         self, t: float, dt: float, body: BodyState, world: dict[str, Message]
     ) -> FootTargets:
+        if self._held is not None:
+            held = self._held[1]
+            self._take_replan(t)
+            return msgspec.structs.replace(held, stamp=t)
         plan = self.plan
         elapsed = t - self._t_mode
         b, feet, stance = plan.sample(elapsed)
         origin = self._plan_origin
         self.pose[:2] = origin[:2] + _rot(origin[2]) @ b[:2]
-        phase = plan.phase(elapsed)
-        if phase != self._phase:
-            self._phase = phase
-            if stance.all() and (self._grow_row(world) or self._drifted(body, world)):
-                self._replan(t, b, feet)
         local = feet.copy()
         local[:, 0] -= b[0]
         local[:, 1] -= b[1]
         local[:, 2] -= b[2]
+        out = FootTargets(stamp=t, positions=local.tolist(), stance=stance.tolist())
+        phase = plan.phase(elapsed)
+        if phase != self._phase:
+            self._phase = phase
+            if stance.all() and (self._grow_row(world) or self._drifted(body, world)):
+                self._replan(t, out, b, feet)
         if elapsed >= plan.duration:
             self.travelled += float(b[0])
             self.target = None
             self.tripod.start(body, local)
             self._switch(t, Phase.WALK, "joist crossed")
-        return FootTargets(stamp=t, positions=local.tolist(), stance=stance.tolist())
+        return out

@@ -1,0 +1,194 @@
+"""Nothing blocks the tick: a behaviour's plan runs on its worker while the control loop goes on
+at its rate on wall time, so an e-stop or a lost heartbeat acts while a plan is being made."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from joist_scenes import JoistSpec
+from joist_world import body_state, perceive
+
+from climbd.daemon.algorithms.planning import PlanWorker
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import (
+    EStop,
+    FootTargets,
+    Heartbeat,
+    Joists,
+    Mode,
+    ModeRequest,
+    SessionClaim,
+)
+from climbd.daemon.contract.plugins import GaitPlugin
+from climbd.daemon.runtime.control import Controller
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock
+from climbd.daemon.runtime.safety import Safety
+from climbd.drivers.fake import FakeJointBus
+from climbd.plugins.gaits import joist_climb
+from climbd.plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig, Phase
+
+PLAN_SECONDS = 2.0
+
+
+class SlowPlanGait(GaitPlugin):
+    """Asks for a plan that takes 2 s of wall time when it starts, and holds its feet where
+    they stand until the plan arrives (the convention of climbd.daemon.algorithms.planning)."""
+
+    name = "slow_plan"
+
+    def start(self, body, feet) -> None:
+        self.feet = np.asarray(feet, float).copy()
+        self.worker: PlanWorker[str] = PlanWorker("slow-plan", wait=self.stepped)
+        self.started = threading.Event()
+        self.worker.request(self._plan)
+        self.plan: str | None = None
+
+    def _plan(self) -> str:
+        self.started.set()
+        time.sleep(PLAN_SECONDS)
+        return "ready"
+
+    def stop(self) -> None:
+        if hasattr(self, "worker"):
+            self.worker.close()
+
+    def step(self, t, dt, body, world, command) -> FootTargets:
+        outcome = self.worker.take()
+        if outcome is not None:
+            self.plan = outcome.plan
+        n = len(self.feet)
+        return FootTargets(stamp=t, positions=self.feet.tolist(), stance=[True] * n)
+
+
+class WallRig:
+    """A controller on the fake bus, its loop on wall time in a thread of its own."""
+
+    def __init__(self, profile: profiles.Profile) -> None:
+        self.profile = profile
+        self.clock = MonotonicClock()
+        self.bus = FakeJointBus(profile, tau=0.005, clock=self.clock.now)
+        self.bus.open()
+        self.safety = Safety(profile)
+        self.gait = SlowPlanGait(profile=profile)
+        self.controller = Controller(
+            profile, self.bus, self.safety, self.clock.now, Isolated("slow_plan", self.gait)
+        )
+        self.loop = ControlLoop(profile.rate_hz, self.clock, self.controller.tick)
+        self.torque_off_tick: int | None = None
+        torque = self.bus.torque
+
+        def record(on: bool) -> None:
+            if not on and self.torque_off_tick is None:
+                self.torque_off_tick = self.loop.ticks
+            torque(on)
+
+        self.bus.torque = record
+        self.thread = threading.Thread(target=self.loop.run, daemon=True)
+
+    def __enter__(self) -> WallRig:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.loop.stop()
+        self.thread.join(5.0)
+        self.gait.stop()
+
+    def wait_for(self, predicate, timeout: float) -> None:
+        end = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < end, f"timed out; mode {self.safety.mode.value}"
+            time.sleep(0.005)
+
+    def activate_during_plan(self) -> int:
+        """Stand, go ACTIVE (the gait starts its 2 s plan); the tick count once it plans."""
+        assert self.safety.request(Mode.STAND, self.clock.now())
+        self.wait_for(lambda: self.safety.reason == "stand complete", 30.0)
+        assert self.safety.request(Mode.ACTIVE, self.clock.now(), reason="autonomy")
+        self.wait_for(lambda: hasattr(self.gait, "started") and self.gait.started.is_set(), 10.0)
+        return self.loop.ticks
+
+
+@pytest.fixture()
+def widowx(robots):
+    return profiles.load(robots / "widowx.toml")
+
+
+def test_an_estop_during_a_two_second_plan_acts_within_one_tick(widowx) -> None:
+    """WidowX's e-stop policy is torque off: engaged half a second into the plan, the next
+    tick switches torque off, and the loop kept ticking while the plan was being made."""
+    with WallRig(widowx) as rig:
+        planning_from = rig.activate_during_plan()
+        time.sleep(0.5)
+        ticked = rig.loop.ticks - planning_from
+        at = rig.loop.ticks
+        rig.controller.on_estop(EStop(engage=True, source="test", reason="mid-plan"))
+        rig.wait_for(lambda: rig.torque_off_tick is not None, 1.0)
+        assert rig.gait.plan is None, "the plan was already there: nothing was tested"
+    assert ticked >= 0.5 * 0.5 * widowx.rate_hz, f"only {ticked} ticks in 0.5 s of planning"
+    assert rig.safety.mode == Mode.ESTOP
+    assert rig.torque_off_tick - at <= 1, (at, rig.torque_off_tick)
+
+
+def test_a_lost_heartbeat_during_a_two_second_plan_holds_within_its_window(widowx) -> None:
+    """The operator's session goes silent while the plan is being made: HOLD follows within
+    the profile's heartbeat window (plus a tick), not when the plan is done."""
+    with WallRig(widowx) as rig:
+        c = rig.controller
+        c.on_claim(SessionClaim(session="s1", client="alice"))
+        c.on_heartbeat(Heartbeat(session="s1"))
+        assert rig.safety.request(Mode.STAND, rig.clock.now())
+        rig.wait_for(lambda: rig.safety.reason == "stand complete", 30.0)
+        c.on_heartbeat(Heartbeat(session="s1"))
+        c.on_mode(ModeRequest(session="s1", mode=Mode.ACTIVE))
+        rig.wait_for(lambda: hasattr(rig.gait, "started") and rig.gait.started.is_set(), 10.0)
+        c.on_heartbeat(Heartbeat(session="s1"))
+        last = rig.clock.now()
+        rig.wait_for(lambda: rig.safety.mode == Mode.HOLD, PLAN_SECONDS)
+        assert rig.gait.plan is None, "the plan was already there: nothing was tested"
+    entered = rig.safety.history[-1].at
+    window = widowx.safety.heartbeat_window
+    assert entered - last <= window + 2.0 / widowx.rate_hz, (entered - last, window)
+
+
+def test_joist_climb_holds_still_while_its_crossing_is_planned(widowx, monkeypatch) -> None:
+    """On wall time (not stepped) JoistClimb asks for its crossing plan and goes on: the tick
+    that asks returns at once in PLAN, its feet stay where they stood until the plan comes,
+    and then it crosses on it."""
+    slow = threading.Event()
+
+    def slow_plan(*args):
+        slow.wait(10.0)
+        return real(*args)
+
+    real = joist_climb.CrossingPlan
+    monkeypatch.setattr(joist_climb, "CrossingPlan", slow_plan)
+    b = JoistClimb(JoistClimbConfig(goal_distance=1.1), widowx)
+    b.start(body_state(b.pose), b.kin.stand_feet())
+    joists = [JoistSpec(0.7, 0.0, 0.06)]
+    dt, held, planned_feet = 0.01, 0, None
+    try:
+        for k in range(int(120 / dt)):
+            t = k * dt
+            world = {Joists.TOPIC: perceive(joists, b.pose, t)}
+            feet = np.array(b.step(t, dt, body_state(b.pose, t), world, None).positions)
+            if b.mode == Phase.PLAN:
+                planned_feet = feet if planned_feet is None else planned_feet
+                assert np.allclose(feet, planned_feet, atol=1e-5), "moved while planning"
+                held += 1
+                if held == 50:
+                    slow.set()  # the plan may finish now, 50 ticks on
+                    end = time.monotonic() + 10.0
+                    while not b.planner.ready and time.monotonic() < end:
+                        time.sleep(0.01)
+            if b.mode == Phase.CROSS:
+                break
+    finally:
+        slow.set()
+        b.stop()
+    assert held >= 50, f"held {held} ticks: the plan was not made off the tick"
+    assert b.mode == Phase.CROSS and b.plan is not None
