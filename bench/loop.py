@@ -79,9 +79,8 @@ def climbd_loop(profile_name: str, rate: float, seconds: float) -> tuple[np.ndar
     """Lateness and compute samples of ControlLoop running the full control tick on a fake bus."""
     from climbd.daemon.contract import profile as profiles
     from climbd.daemon.contract.messages import Mode
-    from climbd.daemon.runtime.control import Controller
-    from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock, TimingWindow
-    from climbd.daemon.runtime.safety import Safety
+    from climbd.daemon.runtime.loop import MonotonicClock, TimingWindow
+    from climbd.daemon.runtime.stack import control_stack
     from climbd.drivers.fake import FakeJointBus
 
     profile = msgspec.structs.replace(
@@ -90,10 +89,9 @@ def climbd_loop(profile_name: str, rate: float, seconds: float) -> tuple[np.ndar
     clock = MonotonicClock()
     bus = FakeJointBus(profile, clock=clock.now)
     bus.open()
-    safety = Safety(profile)
-    controller = Controller(profile, bus, safety, clock.now)
+    stack = control_stack(profile, bus, clock)
+    safety, loop = stack.safety, stack.loop
     n = int(rate * seconds)
-    loop = ControlLoop(rate, clock, controller.tick)
     loop.timing = TimingWindow(size=n)
     safety.request(Mode.STAND, clock.now())
     thread = threading.Thread(target=loop.run, kwargs={"max_ticks": n})

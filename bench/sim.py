@@ -67,10 +67,8 @@ def real_time_with_daemon(robot: str, seconds: float, cameras: str) -> dict:
     (the baseline)."""
     from climbd.daemon.cli.sim_host import SimHost
     from climbd.daemon.contract.messages import Mode, encode
-    from climbd.daemon.runtime.control import Controller
     from climbd.daemon.runtime.control_role import StartupError, make_joint_bus
-    from climbd.daemon.runtime.loop import ControlLoop
-    from climbd.daemon.runtime.safety import Safety
+    from climbd.daemon.runtime.stack import control_stack
 
     profile = load(f"robots/{robot}.toml")
     camera = profile.cameras[0]
@@ -94,9 +92,8 @@ def real_time_with_daemon(robot: str, seconds: float, cameras: str) -> dict:
         host.stop()
         raise
     clock = host.clock()
-    safety = Safety(profile)
-    controller = Controller(profile, bus, safety, clock.now, None, lambda m: None)
-    loop = ControlLoop(profile.rate_hz, clock, controller.tick)
+    stack = control_stack(profile, bus, clock)
+    safety, loop = stack.safety, stack.loop
     thread = threading.Thread(target=loop.run, daemon=True)
     twin = host.twin
     sim0, wall0 = twin.time, time.monotonic()

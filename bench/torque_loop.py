@@ -144,32 +144,26 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int,
     from climbd.daemon.algorithms.estimation import EstimatorConfig, StateEstimator
     from climbd.daemon.contract import profile as profiles
     from climbd.daemon.contract.messages import Heartbeat, Mode, MotionCommand
-    from climbd.daemon.runtime.control import Controller
     from climbd.daemon.runtime.loader import Isolated
-    from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock, TimingWindow
-    from climbd.daemon.runtime.safety import Safety
+    from climbd.daemon.runtime.loop import MonotonicClock, TimingWindow
+    from climbd.daemon.runtime.stack import control_stack
     from climbd.drivers.fake import FakeImu
     from climbd.plugins.gaits.periodic import Tripod
 
     profile = profiles.load(PROFILE)
     with joint_bus(kind, profile) as bus:
         clock = MonotonicClock()
-        safety = Safety(profile)
-        gait = Isolated("tripod", Tripod(None, profile))
-        controller = Controller(
+        stack = control_stack(
             profile,
             bus,
-            safety,
-            clock.now,
-            gait,
+            clock,
+            Isolated("tripod", Tripod(None, profile)),
             imu=FakeImu(clock.now),
             estimator=StateEstimator(profile, EstimatorConfig()),
             feed_forward=True,
         )
+        safety, controller, loop = stack.safety, stack.controller, stack.loop
         n = int(profile.rate_hz * seconds)
-        loop = ControlLoop(
-            profile.rate_hz, clock, controller.tick, getattr(bus, "serve_until", None)
-        )
         loop.timing = TimingWindow(size=n)
         stop = threading.Event()
         command = MotionCommand(vx=0.1, session=SESSION)

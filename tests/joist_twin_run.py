@@ -27,10 +27,9 @@ from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import BodyState, Joists, Mode
 from climbd.daemon.contract.profile import stock_profiles
-from climbd.daemon.runtime.control import Controller
 from climbd.daemon.runtime.loader import Isolated
-from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.dynamixel.bus import DynamixelBus
 from climbd.drivers.sim.twin import Twin
 from climbd.drivers.sim.worlds import JoistRow, World
@@ -211,17 +210,14 @@ def _through_driver(
     try:
         twin.driver_sent = lambda: bus.sent
         clock = SteppedClock(on_advance=lambda t0, t1: scene.advance(t1))
-        safety = Safety(WIDOWX)
-        controller = Controller(
+        stack = control_stack(
             WIDOWX,
             bus,
-            safety,
-            clock.now,
+            clock,
             Isolated("joist_climb", behaviour),
-            lambda m: None,
             imu=SimpleNamespace(read=twin.imu_sample),
         )
-        loop = ControlLoop(WIDOWX.rate_hz, clock, controller.tick)
+        safety, controller, loop = stack.safety, stack.controller, stack.loop
         assert safety.request(Mode.STAND, clock.now(), reason="start-up")
         while safety.mode == Mode.STAND and clock.now() < 1.0 + 3 * WIDOWX.safety.stand_time:
             loop.run(max_ticks=loop.ticks + PERCEPTION_PERIOD)

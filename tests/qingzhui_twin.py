@@ -16,10 +16,9 @@ from conftest import ROOT
 from climbd.daemon.algorithms.estimation import EstimatorConfig, StateEstimator
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import Heartbeat, Mode, MotionCommand
-from climbd.daemon.runtime.control import Controller
 from climbd.daemon.runtime.loader import Isolated
-from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.sim.mit_coupling import MitCoupling
 from climbd.drivers.sim.mit_motors import MitMotorChain
 from climbd.drivers.sim.twin import Twin
@@ -96,13 +95,12 @@ class QingzhuiRig:
         self.coupling = MitCoupling(self.twin, self.chain, lambda: self.bus.sent)
         self.bus.open()
         self.clock = SteppedClock(on_advance=self._advance)
-        self.safety = Safety(self.profile)
         self.gait = gait
         isolated = Isolated(getattr(gait, "name", "gait"), gait) if gait is not None else None
-        self.controller = Controller(
-            self.profile, self.bus, self.safety, self.clock.now, isolated, feed_forward=feed_forward
+        stack = control_stack(
+            self.profile, self.bus, self.clock, isolated, feed_forward=feed_forward
         )
-        self.loop = ControlLoop(self.profile.rate_hz, self.clock, self.controller.tick)
+        self.safety, self.controller, self.loop = stack.safety, stack.controller, stack.loop
         self.hooks: list = []
         self.command: MotionCommand | None = None
 

@@ -28,10 +28,9 @@ from climbd.daemon.contract import messages as m
 from climbd.daemon.contract.messages import EstopPolicy, Mode
 from climbd.daemon.contract.plugins import PerceptionPlugin
 from climbd.daemon.contract.profile import Profile, load
-from climbd.daemon.runtime.control import Controller
 from climbd.daemon.runtime.loader import Isolated, instantiate
-from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import MonotonicClock
+from climbd.daemon.runtime.stack import control_stack
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOTS = ("widowx", "hubrobo", "qingzhui")
@@ -81,7 +80,6 @@ class Rig:
         self.robot = robot
         self.profile: Profile = load(ROOT / "robots" / f"{robot}.toml")
         self.clock = JumpClock()
-        self.safety = Safety(self.profile)
         self.errors: list[BaseException] = []
         self.commands: list[np.ndarray] = []
         self.published: list[m.Message] = []
@@ -92,11 +90,10 @@ class Rig:
             name = GAITS[robot]
             plugin = instantiate("climbd.gaits", name, {}, self.profile, name)
             isolated = Isolated(name, plugin, lambda n, e: self.safety.hold(self.clock.now(), n))
-        self.controller = Controller(
-            self.profile, self.bus, self.safety, self.clock.now, isolated, self._on_publish
+        stack = control_stack(
+            self.profile, self.bus, self.clock, isolated, publish=self._on_publish, tick=self._tick
         )
-        self.loop = ControlLoop(self.profile.rate_hz, self.clock, self._tick)
-        self.controller.loop_stats = self.loop.stats
+        self.safety, self.controller, self.loop = stack.safety, stack.controller, stack.loop
         self.thread = threading.Thread(target=self.loop.run, daemon=True)
 
     def _open_driver(self) -> None:

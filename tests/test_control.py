@@ -18,10 +18,10 @@ from climbd.daemon.contract.messages import (
     Stairs,
 )
 from climbd.daemon.contract.plugins import GaitPlugin
-from climbd.daemon.runtime.control import LOAD_RAMP, Controller
+from climbd.daemon.runtime.control import LOAD_RAMP
 from climbd.daemon.runtime.loader import Isolated
-from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.fake import FakeJointBus
 
 
@@ -50,13 +50,12 @@ class Rig:
         self.bus = FakeJointBus(profile, tau=tau, clock=self.clock.now)
         self.bus.compliant = compliant
         self.bus.open()
-        self.safety = Safety(profile)
         self.published: list = []
         isolated = Isolated("test", gait, lambda n, e: None) if gait else None
-        self.controller = Controller(
-            profile, self.bus, self.safety, self.clock.now, isolated, self.published.append
+        stack = control_stack(
+            profile, self.bus, self.clock, isolated, publish=self.published.append
         )
-        self.loop = ControlLoop(profile.rate_hz, self.clock, self.controller.tick)
+        self.safety, self.controller, self.loop = stack.safety, stack.controller, stack.loop
         self.commands: list[np.ndarray] = []
         write = self.bus.write
 

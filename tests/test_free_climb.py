@@ -23,10 +23,9 @@ from climbd.daemon.contract.messages import (
     encode,
 )
 from climbd.daemon.contract.profile import load
-from climbd.daemon.runtime.control import Controller
 from climbd.daemon.runtime.loader import Isolated, instantiate
-from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.fake import FakeJointBus
 from climbd.drivers.sim.worlds import DATA
 from climbd.drivers.sim.worlds.hold_tiles import tile_map
@@ -295,16 +294,14 @@ def test_control_role_publishes_stability_while_climbing(tile):
     clock = SteppedClock()
     bus = FakeJointBus(PROFILE, tau=0.01, clock=clock.now)
     bus.open()
-    safety = Safety(PROFILE)
     published: list = []
     plugin = instantiate("climbd.gaits", "free_climb", {}, PROFILE, "t")
-    plugin.stepped = True
     stops: list[int] = []
     stop = plugin.stop
     plugin.stop = lambda: (stops.append(1), stop())
     gait = Isolated("free_climb", plugin)
-    controller = Controller(PROFILE, bus, safety, clock.now, gait, published.append)
-    loop = ControlLoop(PROFILE.rate_hz, clock, controller.tick)
+    stack = control_stack(PROFILE, bus, clock, gait, publish=published.append)
+    safety, controller, loop = stack.safety, stack.controller, stack.loop
     assert safety.request(Mode.STAND, clock.now())
     loop.run(max_ticks=int(PROFILE.safety.stand_time * 3 * PROFILE.rate_hz))
     body = (hold_map(tile, 3) - [0.0, 0.0, CFG.base_height]).tolist()

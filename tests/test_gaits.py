@@ -18,10 +18,9 @@ from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import BodyState, Heartbeat, Mode, MotionCommand, SessionClaim
 from climbd.daemon.contract.plugins import PluginError
 from climbd.daemon.contract.profile import stock_profiles
-from climbd.daemon.runtime.control import Controller
 from climbd.daemon.runtime.loader import Isolated, instantiate
-from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.fake import FakeJointBus
 from climbd.plugins.gaits.periodic import layout_offsets
 from climbd.plugins.gaits.swing import lift, progress
@@ -244,16 +243,11 @@ class Teleop:
         self.clock = SteppedClock()
         self.bus = FakeJointBus(self.profile, tau=0.005, clock=self.clock.now)
         self.bus.open()
-        self.safety = Safety(self.profile)
         plugin = instantiate("climbd.gaits", gait, {}, self.profile, gait)
-        self.controller = Controller(
-            self.profile,
-            self.bus,
-            self.safety,
-            self.clock.now,
-            Isolated(gait, plugin, lambda n, e: None),
+        stack = control_stack(
+            self.profile, self.bus, self.clock, Isolated(gait, plugin, lambda n, e: None)
         )
-        self.loop = ControlLoop(self.profile.rate_hz, self.clock, self.controller.tick)
+        self.safety, self.controller, self.loop = stack.safety, stack.controller, stack.loop
         self.controller.on_claim(SessionClaim(session="op", client="test"))
 
     def run(self, seconds: float, command: MotionCommand | None = None) -> None:

@@ -23,10 +23,8 @@ from climbd.daemon.contract.messages import (
     SessionClaim,
 )
 from climbd.daemon.contract.plugins import GaitPlugin
-from climbd.daemon.runtime.control import Controller
-from climbd.daemon.runtime.loader import Isolated
-from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import MonotonicClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.fake import FakeJointBus
 from climbd.plugins.gaits import joist_climb
 from climbd.plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig, Phase
@@ -72,12 +70,9 @@ class WallRig:
         self.clock = MonotonicClock()
         self.bus = FakeJointBus(profile, tau=0.005, clock=self.clock.now)
         self.bus.open()
-        self.safety = Safety(profile)
         self.gait = SlowPlanGait(profile=profile)
-        self.controller = Controller(
-            profile, self.bus, self.safety, self.clock.now, Isolated("slow_plan", self.gait)
-        )
-        self.loop = ControlLoop(profile.rate_hz, self.clock, self.controller.tick)
+        stack = control_stack(profile, self.bus, self.clock, self.gait)
+        self.safety, self.controller, self.loop = stack.safety, stack.controller, stack.loop
         self.torque_off_tick: int | None = None
         torque = self.bus.torque
 

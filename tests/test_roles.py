@@ -19,10 +19,9 @@ from climbd.daemon.cli.status import fleet
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import EStop, FootTargets, Health, Joists, Mode, ModeState
 from climbd.daemon.contract.plugins import GaitPlugin
-from climbd.daemon.runtime.control import Controller
 from climbd.daemon.runtime.loader import Isolated
-from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.fake import FakeJointBus
 
 GRID = "features/grid"
@@ -84,10 +83,9 @@ def test_behaviour_needing_stale_features_holds(robots) -> None:
     clock = SteppedClock()
     bus = FakeJointBus(profile, tau=0.01, clock=clock.now)
     bus.open()
-    safety = Safety(profile)
     gait = Isolated("needs-joists", NeedsJoists(profile=profile), lambda n, e: None)
-    controller = Controller(profile, bus, safety, clock.now, gait)
-    loop = ControlLoop(profile.rate_hz, clock, controller.tick)
+    stack = control_stack(profile, bus, clock, gait)
+    safety, controller, loop = stack.safety, stack.controller, stack.loop
 
     def run(seconds: float) -> None:
         loop.run(max_ticks=loop.ticks + round(seconds * profile.rate_hz))

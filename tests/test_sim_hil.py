@@ -25,10 +25,9 @@ from climbd.daemon.contract.messages import (
     SessionClaim,
 )
 from climbd.daemon.contract.profile import load
-from climbd.daemon.runtime.control import Controller
 from climbd.daemon.runtime.loader import Isolated
-from climbd.daemon.runtime.loop import ControlLoop, SteppedClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.dynamixel.bus import DynamixelBus
 from climbd.drivers.sim.twin import Twin
 from climbd.drivers.torque.bus import MitJointBus
@@ -64,12 +63,9 @@ class Hil:
         )
         self.bus.open()
         self.twin.driver_sent = lambda: self.bus.sent
-        self.safety = Safety(self.profile)
         isolated = Isolated("tripod", Tripod(gait, self.profile)) if gait else None
-        self.controller = Controller(
-            self.profile, self.bus, self.safety, self.clock.now, isolated, lambda m: None
-        )
-        self.loop = ControlLoop(self.profile.rate_hz, self.clock, self.controller.tick)
+        stack = control_stack(self.profile, self.bus, self.clock, isolated)
+        self.safety, self.controller, self.loop = stack.safety, stack.controller, stack.loop
         self.log: list[np.ndarray] = []
 
     def run(self, seconds: float, every=None) -> None:

@@ -20,9 +20,8 @@ from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.hardware import DriverError
 from climbd.daemon.contract.messages import JointCommand, Mode
 from climbd.daemon.contract.profile import ActuatorRanges
-from climbd.daemon.runtime.control import Controller
-from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.loop import MonotonicClock
+from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.sim import mit_motors
 from climbd.drivers.sim.mit_motors import MitMotorChain
 from climbd.drivers.torque import links, mit
@@ -392,9 +391,8 @@ def assert_stands_at_one_khz(profile: profiles.Profile, bus) -> None:
     """The 1 kHz loop (gravity feed-forward) over an open ``bus`` stands the robot: HOLD after
     "stand complete", the joints within 0.02 rad of the stand pose, none lost."""
     clock = MonotonicClock()
-    safety = Safety(profile)
-    controller = Controller(profile, bus, safety, clock.now, feed_forward=True)
-    loop = ControlLoop(profile.rate_hz, clock, controller.tick)
+    stack = control_stack(profile, bus, clock, feed_forward=True)
+    safety, controller, loop = stack.safety, stack.controller, stack.loop
     safety.request(Mode.STAND, clock.now())
     thread = threading.Thread(target=loop.run, kwargs={"max_ticks": 6000})
     thread.start()

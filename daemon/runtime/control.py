@@ -8,6 +8,7 @@ out of ``tick``: a device error becomes FAULT, a plugin error becomes HOLD.
 
 from __future__ import annotations
 
+import enum
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -95,6 +96,17 @@ def fusable(stairs: Stairs) -> bool:
     return bool(np.isfinite(stairs.alignment).all() and np.allclose(norms, 1.0, atol=1e-6))
 
 
+class Shutdown(enum.Enum):
+    """The safe stop, beside the mode machine: SIT lowers the body before the e-stop policy's
+    torque off, HOLD keeps the pose, FORCE applies the policy now (the safe pose took too
+    long), DONE when the robot is in its safe pose."""
+
+    SIT = "sit"
+    HOLD = "hold"
+    FORCE = "force"
+    DONE = "done"
+
+
 @dataclass
 class Timed:
     """A message and the controller-clock time it arrived."""
@@ -148,7 +160,7 @@ class Controller:
         self.loop_stats: Callable | None = None
         self.unauthorised: Callable[[], int] = lambda: 0
         self.sit_q = self._sit_joints()
-        self.shutdown: str | None = None
+        self.shutdown: Shutdown | None = None
         self.sat_down = False
         self._sat_at: float | None = None
         self._health_every = max(1, round(profile.rate_hz / profile.bus.health_rate_hz))
@@ -177,22 +189,22 @@ class Controller:
     def begin_shutdown(self, t: float) -> None:
         """Start the safe stop: hold (and for ``torque_off``, sit down first, then torque off)."""
         if not self.safety.torque_on or self.safety.mode in (Mode.ESTOP, Mode.FAULT, Mode.OFF):
-            self.shutdown = "done"
+            self.shutdown = Shutdown.DONE
             return
         sit = self.safety.policy == EstopPolicy.TORQUE_OFF
-        self.shutdown = "sit" if sit else "hold"
+        self.shutdown = Shutdown.SIT if sit else Shutdown.HOLD
         self.safety.hold(t, "shutdown")
 
     @property
     def shutdown_done(self) -> bool:
-        return self.shutdown == "done"
+        return self.shutdown == Shutdown.DONE
 
     def finish_shutdown(self) -> None:
         """Have the next tick apply the e-stop policy, whatever the pose (the motion timed out).
 
         The loop thread owns the joint bus, so the asyncio side only asks."""
-        if self.shutdown != "done":
-            self.shutdown = "force"
+        if self.shutdown != Shutdown.DONE:
+            self.shutdown = Shutdown.FORCE
 
     # --- handlers (asyncio thread) ----------------------------------------------------
 
@@ -466,20 +478,20 @@ class Controller:
     def _shutdown_step(self, t: float, q: np.ndarray) -> JointCommand | None:
         """Hold, or sit down and settle (the commanded pose, not the loaded servos' error,
         decides when the sit is done), then switch off under ``torque_off``."""
-        if self.shutdown == "hold":
-            self.shutdown = "done"
+        if self.shutdown == Shutdown.HOLD:
+            self.shutdown = Shutdown.DONE
             return self.motion.joint_step(self.target)
-        if self.shutdown == "force":
+        if self.shutdown == Shutdown.FORCE:
             if self.safety.policy == EstopPolicy.TORQUE_OFF:
                 self._torque(False, t)
-            self.shutdown = "done"
+            self.shutdown = Shutdown.DONE
             return None
-        if self.shutdown == "sit":
+        if self.shutdown == Shutdown.SIT:
             if self.reached(self.motion.command, self.sit_q):
                 self._sat_at = t if self._sat_at is None else self._sat_at
                 if t - self._sat_at >= SIT_SETTLE:
                     self._torque(False, t)
-                    self.shutdown = "done"
+                    self.shutdown = Shutdown.DONE
                     self.sat_down = True
                     return None
             return self.motion.joint_step(self.sit_q)

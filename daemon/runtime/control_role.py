@@ -28,17 +28,15 @@ from climbd.daemon.contract.hardware import (
     DriverError,
     Imu,
     JointBus,
-    ServedBetweenTicks,
 )
 from climbd.daemon.contract.plugins import GaitPlugin, PluginError
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime import sdnotify
 from climbd.daemon.runtime.access import TelemetryGate
-from climbd.daemon.runtime.control import Controller
-from climbd.daemon.runtime.loader import Isolated, instantiate, load_class
-from climbd.daemon.runtime.loop import Clock, ControlLoop, MonotonicClock
+from climbd.daemon.runtime.loader import instantiate, load_class
+from climbd.daemon.runtime.loop import Clock, MonotonicClock
 from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
-from climbd.daemon.runtime.safety import Safety
+from climbd.daemon.runtime.stack import control_stack
 
 log = logging.getLogger("climbd.run")
 
@@ -65,10 +63,8 @@ def make_joint_bus(profile: Profile, driver: str | None, options: dict) -> Joint
     return bus
 
 
-def make_gait(
-    profile: Profile, name: str | None, on_failure: Callable[[str, BaseException], None]
-) -> Isolated[GaitPlugin] | None:
-    """The gait plugin ACTIVE runs, isolated; None when the profile configures none."""
+def make_gait(profile: Profile, name: str | None) -> GaitPlugin | None:
+    """The gait plugin ACTIVE runs; None when the profile configures none."""
     specs = {spec.name: spec for spec in profile.plugins.gaits}
     name = name or profile.plugins.default_gait or next(iter(specs), None)
     if name is None:
@@ -80,7 +76,7 @@ def make_gait(
         )
     except PluginError as e:
         raise StartupError(str(e)) from None
-    return Isolated(name, plugin, on_failure)
+    return plugin
 
 
 class TwinHost(Protocol):
@@ -139,8 +135,7 @@ class ControlRole:
     async def run(self) -> int:
         profile, args = self.profile, self.args
         aio = asyncio.get_running_loop()
-        clock = MonotonicClock()
-        safety = Safety(profile)
+        clock: Clock = MonotonicClock()
         endpoints = None
         if args.listen or args.connect:
             endpoints = Endpoints(args.listen or [], args.connect or [])
@@ -179,28 +174,18 @@ class ControlRole:
             bus.close()
             raise
         self.clock = clock
-        gait = make_gait(
-            profile, args.gait, lambda name, e: safety.hold(clock.now(), f"gait {name} failed")
-        )
-        if gait is not None:  # simulated time waits for plans; on wall time no plan blocks a tick
-            gait.plugin.stepped = sim is not None and sim.stepped
         estimator, imu = self._estimator(sim)
-        controller = Controller(
+        stack = control_stack(
             profile,
             joint_bus,
-            safety,
-            clock.now,
-            gait,
-            publish,
+            clock,
+            make_gait(profile, args.gait),
+            publish=publish,
             estimator=estimator,
             imu=imu,
             feed_forward=estimator is not None,
         )
-        # Between ticks on wall time the joint bus takes its replies (a stepped clock has none).
-        serves = isinstance(joint_bus, ServedBetweenTicks) and type(clock) is MonotonicClock
-        idle = joint_bus.serve_until if serves else None
-        loop = ControlLoop(profile.rate_hz, clock, controller.tick, idle)
-        controller.loop_stats = loop.stats
+        safety, controller, loop = stack.safety, stack.controller, stack.loop
         if gate is not None:
             controller.unauthorised = lambda: gate.attempts
         bus.subscribe(m.MotionCommand, controller.on_motion, latest_only=True)
