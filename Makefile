@@ -11,7 +11,7 @@ SYSLIBS := libusb-1.0-0 iproute2 libegl1 libegl-mesa0 libgl1-mesa-dri
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q --upgrade pip 'setuptools>=77'
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $@
 

@@ -1,4 +1,4 @@
-"""One-hop latency and throughput of climbd's Bus vs raw zenoh put/subscribe of the same bytes.
+"""One-hop latency and throughput of climbd's Network vs raw zenoh put/subscribe of the same bytes.
 
 Two Zenoh sessions in this process, linked by TCP on loopback, multicast scouting off. For a
 joint-state message (18 joints) and a 200 × 200 float32 elevation grid, three paths, in the
@@ -6,7 +6,7 @@ same run and interleaved round by round so the shared machine's noise hits all a
 
 - raw: a declared zenoh publisher puts pre-encoded bytes, a subscriber callback takes them
   (``payload.to_bytes()``) — the baseline, with the same QoS climbd gives the topic;
-- climbd: ``Bus.publisher(T).put(message)`` (encodes) → ``Bus.subscribe`` on Zenoh's thread
+- climbd: ``Network.publisher(T).put(message)`` (encodes) → ``Network.subscribe`` on Zenoh's thread
   (decodes and validates the Struct);
 - climbd+asyncio: the same, delivered to an asyncio loop as the daemon receives it.
 
@@ -31,7 +31,7 @@ import numpy as np
 import zenoh
 
 from climbd.daemon.contract.messages import ElevationGrid, JointState, Message, encode, key
-from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
 ROBOT = "bench"
 AIO_ROBOT = "bench-aio"
@@ -83,9 +83,11 @@ class Rig:
         self.aio = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.aio.run_forever, daemon=True)
         self.thread.start()
-        self.pub_bus = Bus(ROBOT, zenoh_config(None, "pub", Endpoints([ep], [])))
-        self.sub_bus = Bus(ROBOT, zenoh_config(None, "sub", Endpoints([], [ep])))
-        self.sub_aio = Bus(AIO_ROBOT, zenoh_config(None, "sub-aio", Endpoints([], [ep])), self.aio)
+        self.pub_bus = Network(ROBOT, zenoh_config(None, "pub", Endpoints([ep], [])))
+        self.sub_bus = Network(ROBOT, zenoh_config(None, "sub", Endpoints([], [ep])))
+        self.sub_aio = Network(
+            AIO_ROBOT, zenoh_config(None, "sub-aio", Endpoints([], [ep])), self.aio
+        )
         time.sleep(1.0)
 
     def paths(self, message: Message):

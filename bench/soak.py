@@ -66,7 +66,7 @@ def soak(minutes: float, sample: float) -> tuple[list[str], dict]:
     """Run the walking and idle daemons; a markdown table and a summary of the run."""
     from climbd.daemon.cli.teleop import TeleopClient
     from climbd.daemon.contract.messages import Health, Mode
-    from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+    from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
     seconds = minutes * 60
     eps = {k: f"tcp/127.0.0.1:{free_port()}" for k in ("walk", "idle")}
@@ -75,7 +75,7 @@ def soak(minutes: float, sample: float) -> tuple[list[str], dict]:
     lock = threading.Lock()
     buses = []
     for name, ep in eps.items():
-        bus = Bus("widowx", zenoh_config(None, "bench", Endpoints([], [ep])))
+        bus = Network("widowx", zenoh_config(None, "bench", Endpoints([], [ep])))
 
         def keep(h: Health, name: str = name) -> None:
             with lock:
@@ -179,12 +179,14 @@ def open_client(endpoint: str, proc: subprocess.Popen, timeout: float = 60.0):
     """
     import zenoh
 
-    from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+    from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
     deadline = time.monotonic() + timeout
     while True:
         try:
-            return Bus("widowx", zenoh_config(None, "bench", Endpoints([], [endpoint]), "client"))
+            return Network(
+                "widowx", zenoh_config(None, "bench", Endpoints([], [endpoint]), "client")
+            )
         except zenoh.ZError:
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"climbd run never listened on {endpoint}") from None

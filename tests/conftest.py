@@ -9,7 +9,7 @@ import pytest
 import zenoh
 
 from climbd.daemon.contract import messages as m
-from climbd.daemon.runtime.network import Bus, Publisher
+from climbd.daemon.runtime.network import Network, Publisher
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -21,7 +21,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def lossless(bus: Bus, message: type[m.Message]) -> Publisher:
+def lossless(bus: Network, message: type[m.Message]) -> Publisher:
     """A publisher that blocks rather than drops (the control streams' QoS drops under load),
     for tests that count what arrived against what was sent."""
     k = m.key(bus.robot, message)

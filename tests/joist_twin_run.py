@@ -25,6 +25,7 @@ from joist_world import perceive
 from climbd.daemon.algorithms.motion import MotionPipeline
 from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
 from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.geometry import yaw
 from climbd.daemon.contract.messages import BodyState, Joists, Mode
 from climbd.daemon.contract.profile import stock_profiles
 from climbd.daemon.runtime.loader import Isolated
@@ -69,11 +70,6 @@ def specs(row: JoistRow) -> list[JoistSpec]:
         JoistSpec(face + k * row.spacing / math.cos(psi), psi, row.height, row.width, row.length)
         for k in range(row.count)
     ]
-
-
-def _yaw(quat: np.ndarray) -> float:
-    w, x, y, z = quat
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def _geoms(twin: Twin) -> tuple[np.ndarray, np.ndarray, int]:
@@ -162,7 +158,7 @@ class _Scene:
         if self.perception is not None:
             body = BodyState(position=[float(v) for v in pos], orientation=[float(v) for v in quat])
             return self.perception.process(self.twin.depth_frame("front"), body)
-        return perceive(self.truth, np.array([pos[0], pos[1], _yaw(quat)]), t)
+        return perceive(self.truth, np.array([pos[0], pos[1], yaw(quat)]), t)
 
     def advance(self, t: float) -> None:
         """Simulate to ``t`` and note the contacts there."""

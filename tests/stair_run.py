@@ -19,7 +19,8 @@ import numpy as np
 from qingzhui_twin import QingzhuiRig, contact_forces
 
 from climbd.daemon.algorithms.cloud import frame_to_points
-from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, quaternion, rotation
+from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, quaternion
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import MotionCommand, Stair, Stairs
 from climbd.daemon.runtime.loader import Isolated
 from climbd.drivers.sim.worlds import Staircase, World, load

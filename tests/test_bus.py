@@ -10,15 +10,15 @@ import textwrap
 from conftest import lossless
 
 from climbd.daemon.contract.messages import Health, JointState, MotionCommand
-from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
 PUBLISHER = textwrap.dedent(
     """
     import sys, time
     import zenoh
-    from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+    from climbd.daemon.runtime.network import Network, Endpoints, zenoh_config
     from climbd.daemon.contract.messages import JointState, MotionCommand, encode
-    bus = Bus("r2d2", zenoh_config(None, "test", Endpoints([], [sys.argv[1]])))
+    bus = Network("r2d2", zenoh_config(None, "test", Endpoints([], [sys.argv[1]])))
     pub = bus.publisher(JointState)
     time.sleep(1.0)
     raw = bus.session.declare_publisher("climbd/r2d2/state/joints")
@@ -38,7 +38,7 @@ PUBLISHER = textwrap.dedent(
 def test_round_trip_between_processes_and_garbage_is_counted(endpoint: str) -> None:
     async def scenario() -> tuple[list[JointState], int]:
         loop = asyncio.get_running_loop()
-        bus = Bus("r2d2", zenoh_config(None, "test", Endpoints([endpoint], [])), loop)
+        bus = Network("r2d2", zenoh_config(None, "test", Endpoints([endpoint], [])), loop)
         got: list[JointState] = []
         bus.subscribe(JointState, got.append)
         proc = await asyncio.create_subprocess_exec(sys.executable, "-c", PUBLISHER, endpoint)
@@ -61,8 +61,8 @@ def test_round_trip_between_processes_and_garbage_is_counted(endpoint: str) -> N
 def test_latest_only_keeps_a_ring_buffer_of_one(endpoint: str) -> None:
     async def scenario() -> list[MotionCommand]:
         loop = asyncio.get_running_loop()
-        rx = Bus("r2d2", zenoh_config(None, "rx", Endpoints([endpoint], [])), loop)
-        tx = Bus("r2d2", zenoh_config(None, "tx", Endpoints([], [endpoint])))
+        rx = Network("r2d2", zenoh_config(None, "rx", Endpoints([endpoint], [])), loop)
+        tx = Network("r2d2", zenoh_config(None, "tx", Endpoints([], [endpoint])))
         got: list[MotionCommand] = []
         rx.subscribe(MotionCommand, got.append, latest_only=True)
         await asyncio.sleep(0.5)
@@ -83,8 +83,8 @@ def test_latest_only_keeps_a_ring_buffer_of_one(endpoint: str) -> None:
 def test_robots_do_not_hear_each_other(endpoint: str) -> None:
     async def scenario() -> tuple[list, list]:
         loop = asyncio.get_running_loop()
-        a = Bus("alpha", zenoh_config(None, "a", Endpoints([endpoint], [])), loop)
-        b = Bus("beta", zenoh_config(None, "b", Endpoints([], [endpoint])), loop)
+        a = Network("alpha", zenoh_config(None, "a", Endpoints([endpoint], [])), loop)
+        b = Network("beta", zenoh_config(None, "b", Endpoints([], [endpoint])), loop)
         heard_a: list = []
         heard_all: list = []
         a.subscribe(Health, heard_a.append)

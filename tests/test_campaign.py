@@ -511,9 +511,9 @@ def clock_jump(robot, make, tmp_path, endpoint) -> str:
 def disk_full(robot, make, tmp_path, endpoint) -> str:
     import resource
 
-    from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+    from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
-    bus = Bus(robot, zenoh_config(None, "control", Endpoints([endpoint], [])))
+    bus = Network(robot, zenoh_config(None, "control", Endpoints([endpoint], [])))
     pubs: dict[type, object] = {}
     out = tmp_path / "full.mcap"
     limit = 64 * 1024

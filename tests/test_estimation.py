@@ -16,12 +16,12 @@ from climbd.daemon.algorithms.estimation import (
     SupportTorques,
     exp_so3,
     log_so3,
-    rotation,
     stance_pose,
     tripod_groups,
 )
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import BodyState, MotionCommand, decode, encode
 from climbd.daemon.runtime.loader import Isolated
 from climbd.plugins.gaits.periodic import Tripod

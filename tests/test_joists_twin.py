@@ -16,6 +16,7 @@ import pytest
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.geometry import yaw
 from climbd.daemon.contract.messages import BodyState
 from climbd.daemon.contract.profile import stock_profiles
 from climbd.drivers.sim.twin import Twin
@@ -51,8 +52,7 @@ def test_table_1_in_the_twin(height: float, yaw_deg: float):
     joists = JoistPerception().process(frame, body).joists
     assert joists
     nearest = joists[0]
-    w, x, y, z = quat
-    heading = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    heading = yaw(quat)
     assert abs(math.degrees(nearest.yaw + heading) - yaw_deg) <= 2.0
     assert abs(nearest.height - height) <= 0.01
     assert abs(nearest.distance - face_distance(row, pos, heading)) <= 0.05

@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 
-from climbd.daemon.algorithms.estimation import rotation
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.odometry import LegOdometry
 from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.geometry import rotation
 
 
 def rot_z(yaw: float) -> np.ndarray:

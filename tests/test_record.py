@@ -21,7 +21,7 @@ from mcap.reader import make_reader
 from climbd.daemon.cli.record import McapSink, Sample, WriteFailed
 from climbd.daemon.cli.replay import RecordingError, pace, read
 from climbd.daemon.contract import messages as m
-from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -96,7 +96,7 @@ def wait_line(proc: subprocess.Popen, text: str, timeout: float = 30.0) -> None:
 
 def test_recording_lists_every_topic_with_its_schema(tmp_path: Path, endpoint: str) -> None:
     out = tmp_path / "all.mcap"
-    bus = Bus("rec", zenoh_config(None, "test", Endpoints([endpoint], [])))
+    bus = Network("rec", zenoh_config(None, "test", Endpoints([endpoint], [])))
     rec = climbd("record", "--robot", "rec", "--connect", endpoint, "-o", str(out))
     try:
         wait_line(rec, f"recording {len(m.ALL_MESSAGES)} topics")
@@ -182,7 +182,7 @@ def test_replay_republishes_in_order_at_the_chosen_speed(
         with lock:
             got.setdefault(type(msg), []).append((time.monotonic(), msg))
 
-    bus = Bus("rec", zenoh_config(None, "test", Endpoints([endpoint], [])))
+    bus = Network("rec", zenoh_config(None, "test", Endpoints([endpoint], [])))
     replay = climbd(
         "replay", str(tmp_path / "r.mcap"), "--speed", str(speed), "--connect", endpoint,
         "--wait", "1.5",
@@ -218,8 +218,8 @@ def test_twin_recording_replays_to_the_same_joist_detections(tmp_path: Path, end
     profile = load(ROOT / "robots" / "widowx.toml")
     twin = Twin(profile, "attic_paper", stepped=True, bus=False)
     plugin = JoistPerception(profile=profile)
-    live_bus = Bus("widowx", zenoh_config(None, "perception", Endpoints([endpoint], [])))
-    rec_bus = Bus("widowx", zenoh_config(None, "record", Endpoints([], [endpoint])))
+    live_bus = Network("widowx", zenoh_config(None, "perception", Endpoints([endpoint], [])))
+    rec_bus = Network("widowx", zenoh_config(None, "record", Endpoints([], [endpoint])))
     recorder = Recorder(rec_bus.session, "widowx", [m.Joists, m.BodyState])
     recorder.start()
     time.sleep(1.0)
@@ -259,8 +259,8 @@ def test_twin_recording_replays_to_the_same_joist_detections(tmp_path: Path, end
     assert abs(live[0].joists[0].yaw - math.radians(15)) < math.radians(3)
 
     replayed = []
-    sub = Bus("widowx", zenoh_config(None, "test", Endpoints([endpoint], [])))
-    out = Bus("widowx", zenoh_config(None, "replay", Endpoints([], [endpoint])))
+    sub = Network("widowx", zenoh_config(None, "test", Endpoints([endpoint], [])))
+    out = Network("widowx", zenoh_config(None, "replay", Endpoints([], [endpoint])))
     try:
         sub.subscribe(m.Joists, replayed.append)
         time.sleep(1.0)

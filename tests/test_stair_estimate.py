@@ -16,7 +16,8 @@ import pytest
 from qingzhui_twin import QingzhuiRig, estimator_config
 from stair_run import CLOUD_VOXEL, stair_world
 
-from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, rotation
+from climbd.daemon.algorithms.estimation import StateEstimator, log_so3
+from climbd.daemon.contract.geometry import rotation
 from climbd.plugins.perception.stairs import StairPerception, StairsConfig
 
 RUN = Path(__file__).resolve().parent / "data" / "stair_run.npz"

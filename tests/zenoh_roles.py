@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from climbd.daemon.contract.messages import Health, Heartbeat, Message, ModeState
-from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -86,7 +86,7 @@ class Observer:
 
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         """Where clients dial the observer too: peers do not route between other peers."""
-        self.bus = Bus(robot, zenoh_config(None, "test", Endpoints([self.endpoint], connect)))
+        self.bus = Network(robot, zenoh_config(None, "test", Endpoints([self.endpoint], connect)))
         self.robot = robot
         self.seen: dict[type, list[tuple[float, Message]]] = {}
         self._lock = threading.Lock()

@@ -16,21 +16,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Annotated
 
 import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.statics import LegStatics, Statics, Vector, dot, rotate
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import BodyState
 from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.units import NonNegative, Positive
 
 GRAVITY = 9.80665
 ICP_GATE = 3.0
 """Standard deviations: an ICP correction beyond the drift filter 2 expects is rejected."""
-Positive = Annotated[float, msgspec.Meta(gt=0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
 
 class EstimatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -118,20 +117,6 @@ def quaternion(r: np.ndarray) -> list[float]:
     angle = math.sqrt(x * x + y * y + z * z)
     scale = math.sin(angle / 2) / angle if angle > 1e-12 else 0.0
     return [math.cos(angle / 2), scale * x, scale * y, scale * z]
-
-
-def rotation(q: Sequence[float]) -> np.ndarray:
-    """Rotation matrix of quaternion (w, x, y, z)."""
-    w, x, y, z = map(float, q)
-    norm = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / norm, x / norm, y / norm, z / norm
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 # --- eqs. 6-9 -------------------------------------------------------------------------------

@@ -13,7 +13,10 @@ import sys
 import time
 import uuid
 
-from climbd.daemon.runtime.access import add_credential_arguments
+from climbd.daemon.cli.client import add_credential_arguments, client_config
+from climbd.daemon.contract.messages import EStop, ModeRequest, SessionClaim
+from climbd.daemon.runtime.access import AccessError
+from climbd.daemon.runtime.network import Network
 
 REPEAT_HZ = 10.0
 REPEAT_FOR = 1.0
@@ -30,17 +33,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from climbd.daemon.contract.messages import EStop, ModeRequest, SessionClaim
-    from climbd.daemon.runtime.access import AccessError, client_config
-    from climbd.daemon.runtime.network import Bus
-
     source = f"{socket.gethostname()}:{os.getpid()}"
     try:
         cfg = client_config(args, "estop")
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    bus = Bus(args.robot, cfg)
+    bus = Network(args.robot, cfg)
     try:
         time.sleep(0.3)  # let the session connect before the first (reliable) put
         if args.reset:

@@ -13,6 +13,8 @@ import shutil
 import sys
 from pathlib import Path
 
+from climbd.daemon.contract import profile as profiles
+
 ROOT = Path(__file__).resolve().parents[2]
 """The climbd package root: systemd/ and docs/ are shipped beside daemon/."""
 ROLES = ("control", "perception")
@@ -84,8 +86,6 @@ def bridge_files(args: argparse.Namespace, profile_path: Path, robot: str) -> di
 
 
 def main(args: argparse.Namespace) -> int:
-    from climbd.daemon.contract import profile as profiles
-
     path = Path(args.profile).resolve()
     try:
         profile = profiles.load(path)

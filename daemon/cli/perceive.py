@@ -12,6 +12,13 @@ import argparse
 import sys
 from pathlib import Path
 
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.cloudio import CloudFileError, read_cloud
+from climbd.daemon.contract.hardware import DriverError, mount_extrinsics
+from climbd.daemon.contract.messages import BodyState
+from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.runtime.loader import instantiate
+
 
 class PerceiveError(Exception):
     """A command-line problem: a missing profile, camera or mount."""
@@ -32,13 +39,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     import msgspec
-
-    from climbd.daemon.contract import profile as profiles
-    from climbd.daemon.contract.cloudio import CloudFileError, read_cloud
-    from climbd.daemon.contract.hardware import DriverError, mount_extrinsics
-    from climbd.daemon.contract.messages import BodyState
-    from climbd.daemon.contract.plugins import PluginError
-    from climbd.daemon.runtime.loader import instantiate
 
     errors = (profiles.ProfileError, PluginError, CloudFileError, DriverError, PerceiveError)
 
@@ -88,7 +88,6 @@ def _camera(profile, name: str | None):
 
 
 def _recording(plugin, path: Path, camera, encoder) -> int:
-    from climbd.daemon.contract.messages import BodyState
     from climbd.drivers.realsense.camera import PlaybackSource, RealSenseCamera
 
     source = PlaybackSource(path, real_time=False)

@@ -6,6 +6,8 @@ import argparse
 import sys
 
 from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.runtime.loader import load_class, make_config
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -15,8 +17,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check_plugins(profile: profiles.Profile) -> None:
     """Every plugin the profile names exists and takes its config, as the daemon checks at start."""
-    from climbd.daemon.contract.plugins import PluginError
-    from climbd.daemon.runtime.loader import load_class, make_config
 
     groups = (("perception", profile.plugins.perception), ("gaits", profile.plugins.gaits))
     for group, specs in groups:
@@ -30,8 +30,6 @@ def check_plugins(profile: profiles.Profile) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from climbd.daemon.contract.plugins import PluginError
-
     status = 0
     for path in args.file:
         try:

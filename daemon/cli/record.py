@@ -29,6 +29,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+from climbd.daemon.cli.client import add_credential_arguments, client_config
+from climbd.daemon.contract.messages import ALL_MESSAGES, SchemaMismatch, decode, key
+from climbd.daemon.runtime.access import AccessError
+
 log = logging.getLogger("climbd.record")
 
 FLUSH_PERIOD = 0.5
@@ -41,8 +45,6 @@ SCHEMA_PREFIX = "climbd."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from climbd.daemon.runtime.access import add_credential_arguments
-
     parser.add_argument("--robot", required=True, help="robot name, or '*' for every robot")
     parser.add_argument(
         "--connect", action="append", default=[], help="Zenoh endpoint of the robot (repeatable)"
@@ -60,7 +62,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def select_topics(patterns: list[str]) -> list:
     """Message types whose topic matches one of ``patterns`` (fnmatch); an unknown one is named."""
-    from climbd.daemon.contract.messages import ALL_MESSAGES
 
     chosen = [m for m in ALL_MESSAGES if any(fnmatch.fnmatchcase(m.TOPIC, p) for p in patterns)]
     for p in patterns:
@@ -220,8 +221,6 @@ class Recorder:
         return self._wall0 + time.monotonic_ns() - self._mono0
 
     def start(self) -> None:
-        from climbd.daemon.contract.messages import key
-
         for m in self.messages:
             self._subscribers.append(
                 self.session.declare_subscriber(key(self.robot, m), self._handler(m))
@@ -229,8 +228,6 @@ class Recorder:
 
     def _handler(self, message: type):
         import msgspec
-
-        from climbd.daemon.contract.messages import SchemaMismatch, decode
 
         def on_sample(sample) -> None:
             try:
@@ -277,8 +274,6 @@ def default_output(robot: str) -> Path:
 def main(args: argparse.Namespace) -> int:
     import zenoh
 
-    from climbd.daemon.runtime.access import AccessError, client_config
-
     try:
         messages = select_topics(args.topics)
         config = client_config(args, "record")
@@ -292,8 +287,6 @@ def main(args: argparse.Namespace) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 1
     if args.robot != "*":
-        from climbd.daemon.contract.messages import key
-
         try:
             for m in messages:
                 sink.channel(key(args.robot, m), m)

@@ -9,6 +9,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.hardware import DriverError
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("profile", help="robot profile (robots/*.toml)")
@@ -25,8 +28,6 @@ def main(args: argparse.Namespace) -> int:
 
     import msgspec
 
-    from climbd.daemon.contract import profile as profiles
-    from climbd.daemon.contract.hardware import DriverError
     from climbd.drivers.realsense.camera import RealSenseCamera
 
     try:

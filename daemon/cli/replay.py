@@ -21,7 +21,11 @@ from pathlib import Path
 
 import msgspec
 
+from climbd.daemon.cli.client import add_credential_arguments, client_config
 from climbd.daemon.cli.record import SCHEMA_PREFIX
+from climbd.daemon.contract.messages import ALL_MESSAGES
+from climbd.daemon.runtime.access import AccessError
+from climbd.daemon.runtime.network import Network
 
 
 class RecordingError(ValueError):
@@ -38,8 +42,6 @@ class Recorded:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from climbd.daemon.runtime.access import add_credential_arguments
-
     parser.add_argument("file", help="MCAP recording (climbd record)")
     parser.add_argument(
         "--speed", type=float, default=1.0, help="playback speed factor (default: 1, real time)"
@@ -94,8 +96,6 @@ def read(path: str | Path, topics: list[str] | None = None) -> Iterator[Recorded
     from mcap.exceptions import McapError
     from mcap.reader import make_reader
 
-    from climbd.daemon.contract.messages import ALL_MESSAGES
-
     types = {SCHEMA_PREFIX + m.__name__: m for m in ALL_MESSAGES}
     patterns = topics or ["*"]
     path = Path(path)
@@ -146,7 +146,7 @@ def rename(key: str, robot: str | None) -> str:
 
 
 class Replayer:
-    """Publishes recorded messages on a Bus, each with the QoS its topic has on a live robot."""
+    """Publishes recorded messages on a Network, each with the QoS its topic has on a live robot."""
 
     def __init__(self, bus) -> None:
         self.bus = bus
@@ -179,9 +179,6 @@ class Replayer:
 def main(args: argparse.Namespace) -> int:
     import json
 
-    from climbd.daemon.runtime.access import AccessError, client_config
-    from climbd.daemon.runtime.network import Bus
-
     try:
         pace([], args.speed)
         items = [
@@ -195,7 +192,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     try:
-        bus = Bus(args.robot or "replay", config)
+        bus = Network(args.robot or "replay", config)
     except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
         print(f"error: zenoh: {e}", file=sys.stderr)
         return 1

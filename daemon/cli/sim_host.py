@@ -21,10 +21,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from climbd.daemon.algorithms.estimation import EstimatorConfig, rotation
-from climbd.daemon.contract.hardware import Imu, ImuSample
+from climbd.daemon.algorithms.estimation import EstimatorConfig
+from climbd.daemon.contract.geometry import rotation
+from climbd.daemon.contract.hardware import Imu, ImuSample, mount_extrinsics
 from climbd.daemon.contract.messages import DepthImage, Feature, Joists, Message
 from climbd.daemon.contract.profile import CameraConfig, Profile
+from climbd.daemon.runtime.loop import MonotonicClock, SteppedClock
+from climbd.drivers.realsense.models import model
+from climbd.drivers.sim.topview import render_top_view
+from climbd.drivers.torque.bus import waiting_for_replies
 
 if TYPE_CHECKING:  # the twin (MuJoCo) loads only when a --sim run starts one
     from climbd.drivers.sim.twin import Twin
@@ -155,7 +160,6 @@ class SimHost:
         options: dict = {"port": self.twin.port}
         if self.profile.bus.kind == "torque":
             options["interface"] = "virtual"
-            from climbd.drivers.torque.bus import waiting_for_replies
 
             wait = STEPPED_REPLY_TIMEOUT if self.stepped else THREAD_REPLY_TIMEOUT
             return waiting_for_replies(self.profile, wait), options
@@ -169,7 +173,6 @@ class SimHost:
 
     def clock(self):
         """The loop's clock: simulated time in lock-step, or the monotonic clock."""
-        from climbd.daemon.runtime.loop import MonotonicClock, SteppedClock
 
         return SteppedClock(on_advance=self._advance) if self.stepped else MonotonicClock()
 
@@ -239,7 +242,6 @@ class SimHost:
 
     def summary(self, png: Path) -> str:
         """A one-screen account of the run and the top-view PNG it names."""
-        from climbd.drivers.sim.topview import render_top_view
 
         path = np.array(self.path)
         start, end = path[0], path[-1]
@@ -262,8 +264,6 @@ class SimHost:
 
 def sim_camera(profile: Profile, config: CameraConfig):
     """The perception role's camera in a sim run: a software device fed from ``sim/depth``."""
-    from climbd.daemon.contract.hardware import mount_extrinsics
-    from climbd.drivers.realsense.models import model
     from climbd.drivers.realsense.software import SoftwareDepthCamera
 
     spec = model(config.model)

@@ -6,10 +6,13 @@ import argparse
 import sys
 import threading
 
+from climbd.daemon.cli.client import add_credential_arguments, client_config
+from climbd.daemon.contract.messages import Health, ModeState, decode
+from climbd.daemon.runtime.access import AccessError
+from climbd.daemon.runtime.network import Network
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from climbd.daemon.runtime.access import add_credential_arguments
-
     target = parser.add_mutually_exclusive_group(required=True)
     target.add_argument("--robot", help="robot name (profile name)")
     target.add_argument("--all", action="store_true", help="fleet view: every robot and role")
@@ -29,8 +32,6 @@ def fleet(bus, timeout: float) -> dict[str, dict]:
     import time
 
     import zenoh
-
-    from climbd.daemon.contract.messages import ModeState, decode
 
     robots: dict[str, dict] = {}
     lock = threading.Lock()
@@ -103,16 +104,12 @@ def format_health(health) -> str:
 def main(args: argparse.Namespace) -> int:
     import msgspec
 
-    from climbd.daemon.contract.messages import Health
-    from climbd.daemon.runtime.access import AccessError, client_config
-    from climbd.daemon.runtime.network import Bus
-
     try:
         cfg = client_config(args, "status")
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    bus = Bus(args.robot or "*", cfg)
+    bus = Network(args.robot or "*", cfg)
     if args.all:
         try:
             robots = fleet(bus, args.timeout)

@@ -30,6 +30,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+from climbd.daemon.cli.client import add_credential_arguments, client_config
 from climbd.daemon.contract.messages import (
     EStop,
     Heartbeat,
@@ -39,6 +40,8 @@ from climbd.daemon.contract.messages import (
     MotionCommand,
     SessionClaim,
 )
+from climbd.daemon.runtime.access import AccessError
+from climbd.daemon.runtime.network import Network
 
 MOTION_FIELDS = ("vx", "vy", "yaw_rate", "body_height", "roll", "pitch")
 KEYS = {
@@ -115,7 +118,7 @@ def _motion_fields(args: tuple[str, ...], where: str) -> dict[str, float]:
 
 
 class TeleopClient:
-    """A controlling session over a climbd Bus: claim, heartbeats, motion, modes, release."""
+    """A controlling session over a climbd Network: claim, heartbeats, motion, modes, release."""
 
     def __init__(self, bus, client: str, heartbeat_hz: float = 20.0, rate_hz: float = 20.0):
         self.bus = bus
@@ -287,8 +290,6 @@ def run_keyboard(client: TeleopClient, override: bool) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from climbd.daemon.runtime.access import add_credential_arguments
-
     parser.add_argument("--robot", required=True, help="robot name (profile name)")
     parser.add_argument(
         "--connect", action="append", default=[], help="Zenoh endpoint of the robot (repeatable)"
@@ -303,9 +304,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     import signal
-
-    from climbd.daemon.runtime.access import AccessError, client_config
-    from climbd.daemon.runtime.network import Bus
 
     steps = None
     if args.script:
@@ -325,7 +323,7 @@ def main(args: argparse.Namespace) -> int:
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    bus = Bus(args.robot, cfg)
+    bus = Network(args.robot, cfg)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     client = TeleopClient(
         bus, args.name or f"{socket.gethostname()}:{os.getpid()}", args.heartbeat_hz, args.rate

@@ -18,6 +18,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from climbd.daemon.cli.client import add_credential_arguments, client_config
 from climbd.daemon.contract.messages import (
     ElevationGrid,
     GraspablePoints,
@@ -26,9 +27,13 @@ from climbd.daemon.contract.messages import (
     Joists,
     Message,
     ModeState,
+    SchemaMismatch,
     Stairs,
     TrussMembers,
+    decode,
+    key,
 )
+from climbd.daemon.runtime.access import AccessError
 
 FEATURES: tuple[type[Message], ...] = (ElevationGrid, Joists, GraspablePoints, TrussMembers, Stairs)
 RATE_WINDOW = 5.0
@@ -39,8 +44,6 @@ CLEAR = "\x1b[H\x1b[2J"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from climbd.daemon.runtime.access import add_credential_arguments
-
     who = parser.add_mutually_exclusive_group(required=True)
     who.add_argument("--robot", help="robot name (profile name)")
     who.add_argument("--all", action="store_true", help="every robot on the network")
@@ -200,8 +203,6 @@ class Top:
         self._subscribers = []
 
     def start(self) -> None:
-        from climbd.daemon.contract.messages import key
-
         for m in (Health, ModeState, JointState, *FEATURES):
             self._subscribers.append(
                 self.session.declare_subscriber(key(self.robot, m), self._handler(m))
@@ -209,8 +210,6 @@ class Top:
 
     def _handler(self, message: type[Message]):
         import msgspec
-
-        from climbd.daemon.contract.messages import SchemaMismatch, decode
 
         def on_sample(sample) -> None:
             try:
@@ -228,7 +227,6 @@ class Top:
 
     def refresh_roles(self) -> None:
         """Ask the network which roles are alive (liveliness tokens)."""
-        from climbd.daemon.contract.messages import key
 
         found: dict[str, list[str]] = {}
         for reply in self.session.liveliness().get(key(self.robot, "alive/*"), timeout=0.5):
@@ -253,8 +251,6 @@ class Top:
 
 def main(args: argparse.Namespace) -> int:
     import zenoh
-
-    from climbd.daemon.runtime.access import AccessError, client_config
 
     try:
         config = client_config(args, "top")

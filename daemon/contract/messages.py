@@ -2,7 +2,7 @@
 
 Payloads are msgpack-encoded Structs; each carries ``schema`` (the schema version) so a
 peer on an older or newer climbd is detected instead of misread. Units are SI, frames as in
-DESIGN.md (body frame: x forward, y left, z up). ``docs/topics.md`` lists every topic.
+docs/architecture.md (body frame: x forward, y left, z up). ``docs/topics.md`` lists every topic.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ class Message(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
 
 
 class Mode(str, enum.Enum):
-    """Robot modes of DESIGN.md, in the order a normal run passes through them."""
+    """Robot modes (docs/architecture.md, Safety), in the order a normal run passes through them."""
 
     OFF = "OFF"
     STAND = "STAND"

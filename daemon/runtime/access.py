@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -155,32 +154,6 @@ def client_credentials(
         cfg.insert_json5(
             "transport/auth/usrpwd", json.dumps({"user": user[0], "password": user[1]})
         )
-
-
-def add_credential_arguments(parser) -> None:
-    """Options of operator tools (teleop, estop, status) for a robot with network.auth."""
-    parser.add_argument(
-        "--tls",
-        nargs=3,
-        metavar=("CA", "CERT", "KEY"),
-        help="mutual TLS: CA certificate, this operator's certificate and key (climbd certs)",
-    )
-    parser.add_argument("--user", help="Zenoh user name (password from $CLIMBD_PASSWORD)")
-
-
-def client_config(args, role: str) -> zenoh.Config:
-    """Zenoh config of an operator tool: its --connect endpoints and --tls/--user credentials."""
-    from climbd.daemon.runtime.network import Endpoints, zenoh_config
-
-    cfg = zenoh_config(None, role, Endpoints([], list(args.connect)))
-    user = None
-    if args.user:
-        password = os.environ.get("CLIMBD_PASSWORD")
-        if password is None:
-            raise AccessError("--user needs the password in $CLIMBD_PASSWORD")
-        user = (args.user, password)
-    client_credentials(cfg, tuple(args.tls) if args.tls else None, user)
-    return cfg
 
 
 class TelemetryGate:

@@ -15,16 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from climbd.daemon.algorithms.estimation import (
-    StateEstimator,
-    SupportTorques,
-    rotation,
-    support_forces,
-)
+from climbd.daemon.algorithms.estimation import StateEstimator, SupportTorques, support_forces
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.motion import MotionPipeline
 from climbd.daemon.algorithms.odometry import LegOdometry
 from climbd.daemon.algorithms.smoothing import SmoothingError
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.hardware import (
     ClearableFaults,
     CompliantServos,

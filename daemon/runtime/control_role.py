@@ -35,7 +35,7 @@ from climbd.daemon.runtime import sdnotify
 from climbd.daemon.runtime.access import TelemetryGate
 from climbd.daemon.runtime.loader import instantiate, load_class
 from climbd.daemon.runtime.loop import Clock, MonotonicClock
-from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 from climbd.daemon.runtime.stack import control_stack
 
 log = logging.getLogger("climbd.run")
@@ -140,16 +140,16 @@ class ControlRole:
         if args.listen or args.connect:
             endpoints = Endpoints(args.listen or [], args.connect or [])
         try:
-            bus = Bus(profile.name, zenoh_config(profile, "control", endpoints), aio)
+            net = Network(profile.name, zenoh_config(profile, "control", endpoints), aio)
         except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
             raise StartupError(f"zenoh: {e}") from None
-        bus.declare(m.JointState, m.BodyState, m.Health, m.ModeState)
+        net.declare(m.JointState, m.BodyState, m.Health, m.ModeState)
         gate = None
         if profile.network.auth is not None and profile.network.auth.telemetry_listen:
             gate = TelemetryGate(profile.name, list(profile.network.auth.telemetry_listen))
 
         def publish(message: m.Message) -> None:
-            bus.put(message)
+            net.put(message)
             if gate is not None:
                 gate.put(message)
 
@@ -171,7 +171,7 @@ class ControlRole:
         except StartupError:
             if sim is not None:
                 sim.stop()
-            bus.close()
+            net.close()
             raise
         self.clock = clock
         estimator, imu = self._estimator(sim)
@@ -188,16 +188,16 @@ class ControlRole:
         safety, controller, loop = stack.safety, stack.controller, stack.loop
         if gate is not None:
             controller.unauthorised = lambda: gate.attempts
-        bus.subscribe(m.MotionCommand, controller.on_motion, latest_only=True)
-        bus.subscribe(m.ModeRequest, controller.on_mode)
-        bus.subscribe(m.EStop, controller.on_estop)
-        bus.subscribe(m.SessionClaim, controller.on_claim)
-        bus.subscribe(m.Heartbeat, controller.on_heartbeat)
+        net.subscribe(m.MotionCommand, controller.on_motion, latest_only=True)
+        net.subscribe(m.ModeRequest, controller.on_mode)
+        net.subscribe(m.EStop, controller.on_estop)
+        net.subscribe(m.SessionClaim, controller.on_claim)
+        net.subscribe(m.Heartbeat, controller.on_heartbeat)
         for feature in feature_types(profile):
-            bus.subscribe(feature, controller.on_feature, latest_only=True)
+            net.subscribe(feature, controller.on_feature, latest_only=True)
             if sim is not None:
-                bus.subscribe(feature, sim.on_feature)
-        bus.alive("control")
+                net.subscribe(feature, sim.on_feature)
+        net.alive("control")
 
         stop = asyncio.Event()
         for sig in (signal.SIGTERM, signal.SIGINT):
@@ -224,8 +224,8 @@ class ControlRole:
         sdnotify.notify("STOPPING=1")
         joint_bus.close()
         if sim is not None:
-            sim.stop()  # before the bus closes: the twin's cameras publish on it
-        bus.close()
+            sim.stop()  # before the net closes: the twin's cameras publish on it
+        net.close()
         if gate is not None:
             gate.close()
         self._report(loop, safety, controller)

@@ -1,4 +1,5 @@
-"""The Zenoh bus: typed publish/subscribe of wire messages, handed over to asyncio safely.
+"""The Zenoh network of a climbd process: typed publish/subscribe of wire messages, handed over
+to asyncio safely ("bus" is the joint bus; this is the network).
 
 Zenoh callbacks run on Zenoh's own threads. There we only decode (cheap, and it lets garbage
 be dropped at once) and queue the message for the asyncio loop, waking it with
@@ -34,6 +35,7 @@ from climbd.daemon.contract.messages import (
     key,
 )
 from climbd.daemon.contract.profile import Profile
+from climbd.daemon.runtime.access import apply_auth
 
 log = logging.getLogger("climbd.bus")
 
@@ -78,8 +80,6 @@ def zenoh_config(
     cfg.insert_json5("listen/endpoints", json.dumps(endpoints.listen))
     cfg.insert_json5("connect/endpoints", json.dumps(endpoints.connect))
     if net is not None and net.auth is not None:
-        from climbd.daemon.runtime.access import apply_auth
-
         apply_auth(cfg, profile, role, endpoints.listen, endpoints.connect)
     return cfg
 
@@ -113,7 +113,7 @@ class _Handler:
         self._callback = None
 
 
-class Bus:
+class Network:
     """One Zenoh session of a climbd process, for robot ``robot``.
 
     ``loop`` is the asyncio loop subscriber callbacks are delivered on; without one they run
@@ -138,7 +138,7 @@ class Bus:
         self._declare_lock = threading.Lock()
 
     def publisher(self, message: type[Message], robot: str | None = None) -> Publisher:
-        """Declare a publisher with the QoS DESIGN.md gives the topic."""
+        """Declare a publisher with the QoS docs/topics.md gives the topic."""
         k = key(robot or self.robot, message)
         if message in ONE_SHOT_COMMANDS:
             qos = dict(

@@ -28,7 +28,7 @@ from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.capture import Capture
 from climbd.daemon.runtime.control_role import StartupError
 from climbd.daemon.runtime.loader import Isolated, instantiate, slowest
-from climbd.daemon.runtime.network import Bus, Endpoints, zenoh_config
+from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
 log = logging.getLogger("climbd.perception")
 
@@ -135,23 +135,23 @@ class PerceptionRole:
         if args.listen or args.connect:
             endpoints = Endpoints(args.listen or [], args.connect or [])
         try:
-            bus = Bus(profile.name, zenoh_config(profile, "perception", endpoints), aio)
+            net = Network(profile.name, zenoh_config(profile, "perception", endpoints), aio)
         except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
             raise StartupError(f"zenoh: {e}") from None
-        publish = bus.put
+        publish = net.put
 
         def on_body(body: m.BodyState) -> None:
             self.body = body
 
-        bus.subscribe(m.BodyState, on_body, latest_only=True)
+        net.subscribe(m.BodyState, on_body, latest_only=True)
         for message, callback in self.feeds:
-            bus.subscribe(message, callback)
-        bus.alive("perception")
+            net.subscribe(message, callback)
+        net.alive("perception")
         capture = Capture(camera, camera.config.name)
         try:
             capture.start()
         except DriverError as e:
-            bus.close()
+            net.close()
             raise StartupError(str(e)) from None
         worker = threading.Thread(
             target=self._work, args=(capture, plugins, publish), name="perception", daemon=True
@@ -172,7 +172,7 @@ class PerceptionRole:
                     role="perception",
                     plugins={p.name: p.status for p in plugins},
                     **slowest(plugins),
-                    decode_errors=bus.decode_errors,
+                    decode_errors=net.decode_errors,
                 )
                 publish(capture.report(health))
                 if not capture.running and not self._stop.is_set():
@@ -183,7 +183,7 @@ class PerceptionRole:
             self._stop.set()
             capture.stop()
             await aio.run_in_executor(None, worker.join, 2.0)
-            bus.close()
+            net.close()
         print(
             f"climbd: perception stopped; {self.published} features published, "
             f"{capture.dropped} frames dropped, "

@@ -1,4 +1,5 @@
-"""Modes, e-stop, teleop sessions with heartbeats, and servo-health policy (DESIGN.md "Safety").
+"""Modes, e-stop, teleop sessions with heartbeats, and servo-health policy
+(docs/architecture.md, Safety).
 
 A pure state machine: every method takes the current time, nothing here reads a clock or
 touches a device. The control tick asks it what to do; the bus feeds it requests.

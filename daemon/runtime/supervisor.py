@@ -22,6 +22,8 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 
+from climbd.daemon.runtime import sdnotify
+
 log = logging.getLogger("climbd.supervisor")
 
 BACKOFF_FIRST = 0.5
@@ -106,7 +108,6 @@ def plan(profile, args: argparse.Namespace) -> list[Child]:
 
 async def supervise(profile, args: argparse.Namespace) -> int:
     """Run every role of ``profile`` as a supervised child until SIGTERM/SIGINT."""
-    from climbd.daemon.runtime import sdnotify
 
     try:
         children = plan(profile, args)
@@ -162,7 +163,6 @@ class Supervisor:
         self, stop: asyncio.Event, watchdog: float | None = None, duration: float | None = None
     ) -> int:
         """Supervise until ``stop``, ``duration``, a config error, or control's clean exit."""
-        from climbd.daemon.runtime import sdnotify
 
         aio = asyncio.get_running_loop()
         end = aio.time() + duration if duration else None

@@ -29,7 +29,7 @@ from climbd.daemon.contract.messages import JointCommand, JointHealth, JointStat
 from climbd.daemon.contract.profile import Profile
 from climbd.drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
 from climbd.drivers.dynamixel.packet import packet_handler
-from climbd.drivers.dynamixel.units import JointMap, little_endian, little_endian_bytes
+from climbd.drivers.dynamixel.units import TickScale, little_endian, little_endian_bytes
 
 log = logging.getLogger(__name__)
 
@@ -159,7 +159,7 @@ class DynamixelBus:
         joints = profile.joints
         self.names = [j.name for j in joints]
         self.ids = [j.id for j in joints]
-        self.map = JointMap(self.model, joints)
+        self.map = TickScale(self.model, joints)
         self.speed_caps = self.map.speed_ticks(np.array([j.limits.velocity for j in joints]))
         self.health_every = max(1, round(profile.rate_hz / bus.health_rate_hz))
         n = len(joints)

@@ -13,7 +13,7 @@ from climbd.daemon.contract.profile import Joint
 from climbd.drivers.dynamixel.models import Model
 
 
-class JointMap:
+class TickScale:
     """Tick ↔ radian conversions of one bus, with the model's unit scales."""
 
     def __init__(self, model: Model, joints: list[Joint]) -> None:

@@ -4,7 +4,7 @@ The MJCF is generated in code. Each leg is a chain of three hinges in the leg fr
 position, mount yaw) with daemon/algorithms/kinematics.py's angles: coxa about z, femur and tibia
 about −y (+ up, tibia relative to femur); or abduction about the leg's x, thigh and shank about +y
 (+ down) where the kinematic shank angle is absolute (paper 004 eqs. 1–3), so the physical
-knee hinge turns by θ_s − θ_t (``JointMap``). At zero a leg lies straight out.
+knee hinge turns by θ_s − θ_t (``HingeMap``). At zero a leg lies straight out.
 Joint-space ``q`` (what drivers and servos see) relates to the physical hinges through the
 profile's ``direction`` and ``zero_offset``: θ = direction · (q − zero_offset).
 Links are capsules, the foot a sphere

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from climbd.drivers.sim.dynamixel.tables import SPECS
+
 
 @dataclass(frozen=True)
 class ServoModel:
@@ -57,7 +59,6 @@ def torque_motor(effort: float, velocity: float) -> ServoModel:
 
 def servo_model(name: str, source: str = "profile") -> ServoModel:
     """The physics of a Dynamixel model: the emulator's datasheet figures plus our extras."""
-    from climbd.drivers.sim.dynamixel.tables import SPECS
 
     if name not in SPECS or name not in _EXTRAS:
         known = sorted(set(SPECS) & set(_EXTRAS))

@@ -66,7 +66,7 @@ SETTLE_COUNT_TIMEOUT = 5.0
 
 
 @dataclass(frozen=True)
-class JointMap:
+class HingeMap:
     """Joint space q ↔ physical hinge angles p: p = A · direction · (q − zero_offset).
 
     ``A`` is block-diagonal per leg: identity, or for absolute shank angles (paper 004) the
@@ -79,7 +79,7 @@ class JointMap:
     a_inv: np.ndarray
 
     @classmethod
-    def from_profile(cls, profile: Profile) -> JointMap:
+    def from_profile(cls, profile: Profile) -> HingeMap:
         n = len(profile.joints)
         a = np.eye(n)
         for i, leg in enumerate(profile.legs):
@@ -190,7 +190,7 @@ class Twin:
         self.robot: RobotModel = build(self.profile, self.world, timestep)
         self.model = self.robot.model
         self.data = mujoco.MjData(self.model)
-        self.map = JointMap.from_profile(self.profile)
+        self.map = HingeMap.from_profile(self.profile)
         self.names = self.profile.joint_names
         self.ids = {j.name: j.id for j in self.profile.joints}
         r = self.robot

@@ -33,6 +33,7 @@ import numpy as np
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.planning import Outcome, PlanWorker
+from climbd.daemon.contract import geometry
 from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
@@ -233,9 +234,7 @@ def _reach(joist: Joist) -> float:
 
 def _planar(body: BodyState) -> np.ndarray:
     """The measured body pose on the floor: x, y (m) and yaw (rad)."""
-    w, x, y, z = body.orientation
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return np.array([body.position[0], body.position[1], yaw])
+    return np.array([body.position[0], body.position[1], geometry.yaw(body.orientation)])
 
 
 class JoistClimb(GaitPlugin):

@@ -31,11 +31,10 @@ import numpy as np
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.messages import BodyState, FootTargets, Message, MotionCommand
 from climbd.daemon.contract.plugins import GaitPlugin, PluginError
+from climbd.daemon.contract.units import NonNegative, Positive
 from climbd.plugins.gaits.swing import lift, progress
 
-Positive = Annotated[float, msgspec.Meta(gt=0)]
 Fraction = Annotated[float, msgspec.Meta(gt=0, lt=1)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
 HOME_TOLERANCE = 1e-3
 """A foot within this distance (m) of its stand position needs no step when the body is still."""

@@ -32,8 +32,9 @@ from typing import ClassVar, NamedTuple
 import msgspec
 import numpy as np
 
-from climbd.daemon.algorithms.estimation import rotation, tripod_groups
+from climbd.daemon.algorithms.estimation import tripod_groups
 from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
@@ -43,9 +44,8 @@ from climbd.daemon.contract.messages import (
     StairStep,
 )
 from climbd.daemon.contract.plugins import GaitPlugin, PluginError
+from climbd.daemon.contract.units import NonNegative, Positive
 from climbd.plugins.gaits.stair_plan import (
-    NonNegative,
-    Positive,
     StairGeometry,
     StairModel,
     StepPlan,

@@ -37,13 +37,13 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import Annotated
 
 import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.messages import Stairs
+from climbd.daemon.contract.units import NonNegative, Positive
 
 CANDIDATES = 4
 """Step pairs whose second swing the plan checks at a time, best first."""
@@ -53,8 +53,6 @@ flight's slope): over the feet's span alone, 150 mm rises pitch the body up so e
 rear feet, still a tread below, leave the legs' reach (a walk up 150 × 320 mm stalls at 1.38 m)."""
 ROW_LAYOUTS = 64
 """Row layouts (legs per configuration) whose batched kinematics a planner keeps."""
-Positive = Annotated[float, msgspec.Meta(gt=0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
 
 class StairGeometry(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -21,6 +21,7 @@ import cv2
 import msgspec
 import numpy as np
 
+from climbd.daemon.contract.geometry import rotation, yaw
 from climbd.daemon.contract.messages import BodyState, ElevationGrid
 
 
@@ -78,26 +79,6 @@ class Grid:
             cols=cols,
             heights=np.ascontiguousarray(self.heights, dtype="<f4").tobytes(),
         )
-
-
-def yaw_of(body: BodyState) -> float:
-    """Heading (rad) of a body quaternion (w, x, y, z)."""
-    w, x, y, z = body.orientation
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def rotation_of(body: BodyState) -> np.ndarray:
-    """3×3 body-to-odometry rotation of a body quaternion (w, x, y, z)."""
-    w, x, y, z = body.orientation
-    n = math.sqrt(w * w + x * x + y * y + z * z) or 1.0
-    w, x, y, z = w / n, x / n, y / n, z / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 INPAINT_UNIT = 1e-5
@@ -183,7 +164,7 @@ class ElevationMap:
             self._recentre(position[:2])
 
         inv = 1.0 / res
-        rot = rotation_of(body)
+        rot = rotation(body.orientation, zero_norm_ok=True)
         half = c.width / 2
         shift = (position[:2] - self._origin) * inv
         corners = np.array(
@@ -244,7 +225,7 @@ class ElevationMap:
         """2×3 affine taking crop-box cells (col, row) to odometry-window cells (col, row)."""
         c = self.config
         res = c.resolution
-        psi = yaw_of(body)
+        psi = yaw(body.orientation)
         cs, sn = math.cos(psi), math.sin(psi)
         ax = c.x_min / res + 0.5
         ay = -c.width / 2 / res + 0.5

@@ -15,8 +15,9 @@ from collections import deque
 import cv2
 import numpy as np
 
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import BodyState, Joist
-from climbd.plugins.perception.elevation import ElevationConfig, rotation_of
+from climbd.plugins.perception.elevation import ElevationConfig
 from climbd.plugins.perception.joists import JoistConfig, detect_lines, edge_drawing, height_image
 
 
@@ -59,7 +60,7 @@ class PaperPipeline:
         """Mean height per cell of the accumulated cloud in the body's crop box (NaN: empty)."""
         g = self.grid
         world = np.concatenate(self.cloud, axis=1) - np.asarray(body.position, np.float32)[:, None]
-        x, y, z = _rotate(rotation_of(body).T, world)
+        x, y, z = _rotate(rotation(body.orientation, zero_norm_ok=True).T, world)
         rows, cols = int(round(g.length / g.resolution)), int(round(g.width / g.resolution))
         keep = (x >= g.x_min) & (x < g.x_min + g.length) & (np.abs(y) < g.width / 2)
         keep &= (z >= g.z_min) & (z <= g.z_max)
@@ -73,7 +74,9 @@ class PaperPipeline:
 
     def process(self, points: np.ndarray, body: BodyState) -> list[Joist]:
         """Add a body-frame cloud to the accumulated map and detect joists the paper's way."""
-        world = np.stack(_rotate(rotation_of(body), np.asarray(points, np.float32).T))
+        world = np.stack(
+            _rotate(rotation(body.orientation, zero_norm_ok=True), np.asarray(points, np.float32).T)
+        )
         self.cloud.append(world + np.asarray(body.position, np.float32)[:, None])
         heights = self.regrid(body)
         d = self.detection

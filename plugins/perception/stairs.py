@@ -15,10 +15,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from climbd.daemon.algorithms.cloud import CloudPerception
-from climbd.daemon.algorithms.estimation import rotation
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import BodyState, Stair, Stairs
+from climbd.daemon.contract.units import Positive
 
-Positive = Annotated[float, msgspec.Meta(gt=0)]
 Fraction = Annotated[float, msgspec.Meta(ge=0, lt=0.5)]
 
 

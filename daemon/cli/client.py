@@ -1,0 +1,35 @@
+"""What the operator tools (estop, status, teleop, top, record, replay) share at start-up:
+their credential options, and the Zenoh config from ``--connect`` and ``--tls``/``--user``."""
+
+from __future__ import annotations
+
+import os
+
+import zenoh
+
+from climbd.daemon.runtime.access import AccessError, client_credentials
+from climbd.daemon.runtime.network import Endpoints, zenoh_config
+
+
+def add_credential_arguments(parser) -> None:
+    """Options of operator tools (teleop, estop, status) for a robot with network.auth."""
+    parser.add_argument(
+        "--tls",
+        nargs=3,
+        metavar=("CA", "CERT", "KEY"),
+        help="mutual TLS: CA certificate, this operator's certificate and key (climbd certs)",
+    )
+    parser.add_argument("--user", help="Zenoh user name (password from $CLIMBD_PASSWORD)")
+
+
+def client_config(args, role: str) -> zenoh.Config:
+    """Zenoh config of an operator tool: its --connect endpoints and --tls/--user credentials."""
+    cfg = zenoh_config(None, role, Endpoints([], list(args.connect)))
+    user = None
+    if args.user:
+        password = os.environ.get("CLIMBD_PASSWORD")
+        if password is None:
+            raise AccessError("--user needs the password in $CLIMBD_PASSWORD")
+        user = (args.user, password)
+    client_credentials(cfg, tuple(args.tls) if args.tls else None, user)
+    return cfg

@@ -1,0 +1,40 @@
+"""Shared geometry: rotations and quaternions.
+
+Quaternions are (w, x, y, z), scalar first, throughout climbd. Pure functions of numbers:
+numpy, math and the standard library only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def rotation(q: Sequence[float], *, zero_norm_ok: bool = False) -> np.ndarray:
+    """Rotation matrix of quaternion (w, x, y, z), normalised first.
+
+    A quaternion of zero norm (all zero, or so small its squares underflow) raises
+    ZeroDivisionError, unless ``zero_norm_ok``: then its components are used as they are,
+    which makes an all-zero quaternion the identity.
+    """
+    w, x, y, z = map(float, q)
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if zero_norm_ok:
+        norm = norm or 1.0
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def yaw(q: Sequence[float]) -> float:
+    """Heading (rad) of quaternion (w, x, y, z): the yaw of its ZYX Euler angles, from the
+    components as given (not normalised)."""
+    w, x, y, z = q
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
