@@ -22,12 +22,15 @@ looking at results; the ratio of mean distances over all of them), TSM never bel
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from climb_run import ClimbLog, SlopeClimb
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from support.climb_run import ClimbLog, SlopeClimb  # noqa: E402
 
 from climbd.plugins.gaits.free_climb import (
     GOAL,

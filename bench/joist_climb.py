@@ -19,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from joist_twin_run import run_scenario  # noqa: E402
+from support.joist_twin_run import run_scenario  # noqa: E402
 from test_joist_climb_twin import TABLE_2, assert_climbed, assert_went_round  # noqa: E402
 
 from climbd.drivers.sim.worlds import INCH, JoistRow  # noqa: E402

@@ -1,7 +1,7 @@
 """Joist pipeline per frame (points → grid → inpaint → lines → joists) beside the paper's way.
 
-Frames: 640×480 ray-cast clouds (tests/joist_scenes.py) of a robot walking toward a 10 cm joist
-at 45°, rendered once before timing. Ours: ``JoistPerception.process_cloud`` (one frame fused
+Frames: 640×480 ray-cast clouds (tests/support/joist_scenes.py) of a robot walking toward a 10 cm
+joist at 45°, rendered once before timing. Ours: ``JoistPerception.process_cloud`` (one frame fused
 into the odometry-frame map, crop read back, float Telea, Edge Drawing, step heights, merge).
 Baseline, in the same run and on the same frames: ``PaperPipeline`` (the accumulated cloud of
 the last 10 frames re-gridded from scratch every frame, 8-bit Telea, Edge Drawing, eq. 1
@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from joist_scenes import JoistSpec, body_state, render  # noqa: E402
+from support.joist_scenes import JoistSpec, body_state, render  # noqa: E402
 
 from climbd.plugins.perception.elevation import ElevationConfig  # noqa: E402
 from climbd.plugins.perception.joist_perception import (  # noqa: E402

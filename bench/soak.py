@@ -8,9 +8,9 @@
 - Twin soak (``--twin [--perception]``): ``climbd run --sim`` in real time on a flat floor,
   walked in a circle by a teleop client; per ``--window``: RSS of each process, loop lateness,
   ticks missed, modes, odometry path, perception output; ratios to the first window.
-- Fuzz: ``--fuzz N`` inputs per message decoder and for the profile parser (tests/fuzzing.py),
-  with our decode beside msgspec's untyped decode of the same inputs as the baseline.
-- Campaign: runs tests/test_campaign.py and tabulates fault × robot → outcome.
+- Fuzz: ``--fuzz N`` inputs per message decoder and for the profile parser
+  (tests/support/fuzzing.py), with our decode beside msgspec's untyped decode of the same inputs as
+the baseline. - Campaign: runs tests/test_campaign.py and tabulates fault × robot → outcome.
 
 ``--write`` replaces the ``## bench/soak.py`` section of BENCHMARKS.md with this run's tables.
 Usage: ``python bench/soak.py [--minutes 5] [--sample 30] [--twin [--perception] [--window 300]]
@@ -415,9 +415,9 @@ def twin_notes(s: dict) -> list[str]:
 def fuzz(n: int) -> list[str]:
     """``n`` inputs per decoder and for the profile parser; throughput beside msgspec's own."""
     import msgspec
-    from fuzzing import check_profile, check_profile_text, edited_profile, profile_edits
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
+    from support.fuzzing import check_profile, check_profile_text, edited_profile, profile_edits
 
     from climbd.daemon.contract.messages import ALL_MESSAGES, decode
 
@@ -462,8 +462,8 @@ def fuzz(n: int) -> list[str]:
 
 def _fuzz_decoder(message, cfg) -> list[bytes]:
     """Run the decoder property on ``message``; the inputs hypothesis generated."""
-    from fuzzing import check_decoder, payloads
     from hypothesis import given
+    from support.fuzzing import check_decoder, payloads
 
     seen: list[bytes] = []
 

@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from stair_run import StairRun, stair_world, world_stairs  # noqa: E402
+from support.stair_run import StairRun, stair_world, world_stairs  # noqa: E402
 from test_stairs import staircase  # noqa: E402
 
 from climbd.daemon.algorithms.estimation import GRAVITY  # noqa: E402

@@ -7,7 +7,7 @@ import time
 
 import pytest
 from conftest import free_port
-from zenoh_roles import Observer, Proc
+from support.zenoh_roles import Observer, Proc
 
 from climbd.daemon.cli.certs import generate
 from climbd.daemon.contract import profile as profiles

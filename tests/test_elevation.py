@@ -8,7 +8,7 @@ import cv2
 import msgspec
 import numpy as np
 import pytest
-from joist_scenes import JoistSpec, body_state, render
+from support.joist_scenes import JoistSpec, body_state, render
 
 from climbd.daemon.contract.messages import ElevationGrid, decode, encode
 from climbd.daemon.contract.plugins import PluginError

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import ROOT
-from qingzhui_twin import QingzhuiRig, contact_forces, estimator_config, flat_world
+from support.qingzhui_twin import QingzhuiRig, contact_forces, estimator_config, flat_world
 
 from climbd.daemon.algorithms.estimation import (
     GRAVITY,

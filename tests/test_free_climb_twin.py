@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from climb_run import SlopeClimb
+from support.climb_run import SlopeClimb
 
 from climbd.drivers.sim.model import GRIP_FORCE
 from climbd.drivers.sim.worlds import hold_map_holds, wall_pose

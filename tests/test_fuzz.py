@@ -7,10 +7,16 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from fuzzing import check_decoder, check_profile, check_profile_text, edited_profile, payloads
-from fuzzing import profile_edits as edits_strategy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.fuzzing import (
+    check_decoder,
+    check_profile,
+    check_profile_text,
+    edited_profile,
+    payloads,
+)
+from support.fuzzing import profile_edits as edits_strategy
 
 from climbd.daemon.contract.messages import ALL_MESSAGES
 

@@ -10,9 +10,9 @@ import math
 import msgspec
 import numpy as np
 import pytest
-from graspable_scenes import board_plane, dome_board, hold_cores, pose, unpose
 from scipy import ndimage
 from scipy.spatial import Delaunay, cKDTree
+from support.graspable_scenes import board_plane, dome_board, hold_cores, pose, unpose
 
 from climbd.daemon.cli import main as climbd
 from climbd.daemon.contract.cloudio import read_cloud

@@ -1,6 +1,6 @@
 """Climb-or-sidestep behaviour (paper 000): decisions, alignment, crossing, clearance, safety.
 
-The robot walks in a kinematic world (tests/joist_world.py): its pose is the behaviour's own
+The robot walks in a kinematic world (tests/support/joist_world.py): its pose is the behaviour's own
 dead reckoning, joists are seen through a perception oracle with the crop box, and every tick
 is checked against the profile's kinematics: reachability, the legs' clearance from the joist
 box (femur, tibia and foot), and static support.
@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
-from joist_scenes import JoistSpec
-from joist_world import body_state, joist_distance, knees, perceive, world_feet
+from support.joist_scenes import JoistSpec
+from support.joist_world import body_state, joist_distance, knees, perceive, world_feet
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.motion import MotionPipeline

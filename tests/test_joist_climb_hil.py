@@ -10,7 +10,7 @@ and this checks that they stand for the driver path.
 from __future__ import annotations
 
 import numpy as np
-from joist_twin_run import run_scenario
+from support.joist_twin_run import run_scenario
 from test_joist_climb_twin import assert_went_round
 
 from climbd.drivers.sim.worlds import JoistRow

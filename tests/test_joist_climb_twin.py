@@ -3,10 +3,11 @@
 The WidowX runs joist_climb → IK → ruckig → guard → the twin's servos (goals set in-process,
 without the Dynamixel emulator, to keep the tests short). Test 3 sees its joist through the
 twin's ray-cast depth and joist perception (end to end); the others test the gait, so the
-joist messages come from the world's truth at the twin's true body pose (tests/joist_world.py,
-the 1 m × 1.2 m crop box ahead of the body) and no depth is rendered. A 10 cm joist must be
-climbed: the robot ends past it with all six feet down beyond it and the body level within 5°,
-with no leg link or the body box touching it on the way. An 18 cm joist must be gone round.
+joist messages come from the world's truth at the twin's true body pose
+(tests/support/joist_world.py, the 1 m × 1.2 m crop box ahead of the body) and no depth is
+rendered. A 10 cm joist must be climbed: the robot ends past it with all six feet down beyond it
+and the body level within 5°, with no leg link or the body box touching it on the way. An 18 cm
+joist must be gone round.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-from joist_twin_run import run_scenario
+from support.joist_twin_run import run_scenario
 
 from climbd.drivers.sim.worlds import INCH, JoistRow
 from climbd.plugins.perception.joist_perception import JoistPerception

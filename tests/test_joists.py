@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from joist_scenes import JoistSpec, body_state, render
+from support.joist_scenes import JoistSpec, body_state, render
 
 from climbd.daemon import cli
 from climbd.daemon.contract.messages import Joists, decode, encode

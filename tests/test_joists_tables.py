@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from joist_scenes import JoistSpec, body_state, render
+from support.joist_scenes import JoistSpec, body_state, render
 
 from climbd.plugins.perception.elevation import ElevationConfig
 from climbd.plugins.perception.joist_perception import JoistPerception, JoistPerceptionConfig

@@ -14,7 +14,7 @@ import subprocess
 import time
 
 import pytest
-from zenoh_roles import Proc
+from support.zenoh_roles import Proc
 
 from climbd.daemon.contract import profile as profiles
 

@@ -8,8 +8,8 @@ import time
 
 import numpy as np
 import pytest
-from joist_scenes import JoistSpec
-from joist_world import body_state, perceive
+from support.joist_scenes import JoistSpec
+from support.joist_world import body_state, perceive
 
 from climbd.daemon.algorithms.planning import PlanWorker
 from climbd.daemon.contract import profile as profiles

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from stair_run import StairRun, stair_world
+from support.stair_run import StairRun, stair_world
 
 from climbd.daemon.algorithms.estimation import GRAVITY
 from climbd.daemon.contract.messages import Mode

@@ -5,7 +5,7 @@ settle every frame before physics steps)."""
 from __future__ import annotations
 
 import numpy as np
-from qingzhui_twin import QingzhuiRig, flat_world
+from support.qingzhui_twin import QingzhuiRig, flat_world
 
 from climbd.daemon.contract.messages import MotionCommand
 from climbd.daemon.runtime.loader import Isolated

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 from conftest import free_port
-from zenoh_roles import Observer, Proc
+from support.zenoh_roles import Observer, Proc
 
 from climbd.daemon.cli.status import fleet
 from climbd.daemon.contract import profile as profiles

@@ -1,10 +1,11 @@
 """Paper 004's state estimate over the whole stair run, against the twin's true pose.
 
 tests/data/stair_run.npz is Qingzhui's full run in the twin (three 130 x 300 mm stairs up, 24 s,
-and back down, 24 s, at 1 kHz through the torque-leg driver; tests/stair_estimate_record.py),
-replayed here into the estimator at 250 Hz three ways: the stance feet alone (eqs. 5-9), fused
-with the IMU (filter 1), and with stair-cloud ICP on top (filter 2: each cloud's shift onto the
-stitched map, fused along the directions the stairs in view constrain).
+and back down, 24 s, at 1 kHz through the torque-leg driver;
+tests/support/stair_estimate_record.py), replayed here into the estimator at 250 Hz three ways: the
+stance feet alone (eqs. 5-9), fused with the IMU (filter 1), and with stair-cloud ICP on top
+(filter 2: each cloud's shift onto the stitched map, fused along the directions the stairs in view
+constrain).
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from qingzhui_twin import QingzhuiRig, estimator_config
-from stair_run import CLOUD_VOXEL, stair_world
+from support.qingzhui_twin import QingzhuiRig, estimator_config
+from support.stair_run import CLOUD_VOXEL, stair_world
 
 from climbd.daemon.algorithms.estimation import StateEstimator, log_so3
 from climbd.daemon.contract.geometry import rotation

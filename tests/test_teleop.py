@@ -9,7 +9,7 @@ from __future__ import annotations
 import signal
 
 import pytest
-from zenoh_roles import Observer, Proc
+from support.zenoh_roles import Observer, Proc
 
 from climbd.daemon.cli.teleop import ScriptError, parse_script
 from climbd.daemon.contract import profile as profiles

@@ -17,7 +17,7 @@ import time
 
 import msgspec
 import zenoh
-from zenoh_roles import ROOT, Proc
+from support.zenoh_roles import ROOT, Proc
 
 JSON_TYPES = {
     "number": (int, float),

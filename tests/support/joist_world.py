@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from joist_scenes import JoistSpec
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.messages import BodyState, Joist, Joists
+from support.joist_scenes import JoistSpec
 
 CROP = (0.1, 1.1, 0.6)
 

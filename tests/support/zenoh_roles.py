@@ -15,7 +15,7 @@ from pathlib import Path
 from climbd.daemon.contract.messages import Health, Heartbeat, Message, ModeState
 from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 class Proc:

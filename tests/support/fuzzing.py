@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from climbd.daemon.contract import messages as m
 from climbd.daemon.contract.profile import Profile, ProfileError, from_dict, load, tomllib
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DECODE_ERRORS = (msgspec.DecodeError, msgspec.ValidationError, m.SchemaMismatch)
 
 scalars = st.one_of(

@@ -36,7 +36,7 @@ from climbd.plugins.gaits.free_climb import (
 )
 from climbd.plugins.gaits.tsm import tumble_stability_margin
 
-HUBROBO = Path(__file__).resolve().parents[1] / "robots" / "hubrobo.toml"
+HUBROBO = Path(__file__).resolve().parents[2] / "robots" / "hubrobo.toml"
 GRIP_WAIT = 1.0
 """Longest wait (s) for every gripper to report holding before the next swing."""
 

@@ -19,8 +19,6 @@ from types import SimpleNamespace
 
 import mujoco
 import numpy as np
-from joist_scenes import JoistSpec
-from joist_world import perceive
 
 from climbd.daemon.algorithms.motion import MotionPipeline
 from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
@@ -35,6 +33,8 @@ from climbd.drivers.dynamixel.bus import DynamixelBus
 from climbd.drivers.sim.twin import Twin
 from climbd.drivers.sim.worlds import JoistRow, World
 from climbd.plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig
+from support.joist_scenes import JoistSpec
+from support.joist_world import perceive
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 DT = 0.01

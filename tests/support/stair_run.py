@@ -1,6 +1,6 @@
 """Qingzhui's stair run in the twin (paper 004, section 4), shared by the twin test and
 bench/stairs.py: the stair gait at 1 kHz through the torque-leg driver on the rig of
-tests/qingzhui_twin.py, with collision, foothold and estimate checks from the twin's truth.
+tests/support/qingzhui_twin.py, with collision, foothold and estimate checks from the twin's truth.
 
 The stair model is the world's own geometry as a ``Stairs`` message in the odometry frame (what
 perception reports, without its noise: the camera sees the stairs from the true pose and places
@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 
 import msgspec
 import numpy as np
-from qingzhui_twin import QingzhuiRig, contact_forces
 
 from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, quaternion
@@ -27,6 +26,7 @@ from climbd.drivers.sim.worlds import Staircase, World, load
 from climbd.plugins.gaits.stair_gait import StairGait, StairGaitConfig
 from climbd.plugins.gaits.stair_plan import StairModel
 from climbd.plugins.perception.stairs import StairPerception, StairsConfig
+from support.qingzhui_twin import QingzhuiRig, contact_forces
 
 CLOUD_PERIOD = 0.5
 """Seconds (simulated) between the front camera's clouds that ICP aligns (``icp``)."""

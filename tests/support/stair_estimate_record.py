@@ -3,7 +3,7 @@ sees it: the joint positions and torques as the torque-leg driver read them, the
 and the twin's true body pose, kept every ``KEEP``-th tick (250 Hz); every 0.5 s a depth cloud of
 the front camera (body frame, 2 cm voxels, millimetres). tests/test_stair_estimate.py replays it.
 
-    .venv/bin/python tests/stair_estimate_record.py [--out tests/data/stair_run.npz]
+    .venv/bin/python tests/support/stair_estimate_record.py [--out tests/data/stair_run.npz]
 """
 
 from __future__ import annotations
@@ -14,15 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from stair_run import CLOUD_PERIOD, CLOUD_VOXEL, StairRun, front_cloud, stair_world  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from climbd.plugins.perception.stairs import voxel_thin  # noqa: E402
+from support.stair_run import CLOUD_PERIOD, CLOUD_VOXEL, StairRun, front_cloud, stair_world  # noqa: E402
 
 KEEP = 4
 """Every how many 1 kHz ticks one is kept: the replay runs the estimator at 250 Hz."""
-DEFAULT_OUT = Path(__file__).resolve().parent / "data" / "stair_run.npz"
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "data" / "stair_run.npz"
 
 
 class Recorder:
