@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 from climbd.daemon.cli.client import add_credential_arguments, client_config
 from climbd.daemon.contract.messages import (
+    FEATURES,
     ElevationGrid,
     GraspablePoints,
     Health,
@@ -35,7 +36,6 @@ from climbd.daemon.contract.messages import (
 )
 from climbd.daemon.runtime.access import AccessError
 
-FEATURES: tuple[type[Message], ...] = (ElevationGrid, Joists, GraspablePoints, TrussMembers, Stairs)
 RATE_WINDOW = 5.0
 """Seconds of arrivals a feature rate is averaged over."""
 STALE_AFTER = 3.0

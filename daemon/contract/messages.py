@@ -330,17 +330,23 @@ class Stair(msgspec.Struct, kw_only=True):
     edge: list[list[float]]
 
 
-class Stairs(Feature):
-    """Stairs in the odometry frame, bottom step first. ``alignment``: the translation (m,
-    odometry frame) that moved this frame's cloud onto the stitched map, solved only along
-    ``constrained``, the unit directions the stairs in view pin (treads z, risers the ascent);
-    the estimator's drift measurement. Both empty when the cloud was not aligned."""
+class AlignedFeature(Feature):
+    """A feature whose frame's cloud was registered onto the role's map. ``alignment``: the
+    translation (m, odometry frame) that moved the cloud onto the map, solved only along
+    ``constrained``, the unit directions the structure in view pins; the estimator's drift
+    measurement (paper 004 filter 2). Both empty when the cloud was not aligned."""
+
+    alignment: list[float] = []
+    constrained: list[list[float]] = []
+
+
+class Stairs(AlignedFeature):
+    """Stairs in the odometry frame, bottom step first; their treads pin z, their risers the
+    ascent (``constrained``)."""
 
     TOPIC: ClassVar[str] = "features/stairs"
     RATE: ClassVar[str] = "camera rate"
     steps: list[Stair] = []
-    alignment: list[float] = []
-    constrained: list[list[float]] = []
 
 
 FEATURES: tuple[type[Feature], ...] = (ElevationGrid, Joists, GraspablePoints, TrussMembers, Stairs)

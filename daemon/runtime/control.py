@@ -30,6 +30,7 @@ from climbd.daemon.contract.hardware import (
     JointBus,
 )
 from climbd.daemon.contract.messages import (
+    AlignedFeature,
     BodyState,
     EStop,
     EstopPolicy,
@@ -44,7 +45,6 @@ from climbd.daemon.contract.messages import (
     MotionCommand,
     MotionStats,
     SessionClaim,
-    Stairs,
 )
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.loader import Isolated, slowest
@@ -82,14 +82,15 @@ TOUCH_SUPPORT = 10.0
 the feed-forward's share) before its feed-forward fades in: a late foot is not pushed down."""
 
 
-def fusable(stairs: Stairs) -> bool:
-    """Whether a Stairs carries an alignment filter 2 can take: a finite shift (3) and unit
-    directions (k x 3); anything else from the wire is dropped rather than poison the estimate."""
-    if len(stairs.alignment) != 3 or any(len(d) != 3 for d in stairs.constrained):
+def fusable(feature: AlignedFeature) -> bool:
+    """Whether an aligned feature carries an alignment filter 2 can take: a finite shift (3)
+    and unit directions (k x 3); anything else from the wire is dropped rather than poison the
+    estimate."""
+    if len(feature.alignment) != 3 or any(len(d) != 3 for d in feature.constrained):
         return False
-    dirs = np.array(stairs.constrained, float).reshape(-1, 3)
+    dirs = np.array(feature.constrained, float).reshape(-1, 3)
     norms = np.linalg.norm(dirs, axis=1)
-    return bool(np.isfinite(stairs.alignment).all() and np.allclose(norms, 1.0, atol=1e-6))
+    return bool(np.isfinite(feature.alignment).all() and np.allclose(norms, 1.0, atol=1e-6))
 
 
 class Shutdown(enum.Enum):
@@ -144,7 +145,7 @@ class Controller:
         self.command: JointCommand | None = None
         self.motion_command: Timed | None = None
         self.features: dict[str, Timed] = {}
-        self._alignment: Stairs | None = None
+        self._alignment: AlignedFeature | None = None
         self.body = BodyState()
         self.estimator = estimator
         self.odometry = LegOdometry(self.kinematics) if estimator is None else None
@@ -234,7 +235,7 @@ class Controller:
 
     def on_feature(self, msg: Message) -> None:
         self.features[msg.TOPIC] = Timed(msg, self.now())
-        if isinstance(msg, Stairs) and fusable(msg):
+        if isinstance(msg, AlignedFeature) and fusable(msg):
             self._alignment = msg  # filter 2's input, fused by the loop thread
 
     # --- the tick (loop thread) -------------------------------------------------------
@@ -303,10 +304,10 @@ class Controller:
         sample = self._read_imu()
         gyro = sample.gyro if sample is not None else None
         accel = sample.accel if sample is not None else None
-        stairs, self._alignment = self._alignment, None
-        if stairs is not None:
+        aligned, self._alignment = self._alignment, None
+        if aligned is not None:
             self.estimator.icp_correction(
-                np.asarray(stairs.alignment), np.asarray(stairs.constrained)
+                np.asarray(aligned.alignment), np.asarray(aligned.constrained)
             )
         self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t, self.stance)
 
