@@ -8,14 +8,28 @@ finite differences, target clipping, one single-DOF ruckig per joint and the pos
 Both run interleaved in the same process on the same foot targets, and every tick's commands
 are checked equal.
 
+``--against REV`` also times the whole controller tick (read, estimate, behave, IK, smooth,
+feed-forward, guard, write; fake joint bus, stepped clock, tripod walking ACTIVE under a teleop
+session, Qingzhui with its estimator and feed-forward) of this tree and of git revision REV,
+each in processes of its own, alternated over ``--rounds`` rounds, and prints each round's
+medians and their ratio: the same machine state for old and new.
+
     .venv/bin/python bench/tick.py --robot qingzhui --ticks 5000
+    .venv/bin/python bench/tick.py --against 890449e --rounds 6
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import os
+import subprocess
+import sys
+import tarfile
+import tempfile
 import time
+from io import BytesIO
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +41,8 @@ from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import BodyState, MotionCommand
 from climbd.daemon.runtime.loader import instantiate
 
-ROBOTS = Path(__file__).resolve().parent.parent / "robots"
+ROOT = Path(__file__).resolve().parent.parent
+ROBOTS = ROOT / "robots"
 MARGIN = 0.999
 
 
@@ -171,12 +186,118 @@ def run(robot: str, ticks: int, speed: float) -> dict:
     }
 
 
+WHOLE_TICK = """
+import json, sys, time
+import numpy as np
+old = sys.argv[1] == "old"
+if old:  # the layout before climbd.* (one import name): top-level daemon, drivers, plugins
+    from daemon.control import Controller
+    from daemon.estimation import EstimatorConfig, StateEstimator
+    from daemon.loop import SteppedClock
+    from daemon.messages import Heartbeat, MotionCommand, Mode, SessionClaim
+    from daemon.plugins import Isolated
+    from daemon.profile import load
+    from daemon.safety import Safety
+    from drivers.base import FakeJointBus
+    from plugins.gaits.periodic import Tripod
+else:
+    from climbd.daemon.algorithms.estimation import EstimatorConfig, StateEstimator
+    from climbd.daemon.contract.messages import Heartbeat, MotionCommand, Mode, SessionClaim
+    from climbd.daemon.contract.profile import load
+    from climbd.daemon.runtime.loader import Isolated
+    from climbd.daemon.runtime.loop import SteppedClock
+    from climbd.daemon.runtime.stack import control_stack
+    from climbd.drivers.fake import FakeJointBus
+    from climbd.plugins.gaits.periodic import Tripod
+profile = load(sys.argv[2])
+ticks = int(sys.argv[3])
+clock = SteppedClock()
+bus = FakeJointBus(profile, tau=0.005, clock=clock.now)
+bus.open()
+gait = Isolated("tripod", Tripod(None, profile))
+estimator = StateEstimator(profile, EstimatorConfig())
+if old:
+    safety = Safety(profile)
+    controller = Controller(
+        profile, bus, safety, clock.now, gait, estimator=estimator, feed_forward=True
+    )
+else:
+    stack = control_stack(profile, bus, clock, gait, estimator=estimator, feed_forward=True)
+    safety, controller = stack.safety, stack.controller
+dt = 1.0 / profile.rate_hz
+every = round(0.05 * profile.rate_hz)
+times = []
+t = 0.0
+safety.request(Mode.STAND, t)
+controller.on_claim(SessionClaim(session="bench", client="bench"))
+for k in range(int(3 * profile.safety.stand_time * profile.rate_hz) + ticks):
+    if k % every == 0:
+        controller.on_heartbeat(Heartbeat(session="bench"))
+        controller.on_motion(MotionCommand(vx=0.1, session="bench"))
+    if safety.mode == Mode.HOLD and safety.reason == "stand complete":
+        safety.request(Mode.ACTIVE, t, "bench")
+    start = time.perf_counter()
+    controller.tick(t, dt)
+    times.append(time.perf_counter() - start)
+    t += dt
+    clock.advance(dt)
+times = np.array(times[-ticks:]) * 1e6
+print(json.dumps({"mode": safety.mode.value, "p50": float(np.median(times)),
+                  "p99": float(np.percentile(times, 99))}))
+"""
+
+
+def whole_tick(rev: str, robot: str, ticks: int, rounds: int) -> None:
+    """The controller's whole tick of this tree and of ``rev``, alternated in fresh processes."""
+    archive = subprocess.run(
+        ["git", "archive", rev], cwd=ROOT, check=True, capture_output=True
+    ).stdout
+    with tempfile.TemporaryDirectory() as old_root:
+        tarfile.open(fileobj=BytesIO(archive)).extractall(old_root, filter="data")
+        trees = {"old": old_root, "new": str(ROOT)}
+        print(f"\n## whole controller tick, {robot}, {ticks} ticks a run: this tree vs {rev}\n")
+        print("| round | old p50 µs | old p99 µs | new p50 µs | new p99 µs | new / old (p50) |")
+        print("|---|---|---|---|---|---|")
+        ratios = []
+        for k in range(rounds):
+            row = {}
+            for which in ("old", "new") if k % 2 == 0 else ("new", "old"):
+                env = dict(os.environ, PYTHONPATH=trees[which] if which == "old" else "")
+                profile = Path(trees[which]) / "robots" / f"{robot}.toml"
+                done = subprocess.run(
+                    [sys.executable, "-c", WHOLE_TICK, which, str(profile), str(ticks)],
+                    cwd=trees[which],
+                    env=env,
+                    check=True,
+                    capture_output=True,
+                    text=True,
+                )
+                row[which] = json.loads(done.stdout.strip().splitlines()[-1])
+                if row[which]["mode"] != "ACTIVE":
+                    raise SystemExit(f"{which}: the robot is {row[which]['mode']}, not walking")
+            ratios.append(row["new"]["p50"] / row["old"]["p50"])
+            print(
+                f"| {k + 1} | {row['old']['p50']:.1f} | {row['old']['p99']:.1f} "
+                f"| {row['new']['p50']:.1f} | {row['new']['p99']:.1f} | {ratios[-1]:.3f} |"
+            )
+        q = np.percentile(ratios, [0, 50, 100])
+        print(
+            f"\nnew / old (p50) over {rounds} rounds: min {q[0]:.3f}, median {q[1]:.3f}, "
+            f"max {q[2]:.3f}"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", action="append", help="robot profile (repeatable)")
     parser.add_argument("--ticks", type=int, default=5000)
     parser.add_argument("--speed", type=float, default=0.1, help="commanded vx, m/s")
+    parser.add_argument("--against", metavar="REV", help="also time the whole tick against REV")
+    parser.add_argument("--rounds", type=int, default=6, help="old/new rounds for --against")
     args = parser.parse_args()
+    if args.against:
+        whole_tick(args.against, (args.robot or ["qingzhui"])[0], args.ticks, args.rounds)
+        return
     print(
         "| robot | joints | rate Hz | gait median µs | pipeline tick median µs | p99 µs "
         "| loop tick median µs | p99 µs | loop / pipeline (median) | pipeline / period "

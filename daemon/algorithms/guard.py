@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 
-import msgspec
 import numpy as np
 
 from climbd.daemon.contract.messages import JointCommand
@@ -35,17 +34,17 @@ class Guard:
         self.clamps = 0
 
     def command(self, command: JointCommand) -> JointCommand:
-        """``command`` with position, velocity and effort inside the profile's limits (a new
-        message); the last thing that touches a command before the driver writes it."""
-        position = self.limit(command.position)
-        velocity = self._symmetric(command.velocity, self._velocity, "velocity")
-        effort = self._symmetric(command.effort, self._effort, "effort")
-        return msgspec.structs.replace(command, position=position, velocity=velocity, effort=effort)
+        """``command`` with position, velocity and effort clamped into the profile's limits (in
+        place, and returned); the last thing that touches a command before the driver writes it."""
+        command.position = self.limit(command.position)
+        command.velocity = self._symmetric(command.velocity, self._velocity, "velocity")
+        command.effort = self._symmetric(command.effort, self._effort, "effort")
+        return command
 
     def _symmetric(
         self, values: list[float] | None, bounds: list[float], what: str
     ) -> list[float] | None:
-        """``values`` clamped into ±``bounds``; an empty list (not commanded) stays empty."""
+        """``values`` clamped into ±``bounds``; None or empty (not commanded) stays as it is."""
         if not values:
             return values
         if len(values) != len(bounds):
@@ -55,7 +54,7 @@ class Guard:
         if not math.isfinite(sum(values)):
             bad = [n for n, x in zip(self.names, values, strict=True) if not math.isfinite(x)]
             raise GuardError(f"non-finite joint command {what} for {', '.join(bad)}")
-        out = [-b if x < -b else b if x > b else x for x, b in zip(values, bounds, strict=True)]
+        out = [b if x > b else -b if x < -b else x for x, b in zip(values, bounds)]  # noqa: B905
         if out != values:
             self.clamps += 1
         return out
