@@ -39,29 +39,29 @@ def main(args: argparse.Namespace) -> int:
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    bus = Network(args.robot, cfg)
+    net = Network(args.robot, cfg)
     try:
         time.sleep(0.3)  # let the session connect before the first (reliable) put
         if args.reset:
             session = uuid.uuid4().hex
-            bus.publisher(SessionClaim).put(
+            net.publisher(SessionClaim).put(
                 SessionClaim(stamp=time.time(), session=session, client=source)
             )
             time.sleep(0.1)
-            bus.publisher(ModeRequest).put(
+            net.publisher(ModeRequest).put(
                 ModeRequest(stamp=time.time(), session=session, reset=True)
             )
             time.sleep(0.1)
-            bus.publisher(SessionClaim).put(
+            net.publisher(SessionClaim).put(
                 SessionClaim(session=session, client=source, release=True)
             )
             print(f"reset sent to {args.robot}")
             return 0
-        pub = bus.publisher(EStop)
+        pub = net.publisher(EStop)
         for _ in range(int(REPEAT_HZ * REPEAT_FOR)):
             pub.put(EStop(stamp=time.time(), engage=True, source=source, reason=args.reason))
             time.sleep(1.0 / REPEAT_HZ)
         print(f"e-stop sent to {args.robot} ({int(REPEAT_HZ * REPEAT_FOR)} times)")
         return 0
     finally:
-        bus.close()
+        net.close()

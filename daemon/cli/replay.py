@@ -1,4 +1,4 @@
-"""``climbd replay``: republish an MCAP recording on the bus at real or chosen speed.
+"""``climbd replay``: republish an MCAP recording on the network at real or chosen speed.
 
 Messages go out in log-time order, each at ``(log_time - first) / speed`` after the start,
 on the key it was recorded under (or under ``--robot NEW``), as the same msgpack payload a
@@ -148,8 +148,8 @@ def rename(key: str, robot: str | None) -> str:
 class Replayer:
     """Publishes recorded messages on a Network, each with the QoS its topic has on a live robot."""
 
-    def __init__(self, bus) -> None:
-        self.bus = bus
+    def __init__(self, net) -> None:
+        self.net = net
         self.publishers: dict[str, object] = {}
         self.sent = 0
 
@@ -157,7 +157,7 @@ class Replayer:
         pub = self.publishers.get(key)
         if pub is None:
             robot = key.split("/")[1]
-            pub = self.publishers[key] = self.bus.publisher(type(message), robot)
+            pub = self.publishers[key] = self.net.publisher(type(message), robot)
         pub.put(message)
         self.sent += 1
 
@@ -192,11 +192,11 @@ def main(args: argparse.Namespace) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     try:
-        bus = Network(args.robot or "replay", config)
+        net = Network(args.robot or "replay", config)
     except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
         print(f"error: zenoh: {e}", file=sys.stderr)
         return 1
-    replayer = Replayer(bus)
+    replayer = Replayer(net)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
@@ -211,6 +211,6 @@ def main(args: argparse.Namespace) -> int:
         replayer.run(items, args.speed, args.robot, stop)
         stop.wait(0.2)  # let the last puts leave before the session closes
     finally:
-        bus.close()
+        net.close()
     print(f"climbd: replayed {replayer.sent} of {len(items)} messages", flush=True)
     return 0

@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_credential_arguments(parser)
 
 
-def fleet(bus, timeout: float) -> dict[str, dict]:
+def fleet(net, timeout: float) -> dict[str, dict]:
     """Every robot on the network: its live roles (liveliness) and last mode (ModeState)."""
     import time
 
@@ -57,8 +57,8 @@ def fleet(bus, timeout: float) -> dict[str, dict]:
     # A liveliness subscriber with history sees the tokens already declared and those whose
     # routes arrive while we listen; a one-shot query right after connecting can miss peers
     # that are one hop away.
-    alive = bus.session.liveliness().declare_subscriber("climbd/*/alive/*", on_alive, history=True)
-    sub = bus.session.declare_subscriber("climbd/*/" + ModeState.TOPIC, on_mode)
+    alive = net.session.liveliness().declare_subscriber("climbd/*/alive/*", on_alive, history=True)
+    sub = net.session.declare_subscriber("climbd/*/" + ModeState.TOPIC, on_mode)
     try:
         end = time.monotonic() + timeout
         while time.monotonic() < end:
@@ -109,12 +109,12 @@ def main(args: argparse.Namespace) -> int:
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    bus = Network(args.robot or "*", cfg)
+    net = Network(args.robot or "*", cfg)
     if args.all:
         try:
-            robots = fleet(bus, args.timeout)
+            robots = fleet(net, args.timeout)
         finally:
-            bus.close()
+            net.close()
         if not robots:
             print(f"no climbd robot answered within {args.timeout:g} s", file=sys.stderr)
             return 1
@@ -129,7 +129,7 @@ def main(args: argparse.Namespace) -> int:
             arrived.set()
 
     try:
-        bus.subscribe(Health, on_health)
+        net.subscribe(Health, on_health)
         if not arrived.wait(args.timeout):
             print(f"no health from robot {args.robot!r} within {args.timeout:g} s", file=sys.stderr)
             return 1
@@ -137,4 +137,4 @@ def main(args: argparse.Namespace) -> int:
         print(msgspec.json.encode(health).decode() if args.json else format_health(health))
         return 0
     finally:
-        bus.close()
+        net.close()

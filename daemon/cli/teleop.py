@@ -120,8 +120,8 @@ def _motion_fields(args: tuple[str, ...], where: str) -> dict[str, float]:
 class TeleopClient:
     """A controlling session over a climbd Network: claim, heartbeats, motion, modes, release."""
 
-    def __init__(self, bus, client: str, heartbeat_hz: float = 20.0, rate_hz: float = 20.0):
-        self.bus = bus
+    def __init__(self, net, client: str, heartbeat_hz: float = 20.0, rate_hz: float = 20.0):
+        self.net = net
         self.client = client
         self.session = uuid.uuid4().hex
         self.heartbeat_period = 1.0 / heartbeat_hz
@@ -129,15 +129,15 @@ class TeleopClient:
         self.motion: dict[str, float] = {}
         self.mode: ModeState | None = None
         self.claimed = False
-        self._pubs = {t: bus.publisher(t) for t in (SessionClaim, Heartbeat, MotionCommand)}
-        self._pubs[ModeRequest] = bus.publisher(ModeRequest)
-        self._pubs[EStop] = bus.publisher(EStop)
+        self._pubs = {t: net.publisher(t) for t in (SessionClaim, Heartbeat, MotionCommand)}
+        self._pubs[ModeRequest] = net.publisher(ModeRequest)
+        self._pubs[EStop] = net.publisher(EStop)
         self._seq = 0
         self._next_beat = 0.0
         self._lock = threading.Lock()  # no heartbeat or motion may follow the release
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="teleop", daemon=True)
-        bus.subscribe(ModeState, self._on_mode)
+        net.subscribe(ModeState, self._on_mode)
 
     def _on_mode(self, state: ModeState) -> None:
         self.mode = state
@@ -323,10 +323,10 @@ def main(args: argparse.Namespace) -> int:
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    bus = Network(args.robot, cfg)
+    net = Network(args.robot, cfg)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     client = TeleopClient(
-        bus, args.name or f"{socket.gethostname()}:{os.getpid()}", args.heartbeat_hz, args.rate
+        net, args.name or f"{socket.gethostname()}:{os.getpid()}", args.heartbeat_hz, args.rate
     )
     client.start()
     try:
@@ -344,4 +344,4 @@ def main(args: argparse.Namespace) -> int:
     finally:
         client.close()
         time.sleep(0.1)  # let the release leave before the session closes
-        bus.close()
+        net.close()

@@ -24,6 +24,7 @@ class Capture:
     def __init__(self, camera: Camera, name: str = "depth") -> None:
         self.camera = camera
         self.name = name
+        self._reports_health = isinstance(camera, ReportsCameraHealth)
         self.received = 0
         self.delivered = 0
         self.dropped = 0
@@ -83,7 +84,7 @@ class Capture:
     def report(self, health: Health) -> Health:
         """``health`` with this capture's drops added and its camera problem named, if any."""
         messages = list(health.messages)
-        status = self.camera.health() if isinstance(self.camera, ReportsCameraHealth) else None
+        status = self.camera.health() if self._reports_health else None
         if status is not None and not status.connected and status.last_error:
             messages.append(f"camera {self.name}: {status.last_error}")
         if self.error:

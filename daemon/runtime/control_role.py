@@ -30,7 +30,7 @@ from climbd.daemon.contract.hardware import (
     JointBus,
 )
 from climbd.daemon.contract.plugins import GaitPlugin, PluginError
-from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import Profile, ProfileError
 from climbd.daemon.runtime import sdnotify
 from climbd.daemon.runtime.access import TelemetryGate
 from climbd.daemon.runtime.loader import instantiate, load_class
@@ -48,6 +48,20 @@ class StartupError(RuntimeError):
     """The role cannot start (device, plugin or network problem); the message says which."""
 
 
+def role_network(
+    profile: Profile, role: str, args: argparse.Namespace, aio: asyncio.AbstractEventLoop
+) -> Network:
+    """The role's Zenoh session: the profile's endpoints for ``role``, or ``--listen`` and
+    ``--connect``; a bad endpoint or a port in use is a StartupError."""
+    endpoints = None
+    if args.listen or args.connect:
+        endpoints = Endpoints(args.listen or [], args.connect or [])
+    try:
+        return Network(profile.name, zenoh_config(profile, role, endpoints), aio)
+    except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
+        raise StartupError(f"zenoh: {e}") from None
+
+
 def make_joint_bus(profile: Profile, driver: str | None, options: dict) -> JointBus:
     """Open the joint bus named ``driver`` (an entry point in climbd.drivers) for ``profile``."""
     name = driver or profile.bus.kind
@@ -58,7 +72,7 @@ def make_joint_bus(profile: Profile, driver: str | None, options: dict) -> Joint
     try:
         bus = cls.from_profile(profile, **options)
         bus.open()
-    except DriverError as e:
+    except (DriverError, ProfileError) as e:
         raise StartupError(f"joint bus {name!r}: {e}") from None
     return bus
 
@@ -136,13 +150,7 @@ class ControlRole:
         profile, args = self.profile, self.args
         aio = asyncio.get_running_loop()
         clock: Clock = MonotonicClock()
-        endpoints = None
-        if args.listen or args.connect:
-            endpoints = Endpoints(args.listen or [], args.connect or [])
-        try:
-            net = Network(profile.name, zenoh_config(profile, "control", endpoints), aio)
-        except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
-            raise StartupError(f"zenoh: {e}") from None
+        net = role_network(profile, "control", args, aio)
         net.declare(m.JointState, m.BodyState, m.Health, m.ModeState)
         gate = None
         if profile.network.auth is not None and profile.network.auth.telemetry_listen:

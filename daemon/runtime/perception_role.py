@@ -26,9 +26,8 @@ from climbd.daemon.contract.hardware import Camera, DriverError
 from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.capture import Capture
-from climbd.daemon.runtime.control_role import StartupError
+from climbd.daemon.runtime.control_role import StartupError, role_network
 from climbd.daemon.runtime.loader import Isolated, instantiate, slowest
-from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
 log = logging.getLogger("climbd.perception")
 
@@ -131,13 +130,7 @@ class PerceptionRole:
         except (RuntimeError, ValueError) as e:  # PluginError: a setup to fix
             print(f"error: {e}", file=sys.stderr)
             return 2
-        endpoints = None
-        if args.listen or args.connect:
-            endpoints = Endpoints(args.listen or [], args.connect or [])
-        try:
-            net = Network(profile.name, zenoh_config(profile, "perception", endpoints), aio)
-        except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
-            raise StartupError(f"zenoh: {e}") from None
+        net = role_network(profile, "perception", args, aio)
         publish = net.put
 
         def on_body(body: m.BodyState) -> None:
