@@ -252,8 +252,11 @@ def whole_tick(rev: str, robot: str, ticks: int, rounds: int) -> None:
     archive = subprocess.run(
         ["git", "archive", rev], cwd=ROOT, check=True, capture_output=True
     ).stdout
-    with tempfile.TemporaryDirectory() as old_root:
-        tarfile.open(fileobj=BytesIO(archive)).extractall(old_root, filter="data")
+    with (
+        tempfile.TemporaryDirectory() as old_root,
+        tarfile.open(fileobj=BytesIO(archive)) as tar,
+    ):
+        tar.extractall(old_root, filter="data")
         trees = {"old": old_root, "new": str(ROOT)}
         print(f"\n## whole controller tick, {robot}, {ticks} ticks a run: this tree vs {rev}\n")
         print("| round | old p50 µs | old p99 µs | new p50 µs | new p99 µs | new / old (p50) |")
