@@ -42,6 +42,7 @@ from loop import realtime
 from climbd.daemon.contract.messages import JointCommand
 from climbd.daemon.contract.profile import load
 from climbd.drivers.dynamixel.bus import MISPARSE, DynamixelBus, LatencyPort
+from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim.dynamixel import ServoChain
 from climbd.drivers.sim.dynamixel.wire import Framer
 
@@ -179,7 +180,7 @@ def host_cpu_s(profile, cycles: int = 200) -> tuple[float, float]:
         cycle[k] = time.perf_counter() - t0
     if bus.lost.any():
         raise SystemExit("instant port: servos did not answer")
-    ph, state = sdk.PacketHandler(float(profile.bus.protocol)), bus.model.state
+    ph, state = sdk.PacketHandler(float(bus.config.protocol)), bus.model.state
     one = np.empty(cycles)
     for k in range(cycles):
         t0 = time.perf_counter()
@@ -214,10 +215,11 @@ def run_naive(profile, port: str, cycles: int) -> np.ndarray:
     """The SDK examples' pattern: readNByteTxRx then writeNByteTxRx, servo by servo."""
     handler = sdk.PortHandler(port)
     handler.openPort()
-    handler.setBaudRate(profile.bus.baud)
-    ph = sdk.PacketHandler(float(profile.bus.protocol))
+    config = DynamixelConfig.from_profile(profile)
+    handler.setBaudRate(config.baud)
+    ph = sdk.PacketHandler(float(config.protocol))
     ids = [j.id for j in profile.joints]
-    if profile.bus.protocol == 1:
+    if config.protocol == 1:
         read, write, present, goal, value = ph.read2ByteTxRx, ph.write2ByteTxRx, 36, 30, 512
     else:
         read, write, present, goal, value = ph.read4ByteTxRx, ph.write4ByteTxRx, 132, 116, 2048

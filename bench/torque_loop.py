@@ -73,6 +73,7 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
     from climbd.drivers.sim.mit_motors import MitMotorChain
     from climbd.drivers.torque.bridge import BridgeJointBus
     from climbd.drivers.torque.bus import MitJointBus, waiting_for_replies
+    from climbd.drivers.torque.config import TorqueConfig
     from climbd.drivers.torque.links import peer_channel
 
     if kind == "fake":
@@ -83,7 +84,7 @@ def joint_bus(kind: str, profile) -> Iterator[object]:
     if kind == "virtual":
         channel = f"bench-torque-{next(_channels)}"
         ids = [j.id for j in profile.joints]
-        chain = MitMotorChain(ids, profile.bus.actuator, channel).start()
+        chain = MitMotorChain(ids, TorqueConfig.from_profile(profile).actuator, channel).start()
         waiting = waiting_for_replies(profile, THREAD_REPLY_TIMEOUT)
         bus = MitJointBus(waiting, [channel], interface="virtual")
         try:

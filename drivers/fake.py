@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -22,7 +23,11 @@ from climbd.daemon.contract.hardware import (
     mount_extrinsics,
 )
 from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
-from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import DriverConfig, Profile
+
+
+class FakeConfig(DriverConfig, forbid_unknown_fields=True, kw_only=True):
+    """The fake joint bus has no keys of its own in the profile's ``[bus]`` table."""
 
 
 @dataclass
@@ -33,6 +38,9 @@ class FakeJointBus:
     calls raise DriverError; ``lost`` marks joints as not answering; ``temperature`` sets
     per-joint temperatures for health tests.
     """
+
+    Config: ClassVar[type[DriverConfig]] = FakeConfig
+    """Its keys of the profile's ``[bus]`` table: none."""
 
     profile: Profile
     tau: float = 0.02

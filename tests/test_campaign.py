@@ -114,10 +114,12 @@ class Rig:
             from climbd.daemon.cli.sim_host import THREAD_REPLY_TIMEOUT
             from climbd.drivers.sim.mit_motors import MitMotorChain
             from climbd.drivers.torque.bus import MitJointBus, waiting_for_replies
+            from climbd.drivers.torque.config import TorqueConfig
 
             channel = f"campaign-{os.getpid()}-{next(_channels)}"
             ids = [j.id for j in self.profile.joints]
-            self.chain = MitMotorChain(ids, self.profile.bus.actuator, channel).start()
+            actuator = TorqueConfig.from_profile(self.profile).actuator
+            self.chain = MitMotorChain(ids, actuator, channel).start()
             for ident, q in zip(ids, stand, strict=True):
                 self.chain.set_state(ident, float(q), 0.0, 0.0)
             self.emulator = None

@@ -16,9 +16,10 @@ import pytest
 
 from climbd.daemon.contract.hardware import DriverError, JointBus
 from climbd.daemon.contract.messages import JointCommand, Mode
-from climbd.daemon.contract.profile import load
+from climbd.daemon.contract.profile import Profile, load, with_bus_options
 from climbd.daemon.runtime.safety import Safety
 from climbd.drivers.dynamixel.bus import DynamixelBus
+from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim.dynamixel import DynamixelEmulator, EmulatedServo, ServoChain
 from climbd.drivers.sim.dynamixel.tables import XM430_W350
 
@@ -26,8 +27,9 @@ RESOLUTION = {1: (math.radians(300) / 1023, 512), 2: (2 * math.pi / 4096, 2048)}
 MARGIN_MS = 10.0  # packet-timeout margin: tolerates a loaded CI machine
 
 
-def _profile(name: str, **bus):
-    """A stock profile with joints turned round and offset: kinematic data the bus must ignore."""
+def _profile(name: str, **options):
+    """A stock profile with joints turned round and offset: kinematic data the bus must ignore;
+    ``options`` replace keys of its Dynamixel ``[bus]``."""
     p = load(f"robots/{name}.toml")
     legs = []
     for i, leg in enumerate(p.legs):
@@ -36,9 +38,12 @@ def _profile(name: str, **bus):
             for k, j in enumerate(leg.joints)
         ]
         legs.append(msgspec.structs.replace(leg, joints=joints))
-    return msgspec.structs.replace(
-        p, legs=legs, bus=msgspec.structs.replace(p.bus, **bus) if bus else p.bus
-    )
+    return with_bus_options(msgspec.structs.replace(p, legs=legs), **options)
+
+
+def _dxl(profile: Profile) -> DynamixelConfig:
+    """The profile's Dynamixel settings."""
+    return DynamixelConfig.from_profile(profile)
 
 
 @pytest.fixture(params=["widowx", "hubrobo"])
@@ -74,7 +79,7 @@ def test_goals_reach_servos_within_resolution(rig):
     q = rng.uniform(lo, hi) * 0.8
     bus.torque(True)
     bus.write(JointCommand(position=q.tolist()))
-    rad_per_tick, center = RESOLUTION[profile.bus.protocol]
+    rad_per_tick, center = RESOLUTION[_dxl(profile).protocol]
     measured = _settle(bus, q, rad_per_tick / 2 + 1e-9)
     for j, qj in zip(joints, q, strict=True):
         servo = chain.servo(j.id)
@@ -87,7 +92,7 @@ def test_goals_reach_servos_within_resolution(rig):
 def test_bring_up_sets_return_delay_and_status_level(rig):
     profile, chain, _, _ = rig
     for s in chain.servos.values():
-        assert s.get("return_delay_time") == profile.bus.return_delay_us // 2
+        assert s.get("return_delay_time") == _dxl(profile).return_delay_us // 2
         assert s.get("status_return_level") == 2
         limit = next(j for j in profile.joints if j.id == s.ident).limits.velocity
         assert s.speed_limit == pytest.approx(limit, rel=0.05)
@@ -117,7 +122,7 @@ def test_one_transaction_per_servo_or_one_sync_read_per_cycle(rig):
     bus.write(JointCommand(position=q.tolist()))
     bus.read()  # a round trip: the emulator has handled the broadcast sync write before it
     delta = {k: v - before.get(k, 0) for k, v in chain.counts.items() if v != before.get(k, 0)}
-    if profile.bus.protocol == 1:
+    if _dxl(profile).protocol == 1:
         assert delta == {0x02: 2 * n, 0x83: 1}  # a READ per servo per cycle, one SYNC WRITE
     else:
         assert delta == {0x8A: 2, 0x83: 1}  # one FAST SYNC READ per cycle, one SYNC WRITE
@@ -128,7 +133,7 @@ def test_missing_id_wrong_model_and_missing_port_are_named():
     chain = ServoChain.from_profile(profile)
     chain.silence(7)
     wrong = ServoChain(
-        [EmulatedServo(XM430_W350, j.id) for j in profile.joints], 2, profile.bus.baud
+        [EmulatedServo(XM430_W350, j.id) for j in profile.joints], 2, _dxl(profile).baud
     )
     with DynamixelEmulator(chain) as emu:
         bus = DynamixelBus.from_profile(profile, port=emu.port)
@@ -235,10 +240,10 @@ def test_fault_reset_brings_back_only_servos_a_fault_switched_off(rig):
         bus.read()
     bus.read_health()
     assert bus.health()[k].errors == [] and not bus.health()[k].lost
-    step = RESOLUTION[profile.bus.protocol][0]
+    step = RESOLUTION[_dxl(profile).protocol][0]
     assert abs(servo.goal_angle - 0.3) <= step and abs(bus.position[k] - 0.3) <= step
     assert powered.torque_enabled
-    assert chain.counts[0x08] == (1 if profile.bus.protocol == 2 else 0)  # REBOOT
+    assert chain.counts[0x08] == (1 if _dxl(profile).protocol == 2 else 0)  # REBOOT
 
 
 def test_corrupt_replies_are_misses_not_crashes(rig):

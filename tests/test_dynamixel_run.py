@@ -14,6 +14,7 @@ import pytest
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.profile import load
+from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -54,8 +55,9 @@ def test_climbd_run_stands_up_on_the_emulated_bus(robot: str, endpoint: str, tmp
             proc.wait(timeout=30)
             reader.join(5)
     stand = Kinematics(profile).stand_joints()
+    resolution = RESOLUTION[DynamixelConfig.from_profile(profile).protocol]
     assert all(torque)
-    assert np.max(np.abs(present - goals)) <= RESOLUTION[profile.bus.protocol]
-    assert np.max(np.abs(goals - stand)) < 0.01 + RESOLUTION[profile.bus.protocol]
+    assert np.max(np.abs(present - goals)) <= resolution
+    assert np.max(np.abs(goals - stand)) < 0.01 + resolution
     assert proc.returncode == 0, "".join(log)
     assert "Traceback" not in "".join(log)

@@ -9,6 +9,7 @@ from support.qingzhui_twin import QingzhuiRig, flat_world
 
 from climbd.daemon.contract.messages import MotionCommand
 from climbd.daemon.runtime.loader import Isolated
+from climbd.drivers.torque.config import TorqueConfig
 from climbd.plugins.gaits.periodic import Tripod
 
 
@@ -46,7 +47,7 @@ def test_gravity_feed_forward_holds_the_body_height_at_the_profile_gains() -> No
         rig.stand()
         stand = rig.profile.stand.body_height + rig.twin.robot.foot_radius
         standing = rig.twin.body_pose()[0][2]
-        assert rig.bus.kp == rig.profile.bus.kp
+        assert rig.bus.kp == TorqueConfig.from_profile(rig.profile).kp
         rig.hooks.append(lambda t: heights.append(rig.twin.body_pose()[0][2]))
         rig.activate(MotionCommand(vx=0.1))
         rig.run(2.0)

@@ -24,7 +24,7 @@ from climbd.daemon.contract.messages import (
     MotionCommand,
     SessionClaim,
 )
-from climbd.daemon.contract.profile import load
+from climbd.daemon.contract.profile import load, with_bus_options
 from climbd.daemon.runtime.loader import Isolated
 from climbd.daemon.runtime.loop import SteppedClock
 from climbd.daemon.runtime.stack import control_stack
@@ -216,8 +216,9 @@ def test_qingzhui_torque_legs_answer_mit_frames_from_the_physics():
     """The torque robot's real CAN driver on the twin's virtual channel: impedance commands
     move the simulated joints, replies carry the simulated state, a silent motor is lost."""
     profile = load(ROOT / "robots" / "qingzhui.toml")
+    profile = with_bus_options(profile, reply_timeout=0.05)
     profile = msgspec.structs.replace(
-        profile, bus=msgspec.structs.replace(profile.bus, reply_timeout=0.05, lost_after=3)
+        profile, bus=msgspec.structs.replace(profile.bus, lost_after=3)
     )
     twin = Twin(profile, "attic", stepped=True).start()
     bus = MitJointBus.from_profile(profile, port=twin.port, interface="virtual")

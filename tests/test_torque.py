@@ -12,20 +12,19 @@ import threading
 import time
 
 import can
-import msgspec
 import numpy as np
 import pytest
 
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.hardware import DriverError
 from climbd.daemon.contract.messages import JointCommand, Mode
-from climbd.daemon.contract.profile import ActuatorRanges
 from climbd.daemon.runtime.loop import MonotonicClock
 from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.sim import mit_motors
 from climbd.drivers.sim.mit_motors import MitMotorChain
 from climbd.drivers.torque import links, mit
 from climbd.drivers.torque.bus import MitJointBus, joint_channels
+from climbd.drivers.torque.config import ActuatorRanges, TorqueConfig
 
 RANGES = ActuatorRanges()
 _channels = itertools.count()
@@ -81,9 +80,7 @@ def qingzhui(robots):
 def patient(profile: profiles.Profile) -> profiles.Profile:
     """The profile with a driver waiting 50 ms for replies (not 0.5 ms), so a loaded test
     machine's late emulator is not taken for a fault."""
-    return msgspec.structs.replace(
-        profile, bus=msgspec.structs.replace(profile.bus, reply_timeout=0.05)
-    )
+    return profiles.with_bus_options(profile, reply_timeout=0.05)
 
 
 def follows_goal(bus: MitJointBus) -> float:
@@ -100,7 +97,9 @@ def follows_goal(bus: MitJointBus) -> float:
 def rig(qingzhui):
     """Emulated motors serving in a thread and the driver, on python-can's virtual bus."""
     channel = f"qz-test-{next(_channels)}"
-    chain = MitMotorChain([j.id for j in qingzhui.joints], qingzhui.bus.actuator, channel).start()
+    chain = MitMotorChain(
+        [j.id for j in qingzhui.joints], TorqueConfig.from_profile(qingzhui).actuator, channel
+    ).start()
     bus = MitJointBus(patient(qingzhui), [channel], interface="virtual")
     yield chain, bus
     bus.close()
@@ -235,7 +234,7 @@ def test_a_channel_whose_motors_answered_is_not_waited_on(qingzhui, monkeypatch)
     opened: dict[str, EchoLink] = {}
 
     def echo(interface: str, channel: str) -> EchoLink:
-        opened[channel] = EchoLink(channel, qingzhui.bus.master_id)
+        opened[channel] = EchoLink(channel, TorqueConfig.from_profile(qingzhui).master_id)
         return opened[channel]
 
     monkeypatch.setattr("climbd.drivers.torque.bus.open_link", echo)
@@ -261,7 +260,7 @@ def udp_rig(qingzhui):
     chains = [
         MitMotorChain(
             [j.id for j, c in zip(qingzhui.joints, placed, strict=True) if c == channel],
-            qingzhui.bus.actuator,
+            TorqueConfig.from_profile(qingzhui).actuator,
             links.peer_channel(channel),
             links.UDP_INTERFACE,
             external_model=True,

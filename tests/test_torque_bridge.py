@@ -21,6 +21,7 @@ from climbd.daemon.contract.messages import JointCommand
 from climbd.drivers.sim.mit_motors import MitMotorChain
 from climbd.drivers.torque import links
 from climbd.drivers.torque.bridge import BridgeJointBus
+from climbd.drivers.torque.config import TorqueConfig
 
 WATCHDOG = 0.2
 """The bridge's watchdog in the test that trips it (a loaded test machine can stall the test's
@@ -52,7 +53,7 @@ def bridged(profile_path: Path, watchdog: float = 5.0, motors_in_process: bool =
         chain = None
         if motors_in_process:
             ids = [j.id for j in profile.joints]
-            actuator = profile.bus.actuator
+            actuator = TorqueConfig.from_profile(profile).actuator
             chain = MitMotorChain(
                 ids, actuator, links.peer_channel(can_channel), links.UDP_INTERFACE
             ).start()

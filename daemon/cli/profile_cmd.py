@@ -7,7 +7,7 @@ import sys
 
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.plugins import PluginError
-from climbd.daemon.runtime.loader import load_class, make_config
+from climbd.daemon.runtime.loader import check_driver, load_class, make_config
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,6 +34,7 @@ def main(args: argparse.Namespace) -> int:
     for path in args.file:
         try:
             p = profiles.load(path)
+            check_driver(p)
             check_plugins(p)
         except (profiles.ProfileError, PluginError) as e:
             print(f"error: {e}", file=sys.stderr)

@@ -15,9 +15,10 @@ from collections.abc import Callable
 from climbd.daemon.cli.sim_host import SimHost, feed, sim_camera
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import DepthImage, Message
+from climbd.daemon.contract.plugins import PluginError
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.control_role import ControlRole, StartupError
-from climbd.daemon.runtime.loader import load_class
+from climbd.daemon.runtime.loader import check_driver, load_class
 from climbd.daemon.runtime.perception_role import PerceptionRole
 from climbd.daemon.runtime.supervisor import supervise
 from climbd.drivers.fake import FloorCamera
@@ -79,7 +80,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     try:
         profile = profiles.load(args.profile)
-    except profiles.ProfileError as e:
+        check_driver(profile)
+    except (profiles.ProfileError, PluginError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     try:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import msgspec
 
@@ -67,55 +67,62 @@ class Leg(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     knee: Literal["a", "b"] = "a"
 
 
-class ActuatorRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """Ranges of an MIT-mode actuator's packed fields (SI, at the output shaft).
-
-    The firmware maps each range onto 16 bits (position) or 12 bits (the others); they must
-    match the actuator's firmware. Defaults are the common mini-cheetah/AK-series values.
-    """
-
-    position: float = 12.5
-    velocity: float = 45.0
-    kp: float = 500.0
-    kd: float = 5.0
-    torque: float = 18.0
-
-
 class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """The joint bus: driver kind and its transport settings.
+    """The joint bus: driver kind, what the runtime needs of any bus, and the driver's own keys.
 
-    Torque legs (``kind = "torque"``) use the CAN fields, the actuator ranges, and the
-    default position gains ``kp`` (N·m/rad) and ``kd`` (N·m·s/rad) for commands without gains;
-    ``can_channels`` spreads the legs over several CAN buses (leg i on channel i mod n), each
-    of which must carry its motors' command and reply every tick at ``baud`` (the serial or CAN
-    bit rate, bit/s). ``reply_timeout`` (s) is how long a read waits for motors yet to answer
-    the last write: 0 takes the replies that have arrived and leaves those still on the wire
-    to the next read, so a tick never waits out a channel's bus time (three motors hold a
-    1 Mbit/s channel 0.75 ms after each write); a motor is lost after ``lost_after`` reads
-    without any reply.
-    Position servos (Dynamixel) sag under load by torque / ``stiffness`` (N·m/rad, the firmware
-    gain's); above 0, each stance leg's goal is offset by its share of the weight's torque over
-    it, so loaded legs hold their height (0: no sag compensation).
+    ``kind`` names the driver (an entry point in ``climbd.drivers``). A motor is lost after
+    ``lost_after`` reads without any reply; health (voltage, temperature) is read at
+    ``health_rate_hz``. Position servos (Dynamixel) sag under load by torque / ``stiffness``
+    (N·m/rad, the firmware gain's); above 0, each stance leg's goal is offset by its share of
+    the weight's torque over it, so loaded legs hold their height (0: no sag compensation).
+    ``options`` holds every other key of the profile's flat ``[bus]`` table: the driver's own
+    settings, which its ``Config`` (a ``DriverConfig``) decodes and checks.
     """
 
     kind: str = "fake"
-    port: str = "/dev/ttyUSB0"
-    baud: int = 1_000_000
-    protocol: Literal[1, 2] = 1
-    model: str = "AX-18A"
-    return_delay_us: int = 0
-    latency_timer_ms: int = 1
     health_rate_hz: float = 10.0
     lost_after: int = 5
-    can_interface: str = "socketcan"
-    can_channel: str = "can0"
-    can_channels: list[str] = []
-    master_id: int = 0
-    reply_timeout: float = 0.0
-    actuator: ActuatorRanges = msgspec.field(default_factory=ActuatorRanges)
-    kp: float = 60.0
-    kd: float = 1.5
     stiffness: float = 0.0
+    options: dict[str, Any] = {}
+
+
+C = TypeVar("C", bound="DriverConfig")
+
+
+class DriverConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Base of a joint-bus driver's ``Config``: its keys of the profile's ``[bus]`` table.
+
+    A driver subclasses it with its fields and defaults and sets it as its class attribute
+    ``Config``; ``from_profile`` decodes ``profile.bus.options`` with errors at ``$.bus.<field>``,
+    ``validate`` adds the checks across fields (and the rest of the profile) the schema cannot.
+    """
+
+    @classmethod
+    def from_profile(cls: type[C], profile: Profile) -> C:
+        """This driver's settings in ``profile``; a ProfileError names ``$.bus.<field>``."""
+        try:
+            return msgspec.convert(profile.bus.options, cls, strict=True)
+        except msgspec.ValidationError as e:
+            what, _, at = str(e).partition(" - at `")
+            at = at.rstrip("`") or "$"
+            where = "$.bus" + at[1:]
+            raise ProfileError(f"{profile.source or profile.name}: {where}: {what}") from None
+
+    def validate(self, profile: Profile) -> None:
+        """Checks across fields; raises ProfileError naming the field. None by default."""
+
+    @classmethod
+    def check(cls: type[C], profile: Profile) -> C:
+        """Decode and validate this driver's settings in ``profile``."""
+        config = cls.from_profile(profile)
+        config.validate(profile)
+        return config
+
+
+def with_bus_options(profile: Profile, **options: Any) -> Profile:
+    """``profile`` with some of its driver's ``[bus]`` keys replaced (tests, the twin)."""
+    bus = msgspec.structs.replace(profile.bus, options={**profile.bus.options, **options})
+    return msgspec.structs.replace(profile, bus=bus)
 
 
 class CameraMount(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -282,57 +289,6 @@ def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     return _merge(base, data)
 
 
-MIT_FRAME_BYTES = (8, 6)
-"""Data bytes of an MIT-mode command and of the motor's reply: one of each per motor a tick."""
-
-
-def can_frame_bits(data_bytes: int) -> int:
-    """Bits a classic CAN data frame (11-bit id) holds the bus for: the 34 + 8n bits from start
-    of frame to the CRC at worst-case stuffing (a stuff bit after every 4 past the first), then
-    CRC delimiter, ACK, end of frame and the 3-bit interframe space (13)."""
-    stuffed = 34 + 8 * data_bytes
-    return stuffed + (stuffed - 1) // 4 + 13
-
-
-def can_tick_time(motors: int, baud: int) -> float:
-    """Seconds of bus time ``motors`` MIT motors take a tick on one channel at ``baud`` bit/s."""
-    return motors * sum(can_frame_bits(n) for n in MIT_FRAME_BYTES) / baud
-
-
-def _check_can_load(profile: Profile, src: str) -> None:
-    """Every CAN channel carries its motors' commands and replies within one control period:
-    18 motors on one 1 Mbit/s bus take 4.5 ms a tick, which no 1 kHz loop can run on."""
-    bus = profile.bus
-    _check(bus.baud > 0, src, "$.bus.baud", f"expected > 0 bit/s, found {bus.baud}")
-    channels = bus.can_channels or [bus.can_channel]
-    per_leg = [len(leg.joints) for leg in profile.legs]
-    motors = {c: sum(per_leg[i :: len(channels)]) for i, c in enumerate(channels)}
-    busiest = max(motors, key=motors.get)
-    need = can_tick_time(motors[busiest], bus.baud)
-    period = 1.0 / profile.rate_hz
-    if need <= period:
-        return
-    fits = [
-        n
-        for n in range(1, len(per_leg) + 1)
-        if can_tick_time(max(sum(per_leg[i::n]) for i in range(n)), bus.baud) <= period
-    ]
-    advice = (
-        f"spread the legs over {fits[0]} channels or more (leg i on channel i mod n)"
-        if fits
-        else "one leg a channel does not fit either: lower rate_hz or raise baud"
-    )
-    _check(
-        False,
-        src,
-        "$.bus.can_channels",
-        f"{motors[busiest]} motors on {busiest} need {need * 1e3:.2f} ms of bus time a tick "
-        f"(an {MIT_FRAME_BYTES[0]}-byte command and a {MIT_FRAME_BYTES[1]}-byte reply each at "
-        f"{bus.baud} bit/s), more than the {period * 1e3:g} ms period at {profile.rate_hz:g} Hz: "
-        f"{advice}",
-    )
-
-
 def _check(cond: bool, source: str, field: str, message: str) -> None:
     if not cond:
         raise ProfileError(f"{source}: {field}: {message}")
@@ -423,15 +379,36 @@ def validate(profile: Profile) -> Profile:
         "$.safety.derate_temperature",
         f"expected <= max_temperature {s.max_temperature}, found {s.derate_temperature}",
     )
-    if profile.bus.kind == "torque":
-        _check_can_load(profile, src)
     return profile
 
 
+BUS_FIELDS = frozenset(JointBusConfig.__struct_fields__) - {"options"}
+"""Keys of the ``[bus]`` table the contract decodes; the others are the driver's options."""
+
+
+def _split_bus(data: dict) -> dict:
+    """``data`` with the driver's keys of its flat ``[bus]`` table moved into ``bus.options``.
+
+    A dict-valued ``options`` key (a decoded profile turned back into builtins) is merged."""
+    bus = data.get("bus")
+    if not isinstance(bus, dict):
+        return data
+    options = bus.get("options")
+    common = {k: v for k, v in bus.items() if k in BUS_FIELDS}
+    own = {k: v for k, v in bus.items() if k not in BUS_FIELDS}
+    if isinstance(options, dict):
+        del own["options"]
+        own = {**options, **own}
+    return {**data, "bus": {**common, "options": own}}
+
+
 def from_dict(data: dict, source: str = "<profile>") -> Profile:
-    """Decode and validate a profile from a plain dict (as read from TOML)."""
+    """Decode and validate a profile from a plain dict (as read from TOML).
+
+    The driver's keys of ``[bus]`` are kept, undecoded, in ``bus.options``: the driver's
+    ``Config`` checks them (``climbd profile check``, ``climbd run``, the driver itself)."""
     try:
-        profile = msgspec.convert({**data, "source": source}, Profile, strict=True)
+        profile = msgspec.convert({**_split_bus(data), "source": source}, Profile, strict=True)
     except msgspec.ValidationError as e:
         what, _, at = str(e).partition(" - at `")
         raise ProfileError(f"{source}: {at.rstrip('`') or '$'}: {what}") from None

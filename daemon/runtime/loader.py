@@ -17,6 +17,7 @@ from typing import Any, Generic, ParamSpec, TypeVar
 import msgspec
 
 from climbd.daemon.contract.plugins import EmptyConfig, PluginError
+from climbd.daemon.contract.profile import DriverConfig, Profile
 
 GROUPS = ("climbd.perception", "climbd.gaits", "climbd.drivers")
 
@@ -53,6 +54,18 @@ def make_config(cls: type, overrides: dict[str, Any], where: str) -> msgspec.Str
         return msgspec.convert(overrides, config_type, strict=False)
     except msgspec.ValidationError as e:
         raise PluginError(f"{where}: {e}") from None
+
+
+def check_driver(profile: Profile) -> DriverConfig:
+    """The joint-bus driver the profile names (``bus.kind``) checks its keys of ``[bus]``: its
+    ``Config`` decodes and validates them (ProfileError naming ``$.bus.<field>``). A driver
+    without a ``Config`` takes no keys of its own."""
+    try:
+        cls = load_class("climbd.drivers", profile.bus.kind)
+    except PluginError as e:
+        raise PluginError(f"{profile.source or profile.name}: $.bus.kind: {e}") from None
+    config_type = getattr(cls, "Config", DriverConfig)
+    return config_type.check(profile)
 
 
 def instantiate(group: str, name: str, overrides: dict[str, Any], profile: Any, where: str):

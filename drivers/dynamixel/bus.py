@@ -27,6 +27,7 @@ import numpy as np
 from climbd.daemon.contract.hardware import DriverError
 from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
 from climbd.daemon.contract.profile import Profile
+from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
 from climbd.drivers.dynamixel.packet import packet_handler
 from climbd.drivers.dynamixel.units import TickScale, little_endian, little_endian_bytes
@@ -131,6 +132,9 @@ class DynamixelBus:
     compliant = True
     """Position servos: load deflects them from their goals (the controller's sag offset)."""
 
+    Config = DynamixelConfig
+    """Its keys of the profile's ``[bus]`` table."""
+
     def __init__(
         self,
         profile: Profile,
@@ -140,7 +144,7 @@ class DynamixelBus:
         fast_sync_read: bool | None = None,
         timeout_margin_ms: float = 2.0,
     ) -> None:
-        bus = profile.bus
+        bus = self.config = DynamixelConfig.from_profile(profile)
         try:
             self.model: Model = model(bus.model)
         except KeyError as e:
@@ -153,7 +157,7 @@ class DynamixelBus:
         self.profile = profile
         self.port_name = port or bus.port
         self.baud = baud or bus.baud
-        self.lost_after = lost_after or bus.lost_after
+        self.lost_after = lost_after or profile.bus.lost_after
         self.fast_sync_read = fast_sync_read
         self.timeout_margin_ms = timeout_margin_ms
         joints = profile.joints
@@ -161,7 +165,7 @@ class DynamixelBus:
         self.ids = [j.id for j in joints]
         self.map = TickScale(self.model, joints)
         self.speed_caps = self.map.speed_ticks(np.array([j.limits.velocity for j in joints]))
-        self.health_every = max(1, round(profile.rate_hz / bus.health_rate_hz))
+        self.health_every = max(1, round(profile.rate_hz / profile.bus.health_rate_hz))
         n = len(joints)
         self.position = np.zeros(n)
         self.velocity = np.zeros(n)
@@ -207,7 +211,7 @@ class DynamixelBus:
 
     def open(self) -> None:
         """Open the port, ping and check every servo, configure it for a fast loop, first read."""
-        bus = self.profile.bus
+        bus = self.config
         port = LatencyPort(self.port_name, bus.latency_timer_ms, self.timeout_margin_ms)
         try:
             opened = port.openPort()

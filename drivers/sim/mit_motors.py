@@ -31,8 +31,9 @@ from dataclasses import dataclass, field
 
 import can
 
-from climbd.daemon.contract.profile import ActuatorRanges, ProfileError, load
+from climbd.daemon.contract.profile import ProfileError, load
 from climbd.drivers.torque.bus import joint_channels
+from climbd.drivers.torque.config import ActuatorRanges, TorqueConfig
 from climbd.drivers.torque.links import UDP_INTERFACE, FrameLink, open_link
 from climbd.drivers.torque.mit import (
     CAN_ERR_BUSOFF,
@@ -201,10 +202,10 @@ def main(argv: list[str] | None = None) -> int:
     chains: list[MitMotorChain] = []
     try:
         profile = load(args.profile)
+        bus = TorqueConfig.from_profile(profile)
         placed = joint_channels(profile, args.channel)
         for channel in args.channel:
             ids = [j.id for j, c in zip(profile.joints, placed, strict=True) if c == channel]
-            bus = profile.bus
             chain = MitMotorChain(ids, bus.actuator, channel, args.interface, bus.master_id)
             chains.append(chain.start())
     except (ProfileError, can.CanError, OSError, ValueError) as e:

@@ -27,6 +27,7 @@ import numpy as np
 
 from climbd.daemon.contract.messages import EstopPolicy
 from climbd.daemon.contract.profile import Profile
+from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim import servos
 from climbd.drivers.sim.worlds import (
     World,
@@ -104,7 +105,9 @@ def _motors(profile: Profile) -> tuple[list[servos.ServoModel], bool]:
         return [
             servos.torque_motor(j.limits.effort, j.limits.velocity) for j in profile.joints
         ], True
-    model = servos.servo_model(profile.bus.model, profile.source or profile.name)
+    model = servos.servo_model(
+        DynamixelConfig.from_profile(profile).model, profile.source or profile.name
+    )
     return [model] * len(profile.joints), False
 
 

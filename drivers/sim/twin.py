@@ -53,6 +53,7 @@ from climbd.drivers.sim.mit_motors import MitMotorChain
 from climbd.drivers.sim.model import GRIP_FORCE, RobotModel, build
 from climbd.drivers.sim.worlds import World
 from climbd.drivers.sim.worlds import load as load_world
+from climbd.drivers.torque.config import TorqueConfig
 
 if TYPE_CHECKING:
     from climbd.drivers.realsense.software import SoftwareDepthCamera
@@ -225,7 +226,7 @@ class Twin:
         self.can_chain: PhysicsMitChain | None = None
         self.motor_index = {j.id: k for k, j in enumerate(self.profile.joints)}
         if bus and r.torque_legs:
-            cfg = self.profile.bus
+            cfg = TorqueConfig.from_profile(self.profile)
             self.can_chain = PhysicsMitChain(
                 [j.id for j in self.profile.joints],
                 cfg.actuator,

@@ -34,6 +34,7 @@ from climbd.daemon.contract.hardware import DriverError
 from climbd.daemon.contract.messages import EstopPolicy, JointCommand, JointHealth, JointState
 from climbd.daemon.contract.profile import Profile, ProfileError, load
 from climbd.drivers.torque.bus import MitJointBus, waiting_for_replies
+from climbd.drivers.torque.config import TorqueConfig
 from climbd.drivers.torque.links import udp_socket
 from climbd.drivers.torque.mit import non_finite
 
@@ -171,6 +172,9 @@ class Bridge:
 class BridgeJointBus:
     """The control role's side: the ``JointBus`` of a torque bridge on ``port`` (its UDP
     channel, ``LOCAL_HOST:PORT/BRIDGE_HOST:PORT``)."""
+
+    Config = TorqueConfig
+    """The bridge serves torque legs: the torque driver's keys of ``[bus]``."""
 
     def __init__(self, profile: Profile, channel: str) -> None:
         self.profile = profile
@@ -324,6 +328,7 @@ def main(argv: list[str] | None = None) -> int:
         profile = load(args.profile)
         if profile.bus.kind != "torque":
             raise ProfileError(f"{args.profile}: bus.kind is {profile.bus.kind!r}, not 'torque'")
+        TorqueConfig.check(profile)
         bus = MitJointBus(waiting_for_replies(profile, REPLY_WAIT), args.channel, args.interface)
         bus.open()
     except (ProfileError, DriverError) as e:

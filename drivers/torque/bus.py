@@ -18,12 +18,12 @@ import select
 import time
 
 import can
-import msgspec
 import numpy as np
 
 from climbd.daemon.contract.hardware import DriverError
 from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
-from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import Profile, with_bus_options
+from climbd.drivers.torque.config import TorqueConfig
 from climbd.drivers.torque.links import Frame, FrameLink, open_link
 from climbd.drivers.torque.mit import (
     CAN_ERR_BUSOFF,
@@ -47,8 +47,8 @@ filing a burst of them does not make the tick late."""
 def waiting_for_replies(profile: Profile, wait: float) -> Profile:
     """The profile with its reply timeout raised to at least ``wait`` s: for a driver that can
     afford to wait (a bridge process, motors emulated in the same interpreter)."""
-    bus = msgspec.structs.replace(profile.bus, reply_timeout=max(profile.bus.reply_timeout, wait))
-    return msgspec.structs.replace(profile, bus=bus)
+    timeout = TorqueConfig.from_profile(profile).reply_timeout
+    return with_bus_options(profile, reply_timeout=max(timeout, wait))
 
 
 def joint_channels(profile: Profile, channels: list[str]) -> list[str]:
@@ -59,17 +59,21 @@ def joint_channels(profile: Profile, channels: list[str]) -> list[str]:
 class MitJointBus:
     """The joints of a torque-controlled robot, behind MIT-mode actuators on CAN."""
 
+    Config = TorqueConfig
+    """Its keys of the profile's ``[bus]`` table."""
+
     def __init__(
         self,
         profile: Profile,
         channels: list[str] | None = None,
         interface: str | None = None,
     ) -> None:
-        cfg = profile.bus
+        cfg = TorqueConfig.from_profile(profile)
         self.profile = profile
+        self.config = cfg
         self.ranges = cfg.actuator
         self.interface = interface or cfg.can_interface
-        legs_channels = channels or cfg.can_channels or [cfg.can_channel]
+        legs_channels = channels or cfg.channels
         joints = profile.joints
         self.names = [j.name for j in joints]
         self.ids = np.array([j.id for j in joints])
@@ -87,7 +91,7 @@ class MitJointBus:
         self.effort = np.zeros(n)
         self.missed = np.zeros(n, int)
         self.errors: list[list[str]] = [[] for _ in range(n)]
-        self.lost_after = cfg.lost_after
+        self.lost_after = profile.bus.lost_after
         self.reply_timeout = cfg.reply_timeout
         self.kp, self.kd = cfg.kp, cfg.kd
         self.master_id = cfg.master_id

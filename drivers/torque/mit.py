@@ -17,7 +17,7 @@ from math import isfinite
 
 import numpy as np
 
-from climbd.daemon.contract.profile import MIT_FRAME_BYTES, ActuatorRanges
+from climbd.drivers.torque.config import MIT_FRAME_BYTES, ActuatorRanges
 
 ENTER_MOTOR_MODE = bytes([0xFF] * 7 + [0xFC])
 EXIT_MOTOR_MODE = bytes([0xFF] * 7 + [0xFD])

@@ -23,6 +23,7 @@ from climbd.drivers.sim.mit_coupling import MitCoupling
 from climbd.drivers.sim.mit_motors import MitMotorChain
 from climbd.drivers.sim.twin import Twin
 from climbd.drivers.torque.bus import MitJointBus
+from climbd.drivers.torque.config import TorqueConfig
 
 _channels = itertools.count()
 SESSION = "qz-test"
@@ -82,14 +83,15 @@ class QingzhuiRig:
         from climbd.drivers.sim.worlds import load as load_world
 
         profile = profiles.load(ROOT / "robots" / "qingzhui.toml")
-        bus = msgspec.structs.replace(profile.bus, reply_timeout=LOCKSTEP_REPLY_TIMEOUT)
-        self.profile = msgspec.structs.replace(profile, bus=bus)
+        self.profile = profiles.with_bus_options(profile, reply_timeout=LOCKSTEP_REPLY_TIMEOUT)
         w = load_world(world) if isinstance(world, str) else world
         w.start.x = start_x
         self.twin = Twin(self.profile, w, stepped=True)
         channel = f"qz-twin-{next(_channels)}"
         ids = [j.id for j in self.profile.joints]
-        self.chain = MitMotorChain(ids, self.profile.bus.actuator, channel, external_model=True)
+        self.chain = MitMotorChain(
+            ids, TorqueConfig.from_profile(self.profile).actuator, channel, external_model=True
+        )
         self.chain.start()
         self.bus = MitJointBus(self.profile, [channel], interface="virtual")
         self.coupling = MitCoupling(self.twin, self.chain, lambda: self.bus.sent)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim.dynamixel import servo as sv
 from climbd.drivers.sim.dynamixel.servo import EmulatedServo
 from climbd.drivers.sim.dynamixel.tables import spec as model_spec
@@ -86,16 +87,18 @@ class ServoChain:
 
     @classmethod
     def from_profile(cls, profile, baud: int | None = None, **servo_options) -> ServoChain:
-        """One servo per profile joint (model ``profile.bus.model``), at kinematic zero."""
-        model = model_spec(profile.bus.model)
-        if model.protocol != profile.bus.protocol:
+        """One servo per profile joint (the Dynamixel ``model`` of its ``[bus]``), at kinematic
+        zero."""
+        bus = DynamixelConfig.from_profile(profile)
+        model = model_spec(bus.model)
+        if model.protocol != bus.protocol:
             raise ValueError(
                 f"{profile.source or profile.name}: bus.model {model.name} speaks protocol "
-                f"{model.protocol}, bus.protocol is {profile.bus.protocol}"
+                f"{model.protocol}, bus.protocol is {bus.protocol}"
             )
         joints = profile.joints
         servos = [EmulatedServo(model, j.id, angle=j.zero_offset, **servo_options) for j in joints]
-        chain = cls(servos, model.protocol, baud or profile.bus.baud)
+        chain = cls(servos, model.protocol, baud or bus.baud)
         chain.joints = servos
         return chain
 
