@@ -10,7 +10,8 @@ are checked equal.
 
 ``--against REV`` also times the whole controller tick (read, estimate, behave, IK, smooth,
 feed-forward, guard, write; fake joint bus, stepped clock, tripod walking ACTIVE under a teleop
-session, Qingzhui with its estimator and feed-forward) of this tree and of git revision REV,
+session, Qingzhui with its estimator and feed-forward, the collector frozen after start-up as
+``climbd run`` does) of this tree and of git revision REV,
 each in processes of its own, alternated over ``--rounds`` rounds, and prints each round's
 medians and their ratio: the same machine state for old and new.
 
@@ -187,7 +188,7 @@ def run(robot: str, ticks: int, speed: float) -> dict:
 
 
 WHOLE_TICK = """
-import json, sys, time
+import gc, json, sys, time
 import numpy as np
 old = sys.argv[1] == "old"
 if old:  # the layout before climbd.* (one import name): top-level daemon, drivers, plugins
@@ -228,6 +229,8 @@ dt = 1.0 / profile.rate_hz
 every = round(0.05 * profile.rate_hz)
 times = []
 t = 0.0
+gc.collect()
+gc.freeze()  # as climbd run does once started: start-up objects leave the collector's scans
 safety.request(Mode.STAND, t)
 controller.on_claim(SessionClaim(session="bench", client="bench"))
 for k in range(int(3 * profile.safety.stand_time * profile.rate_hz) + ticks):

@@ -187,3 +187,41 @@ def test_joist_climb_holds_still_while_its_crossing_is_planned(widowx, monkeypat
         b.stop()
     assert held >= 50, f"held {held} ticks: the plan was not made off the tick"
     assert b.mode == Phase.CROSS and b.plan is not None
+
+
+def test_a_crossing_plan_made_while_the_joist_moved_is_made_again(widowx, monkeypatch) -> None:
+    """A stale plan is re-checked before it is used: the joist seen 3 cm further on while its
+    crossing was being planned (a bump of the world) makes the behaviour plan again, and it
+    crosses on the plan for where the joist now is."""
+    gate = threading.Event()
+    calls: list[float] = []
+
+    def slow_plan(geometry, *args):
+        calls.append(geometry.bars[0].face)
+        gate.wait(10.0)
+        return real(geometry, *args)
+
+    real = joist_climb.CrossingPlan
+    monkeypatch.setattr(joist_climb, "CrossingPlan", slow_plan)
+    b = JoistClimb(JoistClimbConfig(goal_distance=1.1), widowx)
+    b.start(body_state(b.pose), b.kin.stand_feet())
+    joists = [JoistSpec(0.7, 0.0, 0.06)]
+    dt, t, moved_at = 0.01, 0.0, None
+    try:
+        while t < 120.0 and b.mode != Phase.CROSS:
+            world = {Joists.TOPIC: perceive(joists, b.pose, t)}
+            b.step(t, dt, body_state(b.pose, t), world, None)
+            t += dt
+            if b.mode == Phase.PLAN and moved_at is None:
+                joists, moved_at = [JoistSpec(0.73, 0.0, 0.06)], t  # the world moves
+            elif moved_at is not None and t - moved_at > 0.2 and not gate.is_set():
+                gate.set()  # the moved joist has been seen: let the first plan finish
+                end = time.monotonic() + 10.0
+                while not b.planner.ready and time.monotonic() < end:
+                    time.sleep(0.01)
+    finally:
+        gate.set()
+        b.stop()
+    assert any("the joist moved" in what for _, what in b.events), b.events
+    assert len(calls) == 2 and calls[1] - calls[0] == pytest.approx(0.03, abs=0.01), calls
+    assert b.mode == Phase.CROSS

@@ -22,6 +22,7 @@ from climbd.daemon.contract.profile import DriverConfig, Profile
 GROUPS = ("climbd.perception", "climbd.gaits", "climbd.drivers")
 
 log = logging.getLogger("climbd.plugins")
+_clock = time.perf_counter
 
 P = TypeVar("P")
 R = TypeVar("R")
@@ -106,9 +107,9 @@ class Isolated(Generic[P]):
         the plugin failed."""
         if self.failed:
             return None
-        start = time.perf_counter()
+        start = _clock()
         try:
-            return method(*args, **kwargs)
+            result = method(*args, **kwargs)
         except Exception as e:
             self.failures += 1
             name = method.__name__
@@ -117,10 +118,10 @@ class Isolated(Generic[P]):
             if self._on_failure is not None:
                 self._on_failure(self.name, e)
             return None
-        finally:
-            elapsed = time.perf_counter() - start
-            if elapsed > self.slowest:
-                self.slowest, self.slowest_call = elapsed, method.__name__
+        elapsed = _clock() - start
+        if elapsed > self.slowest:
+            self.slowest, self.slowest_call = elapsed, method.__name__
+        return result
 
     def reset(self) -> None:
         """Re-admit a failed plugin (an explicit operator action)."""

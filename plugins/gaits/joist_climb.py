@@ -278,6 +278,7 @@ class JoistClimb(GaitPlugin):
         self.planner: PlanWorker[CrossingPlan] = PlanWorker("joist-plan")
         self._held: tuple[float, FootTargets, np.ndarray, np.ndarray] | None = None
         self._holding: FootTargets | None = None
+        self._planned: tuple[tuple[Bar, ...], np.ndarray, float] | None = None
 
     # --- frames and perception ------------------------------------------------------------
 
@@ -450,6 +451,8 @@ class JoistClimb(GaitPlugin):
         if self.mode == Phase.SQUARE:
             return self._step_square(t, body)
         if self.mode == Phase.PLAN:
+            self._refresh(world)  # a fresh sighting may show the plan's joist has moved
+            self.row[0] = self.target
             self._take_crossing(t)
             return msgspec.structs.replace(self._holding, stamp=t)
         if self.mode == Phase.CROSS:
@@ -617,6 +620,7 @@ class JoistClimb(GaitPlugin):
             half_length=float(np.abs(self.kin.mount[:, 0]).max()),
         )
         params = self.config.crossing_params()
+        self._planned = (geometry.bars, feet.copy(), height)
         self.planner.request(
             CrossingPlan, geometry, params, self.kin, feet.copy(), self.tripod.height0, height
         )
@@ -629,6 +633,16 @@ class JoistClimb(GaitPlugin):
         if error is not None and not isinstance(error, CrossingError):
             raise error
         return outcome
+
+    def _still(self, bars: tuple[Bar, ...]) -> bool:
+        """Whether the row's joists are where they were when the plan was asked for (within the
+        replanning drift): a plan that took its time is re-checked before it is used."""
+        now = self._bars()
+        drift = self.config.replan_drift
+        return len(now) == len(bars) and all(
+            abs(a.face - b.face) <= drift and abs(a.height - b.height) <= drift
+            for a, b in zip(now, bars, strict=True)
+        )
 
     def _begin_crossing(self, t: float, world: dict[str, Message], holding: FootTargets) -> None:
         """Plan the crossing from here (the joist and its row square ahead, the feet at home),
@@ -651,6 +665,11 @@ class JoistClimb(GaitPlugin):
         """Cross on the plan once it arrives, or go round when none is safe; whether it came."""
         outcome = self._outcome()
         if outcome is None:
+            return False
+        bars, feet, height = self._planned
+        if not self._still(bars):
+            self._event(t, "plan: the joist moved while its crossing was planned; planning again")
+            self._request_plan(feet, height)
             return False
         if outcome.error is not None:
             self.impassable.append(self.target)
