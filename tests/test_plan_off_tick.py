@@ -150,20 +150,42 @@ def test_a_lost_heartbeat_during_a_two_second_plan_holds_within_its_window(widow
     assert entered - last <= window + 2.0 / widowx.rate_hz, (entered - last, window)
 
 
+class GatedPlans:
+    """JoistClimb's crossing planner held at a gate until the test opens it; the near face of
+    the first joist of each plan asked for, in ``faces``."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.gate = threading.Event()
+        self.faces: list[float] = []
+        self.real = joist_climb.CrossingPlan
+        monkeypatch.setattr(joist_climb, "CrossingPlan", self.plan)
+
+    def plan(self, geometry, *args):
+        self.faces.append(geometry.bars[0].face)
+        self.gate.wait(10.0)
+        return self.real(geometry, *args)
+
+    def open(self, b: JoistClimb) -> None:
+        """Let the plans finish, and wait until the one under way is done."""
+        self.gate.set()
+        end = time.monotonic() + 10.0
+        while b.planner.pending and not b.planner.ready and time.monotonic() < end:
+            time.sleep(0.01)
+
+
+def wall_clock_joist_climb(profile: profiles.Profile) -> JoistClimb:
+    """JoistClimb on wall time (not stepped: its plans are not waited for), started."""
+    b = JoistClimb(JoistClimbConfig(goal_distance=1.1), profile)
+    b.start(body_state(b.pose), b.kin.stand_feet())
+    return b
+
+
 def test_joist_climb_holds_still_while_its_crossing_is_planned(widowx, monkeypatch) -> None:
     """On wall time (not stepped) JoistClimb asks for its crossing plan and goes on: the tick
     that asks returns at once in PLAN, its feet stay where they stood until the plan comes,
     and then it crosses on it."""
-    slow = threading.Event()
-
-    def slow_plan(*args):
-        slow.wait(10.0)
-        return real(*args)
-
-    real = joist_climb.CrossingPlan
-    monkeypatch.setattr(joist_climb, "CrossingPlan", slow_plan)
-    b = JoistClimb(JoistClimbConfig(goal_distance=1.1), widowx)
-    b.start(body_state(b.pose), b.kin.stand_feet())
+    plans = GatedPlans(monkeypatch)
+    b = wall_clock_joist_climb(widowx)
     joists = [JoistSpec(0.7, 0.0, 0.06)]
     dt, held, planned_feet = 0.01, 0, None
     try:
@@ -176,14 +198,11 @@ def test_joist_climb_holds_still_while_its_crossing_is_planned(widowx, monkeypat
                 assert np.allclose(feet, planned_feet, atol=1e-5), "moved while planning"
                 held += 1
                 if held == 50:
-                    slow.set()  # the plan may finish now, 50 ticks on
-                    end = time.monotonic() + 10.0
-                    while not b.planner.ready and time.monotonic() < end:
-                        time.sleep(0.01)
+                    plans.open(b)  # the plan may finish now, 50 ticks on
             if b.mode == Phase.CROSS:
                 break
     finally:
-        slow.set()
+        plans.gate.set()
         b.stop()
     assert held >= 50, f"held {held} ticks: the plan was not made off the tick"
     assert b.mode == Phase.CROSS and b.plan is not None
@@ -193,18 +212,8 @@ def test_a_crossing_plan_made_while_the_joist_moved_is_made_again(widowx, monkey
     """A stale plan is re-checked before it is used: the joist seen 3 cm further on while its
     crossing was being planned (a bump of the world) makes the behaviour plan again, and it
     crosses on the plan for where the joist now is."""
-    gate = threading.Event()
-    calls: list[float] = []
-
-    def slow_plan(geometry, *args):
-        calls.append(geometry.bars[0].face)
-        gate.wait(10.0)
-        return real(geometry, *args)
-
-    real = joist_climb.CrossingPlan
-    monkeypatch.setattr(joist_climb, "CrossingPlan", slow_plan)
-    b = JoistClimb(JoistClimbConfig(goal_distance=1.1), widowx)
-    b.start(body_state(b.pose), b.kin.stand_feet())
+    plans = GatedPlans(monkeypatch)
+    b = wall_clock_joist_climb(widowx)
     joists = [JoistSpec(0.7, 0.0, 0.06)]
     dt, t, moved_at = 0.01, 0.0, None
     try:
@@ -214,14 +223,12 @@ def test_a_crossing_plan_made_while_the_joist_moved_is_made_again(widowx, monkey
             t += dt
             if b.mode == Phase.PLAN and moved_at is None:
                 joists, moved_at = [JoistSpec(0.73, 0.0, 0.06)], t  # the world moves
-            elif moved_at is not None and t - moved_at > 0.2 and not gate.is_set():
-                gate.set()  # the moved joist has been seen: let the first plan finish
-                end = time.monotonic() + 10.0
-                while not b.planner.ready and time.monotonic() < end:
-                    time.sleep(0.01)
+            elif moved_at is not None and t - moved_at > 0.2 and not plans.gate.is_set():
+                plans.open(b)  # the moved joist has been seen: let the first plan finish
     finally:
-        gate.set()
+        plans.gate.set()
         b.stop()
     assert any("the joist moved" in what for _, what in b.events), b.events
-    assert len(calls) == 2 and calls[1] - calls[0] == pytest.approx(0.03, abs=0.01), calls
+    faces = plans.faces
+    assert len(faces) == 2 and faces[1] - faces[0] == pytest.approx(0.03, abs=0.01), faces
     assert b.mode == Phase.CROSS

@@ -3,12 +3,14 @@ their credential options, and the Zenoh config from ``--connect`` and ``--tls``/
 
 from __future__ import annotations
 
+import argparse
 import os
+import sys
 
 import zenoh
 
 from climbd.daemon.runtime.access import AccessError, client_credentials
-from climbd.daemon.runtime.network import Endpoints, zenoh_config
+from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
 
 def add_credential_arguments(parser) -> None:
@@ -33,3 +35,13 @@ def client_config(args, role: str) -> zenoh.Config:
         user = (args.user, password)
     client_credentials(cfg, tuple(args.tls) if args.tls else None, user)
     return cfg
+
+
+def open_client(args: argparse.Namespace, robot: str, role: str) -> Network | None:
+    """The operator tool's Zenoh session on ``robot``'s keys, or None once it has said on
+    stderr why it cannot open one (its ``main`` then exits 2)."""
+    try:
+        return Network(robot, client_config(args, role))
+    except AccessError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return None

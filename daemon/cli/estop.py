@@ -9,14 +9,11 @@ from __future__ import annotations
 import argparse
 import os
 import socket
-import sys
 import time
 import uuid
 
-from climbd.daemon.cli.client import add_credential_arguments, client_config
+from climbd.daemon.cli.client import add_credential_arguments, open_client
 from climbd.daemon.contract.messages import EStop, ModeRequest, SessionClaim
-from climbd.daemon.runtime.access import AccessError
-from climbd.daemon.runtime.network import Network
 
 REPEAT_HZ = 10.0
 REPEAT_FOR = 1.0
@@ -34,12 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     source = f"{socket.gethostname()}:{os.getpid()}"
-    try:
-        cfg = client_config(args, "estop")
-    except AccessError as e:
-        print(f"error: {e}", file=sys.stderr)
+    net = open_client(args, args.robot, "estop")
+    if net is None:
         return 2
-    net = Network(args.robot, cfg)
     try:
         time.sleep(0.3)  # let the session connect before the first (reliable) put
         if args.reset:

@@ -6,10 +6,8 @@ import argparse
 import sys
 import threading
 
-from climbd.daemon.cli.client import add_credential_arguments, client_config
+from climbd.daemon.cli.client import add_credential_arguments, open_client
 from climbd.daemon.contract.messages import Health, ModeState, decode
-from climbd.daemon.runtime.access import AccessError
-from climbd.daemon.runtime.network import Network
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -104,12 +102,9 @@ def format_health(health) -> str:
 def main(args: argparse.Namespace) -> int:
     import msgspec
 
-    try:
-        cfg = client_config(args, "status")
-    except AccessError as e:
-        print(f"error: {e}", file=sys.stderr)
+    net = open_client(args, args.robot or "*", "status")
+    if net is None:
         return 2
-    net = Network(args.robot or "*", cfg)
     if args.all:
         try:
             robots = fleet(net, args.timeout)

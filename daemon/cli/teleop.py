@@ -30,7 +30,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from climbd.daemon.cli.client import add_credential_arguments, client_config
+from climbd.daemon.cli.client import add_credential_arguments, open_client
 from climbd.daemon.contract.messages import (
     EStop,
     Heartbeat,
@@ -40,8 +40,6 @@ from climbd.daemon.contract.messages import (
     MotionCommand,
     SessionClaim,
 )
-from climbd.daemon.runtime.access import AccessError
-from climbd.daemon.runtime.network import Network
 
 MOTION_FIELDS = ("vx", "vy", "yaw_rate", "body_height", "roll", "pitch")
 KEYS = {
@@ -318,12 +316,9 @@ def main(args: argparse.Namespace) -> int:
     elif not sys.stdin.isatty():
         print("error: no terminal for the keyboard UI; give --script FILE", file=sys.stderr)
         return 2
-    try:
-        cfg = client_config(args, "teleop")
-    except AccessError as e:
-        print(f"error: {e}", file=sys.stderr)
+    net = open_client(args, args.robot, "teleop")
+    if net is None:
         return 2
-    net = Network(args.robot, cfg)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     client = TeleopClient(
         net, args.name or f"{socket.gethostname()}:{os.getpid()}", args.heartbeat_hz, args.rate
