@@ -264,6 +264,19 @@ def test_profile_check_command(tmp_path: Path) -> None:
     assert "$.legs[0].joints[1].id" in res.stderr and "Traceback" not in res.stderr
 
 
+def assert_check_refuses(tmp_path: Path, old: str, new: str, fragment: str) -> None:
+    """``climbd profile check`` on the stock profile with ``old`` replaced by ``new`` exits 1
+    naming the file and ``fragment``."""
+    bad = write(tmp_path, replace_once(base_text(), old, new))
+    res = subprocess.run(
+        [sys.executable, "-m", "climbd.daemon.cli", "profile", "check", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert res.returncode == 1 and str(bad) in res.stderr and fragment in res.stderr, res.stderr
+
+
 @pytest.mark.parametrize(
     "old,new,fragment",
     [
@@ -273,14 +286,7 @@ def test_profile_check_command(tmp_path: Path) -> None:
     ],
 )
 def test_profile_check_validates_the_bus_driver(tmp_path: Path, old, new, fragment) -> None:
-    bad = write(tmp_path, replace_once(base_text(), old, new))
-    res = subprocess.run(
-        [sys.executable, "-m", "climbd.daemon.cli", "profile", "check", str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert res.returncode == 1 and str(bad) in res.stderr and fragment in res.stderr, res.stderr
+    assert_check_refuses(tmp_path, old, new, fragment)
 
 
 @pytest.mark.parametrize(
@@ -299,11 +305,4 @@ def test_profile_check_validates_the_bus_driver(tmp_path: Path, old, new, fragme
     ],
 )
 def test_profile_check_validates_plugins(tmp_path: Path, old: str, new: str, fragment: str) -> None:
-    bad = write(tmp_path, replace_once(base_text(), old, new))
-    res = subprocess.run(
-        [sys.executable, "-m", "climbd.daemon.cli", "profile", "check", str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert res.returncode == 1 and str(bad) in res.stderr and fragment in res.stderr, res.stderr
+    assert_check_refuses(tmp_path, old, new, fragment)
