@@ -3,7 +3,8 @@
 
 ``feet_step`` takes a gait's FootTargets, solves IK, feeds ruckig the target joint state
 (position, and the velocity and acceleration of the target stream by finite differences so
-a moving target is tracked rather than chased), and clamps the result to the position limits.
+a moving target is tracked rather than chased), adds the controller's feed-forward, and has the
+guard clamp position, velocity and effort into the profile's limits.
 A leg whose target is unreachable keeps its last reachable target and is reported in
 ``unreachable``; it is never bent into another pose.
 """
@@ -82,7 +83,7 @@ class MotionPipeline:
         self.unreachable = [False] * self.kinematics.n_legs
 
     def feet_step(self, targets: FootTargets) -> JointCommand:
-        """One tick towards body-frame foot targets: IK -> ruckig -> guard."""
+        """One tick towards body-frame foot targets: IK -> ruckig -> feed-forward -> guard."""
         kin = self.kinematics
         feet = targets.positions
         try:

@@ -1,4 +1,4 @@
-"""The control role's tick: read → estimate → behave → IK → smooth → guard → write.
+"""The control role's tick: read → estimate → behave → IK → smooth → feed-forward → guard → write.
 
 One ``Controller`` per robot. ``tick(t, dt)`` runs on the ControlLoop's thread; the ``on_*``
 handlers run on the asyncio thread (fed by the bus) and only record what arrived, under the
