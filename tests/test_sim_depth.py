@@ -15,7 +15,7 @@ from climbd.daemon.contract.profile import load
 from climbd.drivers.sim.camera_process import CameraProcess
 from climbd.drivers.sim.depth import RayCastDepth
 from climbd.drivers.sim.gl_depth import gl_available
-from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.twin import Twin, serve_cameras
 from climbd.drivers.sim.worlds import JoistRow, World
 
 
@@ -114,7 +114,7 @@ def test_camera_process_renders_what_the_twin_would_in_process():
     the images the twin renders in-process at the same joint state, bit for bit."""
     profile = _small_camera("widowx")
     twin = Twin(profile, _joist_world(), stepped=True, bus=False, seed=7)
-    worker = CameraProcess(profile, twin.world, twin.model.opt.timestep, seed=7)
+    worker = CameraProcess(serve_cameras, profile, twin.world, twin.model.opt.timestep, seed=7)
     try:
         cam = twin.cameras["front"]
         for t in (0.0, 0.05):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+from collections.abc import Callable
 from multiprocessing.connection import Connection
 
 import numpy as np
@@ -20,39 +21,23 @@ from climbd.daemon.contract.hardware import DepthFrame
 from climbd.daemon.contract.profile import Profile
 from climbd.drivers.sim.worlds import World
 
-
-def _serve(conn: Connection, profile: Profile, world: World, timestep: float, options: dict):
-    """Child: render each requested (camera, qpos, time) and answer with the uint16 image."""
-    from climbd.drivers.sim.twin import Twin
-
-    twin = Twin(profile, world, stepped=True, timestep=timestep, bus=False, **options)
-    conn.send(True)
-    try:
-        while True:
-            try:
-                request = conn.recv()
-            except EOFError:
-                return
-            if request is None:
-                return
-            camera, qpos, t = request
-            twin.data.qpos[:] = qpos
-            twin.data.time = t
-            frame = twin.depth_frame(camera)
-            conn.send_bytes(frame.depth.tobytes())
-    finally:
-        twin.stop()
+Serve = Callable[[Connection, Profile, World, float, dict], None]
+"""The child's loop (``climbd.drivers.sim.twin.serve_cameras``): renders each requested
+(camera, qpos, time) and answers with the uint16 image; a module-level function, so a spawned
+process can import it."""
 
 
 class CameraProcess:
     """Renders ``profile``'s cameras for a real-time twin in a child process; ``options`` are
     the Twin's depth options (``seed``, ``depth_backend``, ``depth_threads``)."""
 
-    def __init__(self, profile: Profile, world: World, timestep: float, **options) -> None:
+    def __init__(
+        self, serve: Serve, profile: Profile, world: World, timestep: float, **options
+    ) -> None:
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
         self._process = ctx.Process(
-            target=_serve,
+            target=serve,
             args=(child, profile, world, timestep, options),
             name="twin-cameras",
             daemon=True,

@@ -36,6 +36,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -304,7 +305,11 @@ class Twin:
             if self.cameras:
                 if self.camera_process:
                     self._camera_worker = CameraProcess(
-                        self.profile, self.world, self.model.opt.timestep, **self._depth_options
+                        serve_cameras,
+                        self.profile,
+                        self.world,
+                        self.model.opt.timestep,
+                        **self._depth_options,
                     )
                 self._camera_thread = threading.Thread(
                     target=self._run_cameras, name="twin-cameras", daemon=True
@@ -813,3 +818,27 @@ class Twin:
         pos, quat = self.body_pose()
         up = 1.0 - 2.0 * (quat[1] ** 2 + quat[2] ** 2)
         return bool(pos[2] < tolerance * stand_height or up < math.cos(math.radians(45)))
+
+
+def serve_cameras(
+    conn: Connection, profile: Profile, world: World, timestep: float, options: dict
+) -> None:
+    """A camera process's loop (drivers/sim/camera_process.py): its own twin of the world
+    renders each requested (camera, qpos, time) and answers with the uint16 image."""
+    twin = Twin(profile, world, stepped=True, timestep=timestep, bus=False, **options)
+    conn.send(True)
+    try:
+        while True:
+            try:
+                request = conn.recv()
+            except EOFError:
+                return
+            if request is None:
+                return
+            camera, qpos, t = request
+            twin.data.qpos[:] = qpos
+            twin.data.time = t
+            frame = twin.depth_frame(camera)
+            conn.send_bytes(frame.depth.tobytes())
+    finally:
+        twin.stop()
