@@ -328,7 +328,7 @@ class Controller:
         masses = self.estimator.config.link_masses if self.estimator is not None else []
         if self.support is None or self.support.link_masses != masses:
             self.support = SupportTorques(self.kinematics, self.profile.mass, masses)
-        rot = rotation(np.asarray(self.body.orientation, float))
+        rot = rotation(self.body.orientation)
         if self.feed_forward:
             self.landed = self.stance & (self.landed | (self._own_support(q, rot) > TOUCH_SUPPORT))
         else:
