@@ -22,6 +22,8 @@ try:
 except ImportError:  # Python 3.10
     import tomli as tomllib
 
+from support.still_body import StillBody
+
 from climbd.daemon.cli.run import make_camera
 from climbd.daemon.contract import messages as m
 from climbd.daemon.contract import profile as profiles
@@ -84,9 +86,10 @@ def test_the_documented_plugin_runs_in_the_perception_role_and_reaches_a_subscri
     worker = threading.Thread(target=role._work, args=(capture, [plugin], published.append))
     worker.start()
     try:
-        end = time.monotonic() + 20.0
-        while len(published) < 3 and time.monotonic() < end:
-            time.sleep(0.05)
+        with StillBody(role):
+            end = time.monotonic() + 20.0
+            while len(published) < 3 and time.monotonic() < end:
+                time.sleep(0.05)
     finally:
         role._stop.set()
         capture.stop()

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.still_body import StillBody
 
 from climbd.daemon.contract import messages as m
 from climbd.daemon.contract.messages import EstopPolicy, Mode
@@ -607,7 +608,9 @@ def perception_crash(robot, make, tmp_path, endpoint) -> str:
     )
     rig = make(robot)
     worker.start()
+    still = StillBody(role)
     try:
+        still.__enter__()
         rig.stand()
         grids = lambda: sum(isinstance(x, m.ElevationGrid) for x in published)  # noqa: E731
         rig.wait(lambda: crashing.failed and grids() >= 3, timeout=20.0)
@@ -619,6 +622,7 @@ def perception_crash(robot, make, tmp_path, endpoint) -> str:
         assert rig.safety.mode == Mode.HOLD and rig.safety.reason == "stand complete"
         rig.check()
     finally:
+        still.__exit__()
         role._stop.set()
         capture.stop()
         worker.join(5)

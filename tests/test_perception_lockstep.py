@@ -156,6 +156,7 @@ def test_a_role_whose_plugins_all_failed_says_it_answers_nothing(caplog):
     role = PerceptionRole(profile, argparse.Namespace())
     published = []
     capture.start()
+    role.on_body(BodyState(stamp=0.1))
     worker = threading.Thread(
         target=role._work, args=(capture, [Isolated("cracked", cracked)], published.append)
     )

@@ -42,7 +42,12 @@ def test_frame_shows_mode_rates_joints_features_and_session() -> None:
     for k in range(5):
         view.on_message(m.Joists(joists=[joist, joist]), now=10.0 + 0.1 * k)
     view.on_message(
-        m.Health(role="perception", plugins={"joists": "failed: ValueError: x"}, dropped_frames=3),
+        m.Health(
+            role="perception",
+            plugins={"joists": "failed: ValueError: x"},
+            dropped_frames=3,
+            refused_frames={"too_new": 4, "no_pose": 1},
+        ),
         now=10.5,
     )
     text = "\n".join(render({"widowx": view}, now=10.6))
@@ -58,6 +63,7 @@ def test_frame_shows_mode_rates_joints_features_and_session() -> None:
     assert "10.0 Hz" in joist_line and "2 joists; nearest 0.970 m, yaw +15.0°" in joist_line
     assert "plugin joists (perception): failed: ValueError: x" in text
     assert "perception: 3 frames dropped" in text
+    assert "perception: frames without a body pose: 1 no_pose, 4 too_new" in text
     assert "SILENT" in "\n".join(render({"widowx": view}, now=20.0))
 
 

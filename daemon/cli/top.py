@@ -163,6 +163,9 @@ def render_robot(view: RobotView, now: float) -> list[str]:
             lines.append(f"plugin {name} ({role}): {status}")
         if role != "control" and h.dropped_frames:
             lines.append(f"{role}: {h.dropped_frames} frames dropped")
+        if h.refused_frames:
+            reasons = ", ".join(f"{n} {r}" for r, n in sorted(h.refused_frames.items()))
+            lines.append(f"{role}: frames without a body pose: {reasons}")
     for topic, msg in sorted(view.features.items()):
         lines.append(f"{topic:<20} {view.rate(topic, now):5.1f} Hz  {summarise(msg)}")
     return lines

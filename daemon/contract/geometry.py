@@ -38,3 +38,20 @@ def yaw(q: Sequence[float]) -> float:
     components as given (not normalised)."""
     w, x, y, z = q
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def slerp(q0: Sequence[float], q1: Sequence[float], s: float) -> list[float]:
+    """Spherical linear interpolation from unit quaternion ``q0`` (s = 0) to ``q1`` (s = 1),
+    along the shorter arc (``s`` outside [0, 1] extrapolates); equal quaternions are blended
+    linearly and renormalised."""
+    a = np.asarray(q0, float)
+    b = np.asarray(q1, float)
+    dot = float(a @ b)
+    if dot < 0.0:
+        b, dot = -b, -dot
+    if dot > 1.0 - 1e-12:
+        q = a + s * (b - a)
+    else:
+        theta = math.acos(dot)
+        q = (math.sin((1.0 - s) * theta) * a + math.sin(s * theta) * b) / math.sin(theta)
+    return (q / np.linalg.norm(q)).tolist()

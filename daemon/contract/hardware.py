@@ -56,7 +56,8 @@ class DepthFrame:
     """One depth image: uint16 depth × ``depth_scale`` = metres; 0 means no return.
 
     ``extrinsics`` is the 4×4 camera-to-body transform (optical frame: x right, y down,
-    z forward) at ``timestamp`` (device clock, s).
+    z forward) at ``timestamp`` (s, the control role's clock: the host's monotonic clock, or
+    simulated time in lock-step; drivers move device stamps onto it).
     """
 
     depth: np.ndarray

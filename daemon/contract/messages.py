@@ -116,7 +116,9 @@ class Health(Message):
     without credentials (read-only telemetry gate); ``features`` gives the age (s) of each
     feature topic the role last received; ``session`` names the client holding the control
     session ("" when none); ``plugin_slowest`` gives each plugin's slowest call so far (s), with
-    ``plugin_slowest_call`` naming the plugin and method of the slowest of all.
+    ``plugin_slowest_call`` naming the plugin and method of the slowest of all;
+    ``refused_frames`` counts depth frames perception gave no body pose, by reason (no_pose,
+    too_old, too_new, out_of_order, not_finite).
     """
 
     TOPIC: ClassVar[str] = "state/health"
@@ -133,6 +135,7 @@ class Health(Message):
     refused_commands: int = 0
     unauthorised_commands: int = 0
     dropped_frames: int = 0
+    refused_frames: dict[str, int] = {}
     features: dict[str, float] = {}
     session: str = ""
     messages: list[str] = []
@@ -234,9 +237,14 @@ class Heartbeat(Message):
 
 class Feature(Message):
     """Base of what perception plugins publish: ``frame_stamp`` is the stamp of the depth frame
-    the feature was computed from (the camera's clock), ``stamp`` when it was published."""
+    the feature was computed from (the control role's clock), ``stamp`` when it was published;
+    ``frame_position`` and ``frame_orientation`` (w, x, y, z) are the body pose in the odometry
+    frame at ``frame_stamp`` that perception computed it in, so a reader can place a
+    body-frame feature in the odometry frame."""
 
     frame_stamp: float = 0.0
+    frame_position: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    frame_orientation: list[float] = msgspec.field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
 
 
 class ElevationGrid(Feature):

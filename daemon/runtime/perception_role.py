@@ -1,10 +1,12 @@
 """The perception role: camera → perception plugins → features on Zenoh, in its own OS process.
 
 A capture thread keeps only the newest depth frame (newest wins, drops counted); a worker thread
-runs the profile's perception plugins on it, each isolated (one that raises is marked failed and
-skipped, the role goes on), and publishes their features. The asyncio main thread owns the bus:
-the latest BodyState from the control role, Health (plugin status, dropped frames) at 2 Hz, the
-``perception`` liveliness token, signals.
+pairs it with the body pose at the frame's stamp (from the history of the control role's
+BodyState; a frame outside it is refused with a counted reason), runs the profile's perception
+plugins on it, each isolated (one that raises is marked failed and skipped, the role goes on),
+and publishes their features. The asyncio main thread owns the bus: BodyState into the pose
+history, Health (plugin status, dropped and refused frames) at 2 Hz, the ``perception``
+liveliness token, signals.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from climbd.daemon.algorithms.pose_history import PoseHistory, PoseRefused, Refusal
 from climbd.daemon.contract import messages as m
 from climbd.daemon.contract.hardware import Camera, DriverError
 from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
@@ -76,7 +79,10 @@ class PerceptionRole:
         self.args = args
         self.camera = camera
         self.feeds = feeds
-        self.body: m.BodyState | None = None
+        self.poses = PoseHistory()
+        self._poses_lock = threading.Lock()
+        self.refused: dict[str, int] = {}
+        """Frames given no pose, by reason (``Refusal`` values)."""
         self.published = 0
         self.undeclared = 0
         self._stop = threading.Event()
@@ -94,7 +100,9 @@ class PerceptionRole:
             frame = capture.latest(timeout=0.2)
             if frame is None:
                 continue
-            body = self.body or m.BodyState(stamp=frame.timestamp)
+            body = self._pose_at(frame.timestamp)
+            if body is None:
+                continue
             for iso in plugins:
                 feature = iso.call(iso.plugin.process, frame, body)
                 if feature is None:
@@ -110,6 +118,8 @@ class PerceptionRole:
                         )
                     self.undeclared += 1
                     continue
+                feature.frame_position = list(body.position)
+                feature.frame_orientation = list(body.orientation)
                 publish(feature)
                 self.published += 1
             if not idle and all(iso.failed for iso in plugins):
@@ -119,6 +129,32 @@ class PerceptionRole:
                     "until it is restarted",
                     "; ".join(f"{iso.name} {iso.status}" for iso in plugins),
                 )
+
+    def on_body(self, body: m.BodyState) -> None:
+        """A body state from the control role: into the pose history."""
+        with self._poses_lock:
+            restarts = self.poses.restarts
+            self.poses.add(body)
+            if self.poses.restarts != restarts:
+                log.warning(
+                    "body states went back to %.3f s: the control role restarted its clock; "
+                    "pose history begins anew",
+                    body.stamp,
+                )
+
+    def _pose_at(self, stamp: float) -> m.BodyState | None:
+        """The body pose at a frame's stamp, or None (counted, the first of each reason and
+        every hundredth logged) when the history has none."""
+        try:
+            with self._poses_lock:
+                return self.poses.at(stamp)
+        except PoseRefused as e:
+            reason: Refusal = e.reason
+            count = self.refused.get(reason.value, 0) + 1
+            self.refused[reason.value] = count
+            if count == 1 or count % 100 == 0:
+                log.warning("frame refused (%s, %d so far): %s", reason.value, count, e)
+            return None
 
     async def run(self) -> int:
         profile, args, camera = self.profile, self.args, self.camera
@@ -133,10 +169,7 @@ class PerceptionRole:
         net = role_network(profile, "perception", args, aio)
         publish = net.put
 
-        def on_body(body: m.BodyState) -> None:
-            self.body = body
-
-        net.subscribe(m.BodyState, on_body, latest_only=True)
+        net.subscribe(m.BodyState, self.on_body)
         for message, callback in self.feeds:
             net.subscribe(message, callback)
         net.alive("perception")
@@ -166,6 +199,7 @@ class PerceptionRole:
                     plugins={p.name: p.status for p in plugins},
                     **slowest(plugins),
                     decode_errors=net.decode_errors,
+                    refused_frames=dict(self.refused),
                 )
                 publish(capture.report(health))
                 if not capture.running and not self._stop.is_set():

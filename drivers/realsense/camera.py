@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 from collections.abc import Callable, Iterator
 from importlib.metadata import version
 from pathlib import Path
@@ -35,15 +36,28 @@ FILTERS = ("decimation", "threshold", "spatial", "temporal", "hole_filling")
 _LOST = object()
 
 
+def host_time(stamp_ms: float, domain: rs.timestamp_domain) -> float:
+    """A USB camera's frame stamp (s) on the host's monotonic clock, the control role's clock
+    that body poses are stamped on: global and system time are the host's wall clock moved onto
+    it; a device-clock stamp (firmware without global time) cannot be, so the frame's arrival
+    stands in for it."""
+    if domain in (rs.timestamp_domain.global_time, rs.timestamp_domain.system_time):
+        return stamp_ms / 1000.0 - (time.time() - time.monotonic())
+    return time.monotonic()
+
+
 class Source(Protocol):
     """Where the device comes from: ``connect()`` returns an ``rs.device`` or raises DriverError.
 
     The camera sets ``on_lost``; a source that hears of a removal calls it with the reason.
+    ``wall_clock``: its frames carry the host's wall clock (a USB camera's global time), which
+    the camera moves onto the monotonic clock; other sources' stamps are kept as they are.
     """
 
     label: str
     real_time: bool
     finite: bool
+    wall_clock: bool
     on_lost: Callable[[str], None] | None
 
     def connect(self) -> rs.device: ...
@@ -67,6 +81,7 @@ class LiveSource:
 
     real_time = True
     finite = False
+    wall_clock = True
 
     def __init__(self, config: CameraConfig) -> None:
         self.config = config
@@ -105,6 +120,7 @@ class PlaybackSource:
     """A recording (.bag) played back at the recorded rate or as fast as frames are consumed."""
 
     finite = True
+    wall_clock = False
 
     def __init__(self, path: str | Path, real_time: bool = True) -> None:
         self.path = Path(path)
@@ -409,6 +425,12 @@ class RealSenseCamera:
             self._closed.wait(delay)
             delay = min(2 * delay, longest)
 
+    def _stamp(self, depth: rs.depth_frame) -> float:
+        """The frame's stamp on the control role's clock (see ``Source.wall_clock``)."""
+        if self.source.wall_clock:
+            return host_time(depth.get_timestamp(), depth.get_frame_timestamp_domain())
+        return depth.get_timestamp() / 1000.0
+
     def _convert(self, frame: rs.frame) -> DepthFrame:
         for f in self._filters:
             frame = f.process(frame)
@@ -429,7 +451,7 @@ class RealSenseCamera:
             depth_scale=self._depth_scale,
             intrinsics=intrinsics,
             extrinsics=self.extrinsics,
-            timestamp=depth.get_timestamp() / 1000.0,
+            timestamp=self._stamp(depth),
             number=depth.get_frame_number(),
         )
 

@@ -33,6 +33,7 @@ class SoftwareSource:
     """Makes a fresh ``rs.software_device`` with one Z16 depth stream on every (re)connect."""
 
     finite = False
+    wall_clock = False
 
     def __init__(
         self, intrinsics: Intrinsics, depth_scale: float, fps: int, model_name: str, serial: str
@@ -150,7 +151,8 @@ class SoftwareDepthCamera(RealSenseCamera):
         self._pushed = 0
 
     def push(self, depth: np.ndarray, timestamp: float) -> None:
-        """Deliver one uint16 depth image taken at ``timestamp`` (s, producer's clock)."""
+        """Deliver one uint16 depth image taken at ``timestamp`` (s, the control role's clock:
+        monotonic, or simulated time in lock-step)."""
         self.software.push(depth, timestamp, self._pushed)
         self._pushed += 1
 

@@ -26,6 +26,7 @@ in a child process (drivers/sim/camera_process.py) unless ``camera_process=False
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import inspect
 import logging
@@ -271,6 +272,9 @@ class Twin:
         self._camera_thread: threading.Thread | None = None
         self._stop = threading.Event()
         self.lag = 0.0
+        self.clock_offset = 0.0
+        """Monotonic clock minus simulated time in real-time mode (0 in lock-step): frames are
+        stamped on the clock the control role stamps body poses on."""
         self.reset(initial_joints)
 
     # --- lifecycle ----------------------------------------------------------------------
@@ -585,6 +589,7 @@ class Twin:
         """Real-time mode: keep simulated time on the monotonic clock, in 2 ms batches."""
         h = self.model.opt.timestep
         wall0, sim0 = time.monotonic(), self.data.time
+        self.clock_offset = wall0 - sim0
         while not self._stop.is_set():
             target = sim0 + time.monotonic() - wall0
             with self.lock:
@@ -592,6 +597,7 @@ class Twin:
                 if behind > 0.1:
                     wall0 += behind
                     self.lag += behind
+                    self.clock_offset = wall0 - sim0
                     target = sim0 + time.monotonic() - wall0
             while self.data.time < target - 0.5 * h and not self._stop.is_set():
                 with self.lock:  # per step: a bus packet waits one step, not a catch-up batch
@@ -621,6 +627,10 @@ class Twin:
             if now + 1e-9 >= self._next_frame[name]:
                 self._next_frame[name] = max(self._next_frame[name] + cam.period, now)
                 frame = self._render(name)
+                if self.clock_offset:
+                    frame = dataclasses.replace(
+                        frame, timestamp=frame.timestamp + self.clock_offset
+                    )
                 for callback in self._depth_callbacks:
                     callback(name, frame)
 
