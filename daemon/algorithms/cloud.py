@@ -224,6 +224,19 @@ def frame_to_points(
     return points
 
 
+def within_range(points: np.ndarray, max_range: float) -> np.ndarray:
+    """The rows of an N×3 cloud (m) that are finite and at most ``max_range`` from its origin,
+    as float64.
+
+    NaN and inf are no return, and a point beyond a plugin's working range is no measurement
+    (a wrong depth scale, a corrupt file): both are discarded here, never processed.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        squared = np.einsum("ij,ij->i", points, points)
+    return points[squared <= max_range * max_range]
+
+
 def crop(points: np.ndarray, box: CropBox) -> np.ndarray:
     """The points (N×3, body frame) inside ``box``, bounds included."""
     x, y, z = points[:, 0], points[:, 1], points[:, 2]

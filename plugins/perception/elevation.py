@@ -181,13 +181,14 @@ class ElevationMap:
         r1, c1 = np.minimum(np.ceil(cells.max(axis=0) + spread).astype(int) + 1, self.side)
         wcols = c1 - c0
         size = (r1 - r0) * wcols
-        # OpenCV does the per-point work in single passes: the crop test (inRange) and the
-        # transform to window cells, offset by one so that truncation is a floor for every
-        # cell of the window (index 0 and the last are outside it).
+        # OpenCV does the per-point work in single passes: the crop test (inRange, which also
+        # drops NaN, inf and far points, so only points of the box reach the cell arithmetic)
+        # and the transform to window cells, offset by one so that truncation is a floor for
+        # every cell of the window (index 0 and the last are outside it).
         cloud = np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 1, 3)
         lo = (c.x_min, -half, c.z_min)
         hi = (np.nextafter(c.x_min + c.length, -np.inf), np.nextafter(half, -np.inf), c.z_max)
-        keep = cv2.inRange(cloud, lo, hi).reshape(-1) > 0
+        cloud = cloud[cv2.inRange(cloud, lo, hi).reshape(-1) > 0]
         affine = np.zeros((3, 4))
         affine[:2, :3] = rot[:2] * inv
         affine[:2, 3] = shift - (r0, c0) + 1.0
@@ -197,7 +198,7 @@ class ElevationMap:
         rows = cell[:, 0].astype(np.int32)
         cols = cell[:, 1].astype(np.int32)
         zs = cell[:, 2]
-        keep &= (rows >= 1) & (rows <= r1 - r0) & (cols >= 1) & (cols <= wcols)
+        keep = (rows >= 1) & (rows <= r1 - r0) & (cols >= 1) & (cols <= wcols)
         flat = np.where(keep, (rows - 1) * wcols + (cols - 1), size)
         count = np.bincount(flat, minlength=size + 1)[:size]
         if not count.any():

@@ -35,7 +35,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError
 
-from climbd.daemon.algorithms.cloud import CloudPerception
+from climbd.daemon.algorithms.cloud import CloudPerception, within_range
 from climbd.daemon.contract.messages import BodyState, GraspablePoints
 from climbd.plugins.perception.gripper_mask import GripperGeometry, gripper_mask
 
@@ -47,6 +47,8 @@ class GraspableConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     columns sit on a lattice; 3 mm is the D435's point pitch on holds at 0.5 m (ClimbLab's
     density rule gives 3-4 mm on its clouds), 0 derives it from the density as ClimbLab does.
     ``thin_distance`` (m): graspable points closer than this collapse to one target.
+    ``max_range`` (m): points farther from the body are no hold in reach (HubRobo's D435 is cut
+    at 1.5 m) and are discarded, as NaN and inf are.
     """
 
     voxel: float = 0.001
@@ -55,6 +57,7 @@ class GraspableConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     void_fraction: float = 0.02
     above_tolerance: int = 1
     thin_distance: float = 0.015
+    max_range: float = 2.0
     gripper: GripperGeometry = msgspec.field(default_factory=GripperGeometry)
 
     def check(self) -> None:
@@ -82,7 +85,14 @@ class GraspableConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
             raise ValueError(
                 f"graspable.thin_distance: expected >= 0 m, found {self.thin_distance}"
             )
+        if not (math.isfinite(self.max_range) and self.max_range > 0):
+            raise ValueError(f"graspable.max_range: expected > 0 m, found {self.max_range}")
         self.gripper.check()
+
+
+class DegenerateCloud(ValueError):
+    """A cloud with no terrain to detect on: too few points in range, or none spanning an area
+    on their plane. The plugin reports it as nothing found; ``detect`` callers see why."""
 
 
 @dataclass(frozen=True)
@@ -135,7 +145,7 @@ def interpolate_heights(plane_points: np.ndarray, spacing: float) -> HeightLatti
     try:
         simplices = Delaunay(xy).simplices
     except QhullError as e:
-        raise ValueError(f"cloud is degenerate (no 2-D extent on its plane): {e}") from None
+        raise DegenerateCloud(f"cloud is degenerate (no 2-D extent on its plane): {e}") from None
     corner = (xy[simplices] - lo) / spacing
     z = plane_points[simplices, 2]
     first = np.clip(np.ceil(corner.min(axis=1) - 1e-9).astype(np.int64), 0, None)
@@ -180,7 +190,7 @@ def column_depths(lattice: HeightLattice, voxel: float) -> np.ndarray:
     unknown): the terrain matrix of §2.1 step 3 held as one index per column."""
     known = np.isfinite(lattice.heights)
     if not known.any():
-        raise ValueError("cloud has no interpolated terrain")
+        raise DegenerateCloud("cloud has no interpolated terrain")
     top = float(np.nanmax(lattice.heights))
     depth = np.full(lattice.heights.shape, -1, dtype=np.int64)
     depth[known] = np.floor((top - lattice.heights[known]) / voxel).astype(np.int64)
@@ -335,13 +345,20 @@ class GraspableDetector:
         return self._correlators[step]
 
     def detect(self, points: np.ndarray, viewpoint: np.ndarray | None = None) -> Detection:
-        """Graspable points of an N×3 cloud (body frame, m); the robot looks from ``viewpoint``."""
+        """Graspable points of an N×3 cloud (body frame, m); the robot looks from ``viewpoint``.
+
+        Points that are not finite or lie beyond ``max_range`` are dropped first; DegenerateCloud
+        when what is left holds no terrain.
+        """
         cloud = np.asarray(points, dtype=np.float64)
         if cloud.ndim != 2 or cloud.shape[1] != 3:
             raise ValueError(f"points: expected an N×3 array, found shape {cloud.shape}")
-        cloud = cloud[np.isfinite(cloud).all(axis=1)]
+        cloud = within_range(cloud, self.config.max_range)
         if len(cloud) < 3:
-            raise ValueError(f"points: need at least 3 finite points, found {len(cloud)}")
+            raise DegenerateCloud(
+                f"points: need at least 3 finite points within max_range "
+                f"{self.config.max_range} m, found {len(cloud)}"
+            )
         eye = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
         cfg = self.config
         frame = regression_frame(cloud, eye)
@@ -381,5 +398,10 @@ class GraspablePerception(CloudPerception):
         self.detector = GraspableDetector(self.config)
 
     def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> GraspablePoints:
-        detection = self.detector.detect(points)
-        return GraspablePoints(stamp=stamp, frame_stamp=stamp, points=detection.points.tolist())
+        """The graspable targets of a body-frame cloud; none on a cloud without terrain (blank,
+        sparse, all NaN or out of range)."""
+        try:
+            targets = self.detector.detect(points).points
+        except DegenerateCloud:
+            targets = np.zeros((0, 3))
+        return GraspablePoints(stamp=stamp, frame_stamp=stamp, points=targets.tolist())

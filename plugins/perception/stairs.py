@@ -14,7 +14,7 @@ import msgspec
 import numpy as np
 from scipy.spatial import cKDTree
 
-from climbd.daemon.algorithms.cloud import CloudPerception
+from climbd.daemon.algorithms.cloud import CloudPerception, within_range
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import BodyState, Stair, Stairs
 from climbd.daemon.contract.units import Positive
@@ -37,6 +37,8 @@ class StairsConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     surface, its variation λ0 / (λ0 + λ1 + λ2) below this (risers 0.007 median; floor seen
     2 m off, as noisy as it is sampled, 0.10-0.25: normals at random, which on the 180 mm
     flight's top landing made 500 points of false risers and pulled the estimate 6 cm).
+    ``max_range`` (m): body-frame points farther than this are no measurement of the stairs
+    ahead (Qingzhui's D435 is cut at 3 m) and are discarded, as NaN and inf are.
     """
 
     inlier: Positive = 0.01
@@ -52,6 +54,7 @@ class StairsConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     icp_max_shift: Positive = 0.05
     icp_min_area: Positive = 0.024
     icp_max_variation: Positive = 0.05
+    max_range: Positive = 5.0
     seed: int = 0
 
 
@@ -63,7 +66,13 @@ class Surface(NamedTuple):
     flat: np.ndarray
 
 
-def normals(points: np.ndarray, tree: cKDTree, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
+NEIGHBOURS = 12
+"""Points a normal is fitted to: a cloud that starts the map needs at least this many."""
+
+
+def normals(
+    points: np.ndarray, tree: cKDTree, k: int = NEIGHBOURS
+) -> tuple[np.ndarray, np.ndarray]:
     """Unit normals of a cloud from the smallest principal axis of each point's k neighbours,
     and each neighbourhood's surface variation λ0 / (λ0 + λ1 + λ2): 0 on a plane, 1/3 for a
     blob without one (Pauly et al. 2002), where the normal is noise."""
@@ -255,15 +264,18 @@ class StairPerception(CloudPerception):
         The alignment, its translation (3,) and the directions (k, 3) the map constrains it
         along, is kept in ``last_correction``: the estimator's filter 2 input. An implausible
         alignment (see StairsConfig) is counted in ``rejected``, the cloud is left out of the
-        map and ``last_correction`` is None.
+        map and ``last_correction`` is None. Points beyond ``max_range`` or not finite are
+        dropped first; a cloud too sparse to fit normals to does not start the map.
         """
         c: StairsConfig = self.config
         rot = rotation(np.asarray(body.orientation, float))
-        world = voxel_thin(np.asarray(points, float), c.voxel) @ rot.T + body.position
+        seen = within_range(points, c.max_range)
+        world = voxel_thin(seen, c.voxel) @ rot.T + body.position
         if self.map is None:
-            self.map = world
-            self._surface = target_surface(world, c.icp_max_variation)
             self.last_correction = None
+            if len(world) >= NEIGHBOURS:
+                self.map = world
+                self._surface = target_surface(world, c.icp_max_variation)
             return world
         shift, dirs = icp_translation(
             world,
@@ -285,7 +297,7 @@ class StairPerception(CloudPerception):
 
     def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> Stairs:
         self.add_cloud(points, body)
-        planes = horizontal_planes(self.map, self.config)
+        planes = [] if self.map is None else horizontal_planes(self.map, self.config)
         yaw_axis = rotation(np.asarray(body.orientation, float))[:, 0]
         shift, dirs = self.last_correction or (np.zeros(0), np.zeros((0, 3)))
         return Stairs(

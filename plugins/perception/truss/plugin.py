@@ -6,7 +6,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from climbd.daemon.algorithms.cloud import CloudPerception
+from climbd.daemon.algorithms.cloud import CloudPerception, within_range
 from climbd.daemon.contract.messages import BodyState, TrussMember, TrussMembers
 from climbd.plugins.perception.truss.cloud import VoxelMap, body_to_odometry
 from climbd.plugins.perception.truss.completion import Member
@@ -54,8 +54,7 @@ class TrussPerception(CloudPerception):
             raise ValueError(
                 "truss: BodyState needs position (x, y, z) and orientation (w, x, y, z)"
             )
-        points = points[np.isfinite(points).all(axis=1)]
-        points = points[np.linalg.norm(points, axis=1) <= self.config.max_range]
+        points = within_range(points, self.config.max_range)
         if len(points):
             self.map.add(body_to_odometry(points, body))
         self.frames += 1
