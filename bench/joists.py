@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from support.joist_scenes import JoistSpec, body_state, render  # noqa: E402
 
-from climbd.plugins.perception.elevation import ElevationConfig  # noqa: E402
+from climbd.daemon.algorithms.elevation import ElevationConfig  # noqa: E402
 from climbd.plugins.perception.joist_perception import (  # noqa: E402
     JoistPerception,
     JoistPerceptionConfig,

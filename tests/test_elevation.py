@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from support.joist_scenes import JoistSpec, body_state, render
 
+from climbd.daemon.algorithms.elevation import ElevationConfig, ElevationMap, fill_holes
 from climbd.daemon.contract.messages import ElevationGrid, decode, encode
 from climbd.daemon.contract.plugins import PluginError
 from climbd.daemon.runtime.loader import instantiate
-from climbd.plugins.perception.elevation import ElevationConfig, ElevationMap, fill_holes
 
 
 def _floor_points(n: int, rng: np.random.Generator, sigma: float) -> np.ndarray:

@@ -10,9 +10,9 @@ import pytest
 from support.joist_scenes import JoistSpec, body_state, render
 
 from climbd.daemon import cli
+from climbd.daemon.algorithms.elevation import ElevationMap, Grid
 from climbd.daemon.contract.messages import Joists, decode, encode
 from climbd.daemon.runtime.loader import instantiate
-from climbd.plugins.perception.elevation import ElevationMap, Grid
 from climbd.plugins.perception.joists import (
     JoistConfig,
     JoistDetector,

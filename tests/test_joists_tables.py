@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from support.joist_scenes import JoistSpec, body_state, render
 
-from climbd.plugins.perception.elevation import ElevationConfig
+from climbd.daemon.algorithms.elevation import ElevationConfig
 from climbd.plugins.perception.joist_perception import JoistPerception, JoistPerceptionConfig
 from climbd.plugins.perception.joists_paper import PaperPipeline
 

@@ -263,6 +263,43 @@ class ElevationGrid(Feature):
     heights: bytes = b""
 
 
+TERRAIN_LAYERS = (
+    "height",
+    "variance",
+    "normal_x",
+    "normal_y",
+    "slope",
+    "roughness",
+    "step",
+    "traversability",
+    "age",
+)
+"""The layers of a TerrainMap, in order: m, m², unit normal's x and y (z = √(1 − x² − y²)),
+rad, m, m, [0, 1], s since a frame last saw the cell."""
+
+
+class TerrainMap(Feature):
+    """The world model's elevation map in the odometry frame (grid_map style): a rolling window
+    around the robot fused from every frame, with its terrain layers (TERRAIN_LAYERS).
+
+    ``layers`` holds each layer as row-major float16 little-endian, zlib-compressed, NaN
+    unknown, over the window's observed part: cell (row, col) covers x = origin_x +
+    row·resolution, y = origin_y + col·resolution. Heights are stored less ``origin_z`` (the
+    body's height when published) to keep float16's millimetres; ages count back from
+    ``frame_stamp``.
+    """
+
+    TOPIC: ClassVar[str] = "features/terrain"
+    RATE: ClassVar[str] = "2 Hz"
+    origin_x: float = 0.0
+    origin_y: float = 0.0
+    origin_z: float = 0.0
+    resolution: float = 0.01
+    rows: int = 0
+    cols: int = 0
+    layers: dict[str, bytes] = {}
+
+
 class Joist(msgspec.Struct, kw_only=True):
     """A joist (paper 000): distance along the direction of motion, yaw ψ (eq. 2), height (m).
 
@@ -357,7 +394,14 @@ class Stairs(AlignedFeature):
     steps: list[Stair] = []
 
 
-FEATURES: tuple[type[Feature], ...] = (ElevationGrid, Joists, GraspablePoints, TrussMembers, Stairs)
+FEATURES: tuple[type[Feature], ...] = (
+    ElevationGrid,
+    TerrainMap,
+    Joists,
+    GraspablePoints,
+    TrussMembers,
+    Stairs,
+)
 """The features of the contract's own perception plugins."""
 
 
@@ -407,6 +451,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     SessionClaim,
     Heartbeat,
     ElevationGrid,
+    TerrainMap,
     Joists,
     GraspablePoints,
     Stability,

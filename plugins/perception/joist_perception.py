@@ -14,9 +14,9 @@ import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.cloud import frame_to_points
+from climbd.daemon.algorithms.elevation import ElevationConfig, ElevationMap, Grid
 from climbd.daemon.contract.messages import BodyState, ElevationGrid, Joists
 from climbd.daemon.contract.plugins import PerceptionPlugin
-from climbd.plugins.perception.elevation import ElevationConfig, ElevationMap, Grid
 from climbd.plugins.perception.joists import JoistConfig, JoistDetector
 
 

@@ -20,8 +20,8 @@ import cv2
 import msgspec
 import numpy as np
 
+from climbd.daemon.algorithms.elevation import Grid
 from climbd.daemon.contract.messages import Joist
-from climbd.plugins.perception.elevation import Grid
 
 
 class JoistConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -15,9 +15,9 @@ from collections import deque
 import cv2
 import numpy as np
 
+from climbd.daemon.algorithms.elevation import ElevationConfig
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import BodyState, Joist
-from climbd.plugins.perception.elevation import ElevationConfig
 from climbd.plugins.perception.joists import JoistConfig, detect_lines, edge_drawing, height_image
 
 

@@ -9,7 +9,8 @@ Cell (row, col) of a grid covers x ∈ [origin_x + row·res, origin_x + (row+1)�
 y with col; a cell's height is the fused top of the points that fell in it (per-frame maximum,
 averaged over the last ``memory_frames`` frames), so the face of a joist seen from below its
 top still reads its top. Each cell also keeps how many points fell in it and the variance of
-its per-frame top over frames (the uncertainty of its height).
+its per-frame top over frames (the uncertainty of its height) and the stamp of the last frame
+that saw it (the map's age there).
 """
 
 from __future__ import annotations
@@ -87,6 +88,16 @@ HEIGHT, WEIGHT, COUNT, VARIANCE = range(4)
 """Layers of the odometry-frame map, in one float32 array so a crop is a single warp."""
 
 
+@dataclass(frozen=True)
+class Window:
+    """Rows ``r0:r1`` and columns ``c0:c1`` of the odometry window (a frame's footprint)."""
+
+    r0: int
+    r1: int
+    c0: int
+    c1: int
+
+
 def fill_holes(heights: np.ndarray, radius_cells: int) -> np.ndarray:
     """Telea inpainting (paper 000, ref. [11]) of the NaN cells, on float32 heights.
 
@@ -121,8 +132,31 @@ class ElevationMap:
     def reset(self) -> None:
         """Forget everything seen so far."""
         self._layers = self._empty()
+        self._seen = np.full((self.side, self.side), np.nan)
         self._origin: np.ndarray | None = None
         self._centre = np.zeros(2)
+        self.recentred = 0
+        """Times the window moved (each move shifts every layer; readers recompute theirs)."""
+
+    @property
+    def origin(self) -> np.ndarray | None:
+        """Odometry (x, y) of the window's cell (0, 0), or None before the first cloud."""
+        return self._origin
+
+    @property
+    def heights(self) -> np.ndarray:
+        """The window's fused heights (m, odometry frame, NaN unknown), a view."""
+        return self._layers[..., HEIGHT]
+
+    @property
+    def variance(self) -> np.ndarray:
+        """The window's height variance over frames (m²), a view."""
+        return self._layers[..., VARIANCE]
+
+    @property
+    def seen(self) -> np.ndarray:
+        """Stamp (s) of the last frame that saw each cell, NaN never; a view."""
+        return self._seen
 
     def _empty(self) -> np.ndarray:
         """Odometry-window layers: height (NaN unknown), frame weight, point count, variance."""
@@ -145,18 +179,22 @@ class ElevationMap:
         dst_r = slice(max(-sr, 0), self.side + min(-sr, 0))
         src_c = slice(max(sc, 0), self.side + min(sc, 0))
         dst_c = slice(max(-sc, 0), self.side + min(-sc, 0))
+        seen = np.full_like(self._seen, np.nan)
         if src_r.start < src_r.stop and src_c.start < src_c.stop:
             new[dst_r, dst_c] = self._layers[src_r, src_c]
-        self._layers = new
+            seen[dst_r, dst_c] = self._seen[src_r, src_c]
+        self._layers, self._seen = new, seen
         self._origin = self._origin + shift * res
+        self.recentred += 1
 
-    def integrate(self, points: np.ndarray, body: BodyState) -> None:
-        """Fuse one cloud (N×3 body frame, m) taken at pose ``body`` into the map."""
+    def integrate(self, points: np.ndarray, body: BodyState) -> Window | None:
+        """Fuse one cloud (N×3 body frame, m) taken at pose ``body`` into the map; the window
+        it touched, or None when no point fell in the crop box."""
         points = np.asarray(points)
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"elevation: points must be N×3, got shape {points.shape}")
         if not len(points):
-            return  # nothing in range (a wall up close, a covered lens): nothing to fuse
+            return None  # nothing in range (a wall up close, a covered lens): nothing to fuse
         c = self.config
         res = c.resolution
         position = np.asarray(body.position, float)
@@ -202,7 +240,7 @@ class ElevationMap:
         flat = np.where(keep, (rows - 1) * wcols + (cols - 1), size)
         count = np.bincount(flat, minlength=size + 1)[:size]
         if not count.any():
-            return
+            return None
         top = np.full(size + 1, -np.inf, np.float32)
         np.maximum.at(top, flat, zs)
         seen = np.flatnonzero(count)
@@ -221,6 +259,10 @@ class ElevationMap:
         block = self._layers[r0:r1, c0:c1].reshape(-1, 4)
         block[seen] = win
         self._layers[r0:r1, c0:c1] = block.reshape(r1 - r0, wcols, 4)
+        stamps = self._seen[r0:r1, c0:c1].reshape(-1)
+        stamps[seen] = body.stamp
+        self._seen[r0:r1, c0:c1] = stamps.reshape(r1 - r0, wcols)
+        return Window(int(r0), int(r1), int(c0), int(c1))
 
     def _warp(self, body: BodyState) -> np.ndarray:
         """2×3 affine taking crop-box cells (col, row) to odometry-window cells (col, row)."""

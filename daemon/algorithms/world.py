@@ -1,0 +1,169 @@
+"""The world model's terrain: one rolling elevation map in the odometry frame, with its layers.
+
+Every depth frame is fused with the body pose at its stamp (ElevationMap); the terrain layers
+(normals, slope, roughness, step height, traversability: ``terrain``) are recomputed over the
+frame's footprint only, widened by the filters' reach so that every cell whose window changed is
+recomputed, so a frame costs its footprint, not the window. The map goes on the wire as a
+TerrainMap; ``TerrainView`` answers a behaviour's queries on one (height, traversability and age
+at a point) in a few microseconds.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+
+import msgspec
+import numpy as np
+
+from climbd.daemon.algorithms.elevation import ElevationConfig, ElevationMap, Window
+from climbd.daemon.algorithms.terrain import TerrainConfig, terrain_layers
+from climbd.daemon.contract.messages import TERRAIN_LAYERS, BodyState, TerrainMap
+
+ZLIB_LEVEL = 1
+"""Fast compression: the layers are mostly NaN or smooth, level 1 takes most of the gain."""
+
+
+class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The map's extent, cells and fusion (elevation) and its terrain filter chain."""
+
+    elevation: ElevationConfig = msgspec.field(default_factory=ElevationConfig)
+    terrain: TerrainConfig = msgspec.field(default_factory=TerrainConfig)
+
+
+class TerrainModel:
+    """The rolling elevation map and its terrain layers, updated from every frame."""
+
+    def __init__(self, config: WorldConfig | None = None) -> None:
+        self.config = config or WorldConfig()
+        self.map = ElevationMap(self.config.elevation)
+        side = self.map.side
+        self._derived = {name: np.full((side, side), np.nan, np.float32) for name in TERRAIN_LAYERS}
+        self._recentred = self.map.recentred
+        t = self.config.terrain
+        res = self.config.elevation.resolution
+        self._reach = int(math.ceil(max(t.plane_radius, t.step_radius) / res)) + 1
+        self.stamp = math.nan
+        """Stamp of the last frame fused."""
+
+    def update(self, points: np.ndarray, body: BodyState) -> None:
+        """Fuse one cloud (N×3, body frame) taken at ``body`` and refresh the layers it moved."""
+        window = self.map.integrate(points, body)
+        self.stamp = body.stamp
+        if window is None:
+            return
+        if self.map.recentred != self._recentred:
+            self._recentred = self.map.recentred
+            side = self.map.side
+            window = Window(0, side, 0, side)
+        self._refresh(window)
+
+    def _refresh(self, window: Window) -> None:
+        """Recompute the layers of every cell whose filter window overlaps ``window``."""
+        side, k = self.map.side, self._reach
+        r0, r1 = max(window.r0 - 2 * k, 0), min(window.r1 + 2 * k, side)
+        c0, c1 = max(window.c0 - 2 * k, 0), min(window.c1 + 2 * k, side)
+        heights = self.map.heights[r0:r1, c0:c1]
+        layers = terrain_layers(heights, self.config.elevation.resolution, self.config.terrain)
+        # Cells within k of the block's cut edge saw a truncated window: keep their old values
+        # unless the cut is the map's own edge.
+        i0 = 0 if r0 == 0 else k
+        j0 = 0 if c0 == 0 else k
+        i1 = (r1 - r0) if r1 == side else (r1 - r0 - k)
+        j1 = (c1 - c0) if c1 == side else (c1 - c0 - k)
+        inner = (slice(i0, i1), slice(j0, j1))
+        target = (slice(r0 + i0, r0 + i1), slice(c0 + j0, c0 + j1))
+        d = self._derived
+        d["normal_x"][target] = layers.normals[..., 0][inner]
+        d["normal_y"][target] = layers.normals[..., 1][inner]
+        d["slope"][target] = layers.slope[inner]
+        d["roughness"][target] = layers.roughness[inner]
+        d["step"][target] = layers.step[inner]
+        d["traversability"][target] = layers.traversability[inner]
+
+    def layer(self, name: str) -> np.ndarray:
+        """One of TERRAIN_LAYERS over the whole window (odometry frame), NaN unknown."""
+        if name == "height":
+            return self.map.heights
+        if name == "variance":
+            return np.where(np.isnan(self.map.heights), np.nan, self.map.variance)
+        if name == "age":
+            return self.stamp - self.map.seen
+        return self._derived[name]
+
+    def message(self, stamp: float, body: BodyState) -> TerrainMap:
+        """The map on the wire: the observed part of the window, every layer, heights less the
+        body's height."""
+        origin = self.map.origin
+        base = float(body.position[2])
+        res = self.config.elevation.resolution
+        known = ~np.isnan(self.map.heights)
+        if origin is None or not known.any():
+            return TerrainMap(stamp=stamp, frame_stamp=self.stamp, resolution=res)
+        rows = np.flatnonzero(known.any(axis=1))
+        cols = np.flatnonzero(known.any(axis=0))
+        box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        encoded = {}
+        for name in TERRAIN_LAYERS:
+            layer = self.layer(name)[box]
+            if name == "height":
+                layer = layer - base
+            encoded[name] = zlib.compress(np.ascontiguousarray(layer, "<f2").tobytes(), ZLIB_LEVEL)
+        return TerrainMap(
+            stamp=stamp,
+            frame_stamp=self.stamp,
+            origin_x=float(origin[0] + rows[0] * res),
+            origin_y=float(origin[1] + cols[0] * res),
+            origin_z=base,
+            resolution=res,
+            rows=int(rows[-1] - rows[0] + 1),
+            cols=int(cols[-1] - cols[0] + 1),
+            layers=encoded,
+        )
+
+
+class TerrainView:
+    """A behaviour's queries on a received TerrainMap: layers decoded once, then point lookups."""
+
+    def __init__(self, message: TerrainMap) -> None:
+        self.message = message
+        shape = (message.rows, message.cols)
+        self._layers = {}
+        for name in TERRAIN_LAYERS:
+            data = message.layers.get(name)
+            if data is None:
+                raise ValueError(f"{message.TOPIC}: layer {name!r} missing")
+            array = np.frombuffer(zlib.decompress(data), "<f2")
+            if array.size != shape[0] * shape[1]:
+                raise ValueError(
+                    f"{message.TOPIC}: layer {name!r} holds {array.size} cells, "
+                    f"rows × cols is {shape[0] * shape[1]}"
+                )
+            self._layers[name] = array.astype(np.float32).reshape(shape)
+        self._inv = 1.0 / message.resolution
+
+    def _cell(self, x: float, y: float) -> tuple[int, int] | None:
+        m = self.message
+        row = math.floor((x - m.origin_x) * self._inv)
+        col = math.floor((y - m.origin_y) * self._inv)
+        if 0 <= row < m.rows and 0 <= col < m.cols:
+            return row, col
+        return None
+
+    def value(self, name: str, x: float, y: float) -> float:
+        """Layer ``name`` at odometry (x, y); NaN outside the map or where unknown."""
+        cell = self._cell(x, y)
+        return math.nan if cell is None else float(self._layers[name][cell])
+
+    def height_at(self, x: float, y: float) -> float:
+        """Terrain height (m, odometry frame) at (x, y); NaN outside or unknown."""
+        return self.value("height", x, y) + self.message.origin_z
+
+    def traversability_at(self, x: float, y: float) -> float:
+        """[0, 1] at (x, y); NaN outside or unknown."""
+        return self.value("traversability", x, y)
+
+    def age_at(self, x: float, y: float, now: float) -> float:
+        """Seconds since a frame last saw (x, y), at ``now``; inf where never seen."""
+        age = self.value("age", x, y)
+        return math.inf if math.isnan(age) else age + (now - self.message.frame_stamp)
