@@ -246,6 +246,7 @@ class SoakOperator:
 
     def poll(self, recorder: TwinRecorder) -> None:
         """Act on the latest mode (every call retries until the robot walks again)."""
+        from climbd.daemon.cli.confirm import Unconfirmed
         from climbd.daemon.contract.messages import Mode
 
         with recorder.lock:
@@ -257,7 +258,8 @@ class SoakOperator:
             key = f"{mode} ({reason})"
             self.recoveries[key] = self.recoveries.get(key, 0) + 1
         if mode in (Mode.FAULT.value, Mode.ESTOP.value):
-            self.client.reset()
+            with contextlib.suppress(Unconfirmed):  # refused or late: the next poll retries
+                self.client.reset()
             return
         self.client.claim()  # a session lost to a late heartbeat is claimed again
         time.sleep(0.1)

@@ -61,8 +61,11 @@ def test_mutual_tls_only_commanders_command_and_anonymous_peers_only_read(tmp_pa
         assert op.proc.wait(30) == 0
         anonymous.wait(ModeState, lambda m: m.mode == Mode.OFF)
 
-        intruder = Proc("estop", "--robot", "widowx", "--connect", secure, *tls("intruder"))
-        assert intruder.proc.wait(30) == 0
+        intruder = Proc("estop", "--robot", "widowx", "--connect", secure, *tls("intruder"),
+                        "--timeout", "1")  # fmt: skip
+        assert intruder.proc.wait(30) == 1, "the robot dropped the intruder's e-stop"
+        intruder.stop()
+        assert "refused: e-stop: widowx stays in OFF" in intruder.text
         bare = Proc("status", "--robot", "widowx", "--connect", secure, "--timeout", "2")
         assert bare.proc.wait(30) == 1, "no TLS credentials: cannot even connect"
         attempted = time.monotonic()  # the daemon stamps Health on this machine's monotonic clock
@@ -96,10 +99,15 @@ def test_user_password_only_commanders_command(tmp_path, robots) -> None:
     anonymous = Observer("widowx", [telemetry])
     try:
         anonymous.wait(ModeState, lambda m: m.mode == Mode.HOLD, 60)
-        for user, password in (("operator", "wrong"), ("viewer", "viewpw")):
+        for user, password, why in (
+            ("operator", "wrong", "no robot widowx answered"),  # cannot even connect
+            ("viewer", "viewpw", "refused: e-stop: widowx stays in HOLD"),
+        ):
             p = Proc("estop", "--robot", "widowx", "--connect", listen, "--user", user,
-                     env={"CLIMBD_PASSWORD": password})  # fmt: skip
-            assert p.proc.wait(30) == 0
+                     "--timeout", "1", env={"CLIMBD_PASSWORD": password})  # fmt: skip
+            assert p.proc.wait(30) == 1, f"{user}'s e-stop was dropped"
+            p.stop()
+            assert why in p.text
         sent = time.monotonic()
         after = control_health(anonymous, lambda h: h.stamp > sent + 0.6)
         assert after.mode == Mode.HOLD, "a wrong password or a non-commander cannot e-stop"

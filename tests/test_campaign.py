@@ -345,7 +345,7 @@ def overload(robot, make, tmp_path, endpoint) -> str:
         now = rig.clock.now()
         assert rig.safety.claim("operator", "campaign", now)[0]
         rig.controller.on_mode(m.ModeRequest(stamp=now, session="operator", reset=True))
-        rig.safety.release("operator")
+        rig.safety.release("operator", now)
 
     took = _hold_and_recover(
         rig,

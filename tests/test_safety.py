@@ -7,7 +7,7 @@ import pytest
 
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import EstopPolicy, JointHealth, Mode
-from climbd.daemon.runtime.safety import DERATE_SCALE, Safety
+from climbd.daemon.runtime.safety import DERATE_SCALE, MAX_ESTOP_SOURCES, Safety
 
 
 @pytest.fixture()
@@ -98,6 +98,64 @@ def test_foreign_heartbeats_keep_nothing_alive_and_are_not_refused_commands(
 def test_expired_session_can_be_claimed_by_another(safety: Safety) -> None:
     safety.claim("s1", "alice", 0.0)
     assert safety.claim("s2", "bob", 1.0)[0]
+
+
+def active(safety: Safety, session: str = "s1", client: str = "alice") -> None:
+    """Claim ``session`` for ``client`` and walk: OFF → STAND → ACTIVE."""
+    assert safety.claim(session, client, 0.0)[0]
+    assert safety.request(Mode.STAND, 0.0, session=session)
+    assert safety.request(Mode.ACTIVE, 0.1, session=session)
+
+
+def test_release_means_hold(safety: Safety) -> None:
+    active(safety)
+    assert safety.release("s1", 0.2)
+    assert safety.mode == Mode.HOLD and safety.reason == "session of alice released"
+    assert safety.session is None, "nobody holds the session after its release"
+
+
+def test_release_with_handoff_leaves_the_robot_to_autonomy_and_says_so(
+    safety: Safety, caplog: pytest.LogCaptureFixture
+) -> None:
+    active(safety)
+    with caplog.at_level("WARNING", logger="climbd.safety"):
+        assert safety.release("s1", 0.2, handoff=True)
+    assert safety.mode == Mode.ACTIVE and safety.session is None
+    assert safety.reason == "handed to autonomy by alice", "status shows who handed it over"
+    assert safety.mode_state(0.3).reason == "handed to autonomy by alice"
+    assert "session of alice released: robot handed to autonomy in ACTIVE" in caplog.text
+
+
+def test_release_of_a_session_not_held_changes_nothing(safety: Safety) -> None:
+    active(safety)
+    assert not safety.release("intruder", 0.2)
+    assert not safety.release("intruder", 0.2, handoff=True)
+    assert safety.mode == Mode.ACTIVE and safety.session is not None
+    assert safety.session.client == "alice"
+
+
+def test_mode_state_names_who_engaged_and_who_reset_the_latch(safety: Safety) -> None:
+    safety.request(Mode.STAND, 0.0)
+    assert safety.mode_state(0.0).estop_by == []
+    safety.estop(1.0, "laptop", "operator")
+    safety.estop(1.1, "pendant")
+    safety.estop(1.2, "laptop", "again")
+    state = safety.mode_state(1.3)
+    assert state.mode == Mode.ESTOP and state.estop_by == ["laptop", "pendant"]
+    assert "laptop" in state.reason and state.reset_by == ""
+    safety.claim("s1", "alice", 2.0)
+    assert safety.reset(2.0, "s1")
+    state = safety.mode_state(2.1)
+    assert state.mode == Mode.OFF and state.estop_by == [] and state.reset_by == "s1"
+    safety.fault(3.0, "port gone")
+    assert safety.mode_state(3.1).reset_by == "", "a new latch is not yet reset"
+
+
+def test_estop_sources_are_bounded(safety: Safety) -> None:
+    for k in range(3 * MAX_ESTOP_SOURCES):
+        safety.estop(0.1 * k, f"peer{k}")
+    kept = safety.mode_state(5.0).estop_by
+    assert kept == [f"peer{k}" for k in range(2 * MAX_ESTOP_SOURCES, 3 * MAX_ESTOP_SOURCES)]
 
 
 def joints(n: int = 18, **over) -> list[JointHealth]:

@@ -3,7 +3,10 @@
 The client claims the robot's control session (``--override`` preempts autonomy or another
 operator; the robot logs it), sends heartbeats at ``--heartbeat-hz`` from its own thread so
 the robot holds if this client vanishes, repeats the current motion command at ``--rate``,
-and releases the session on exit. Stamps are this machine's monotonic clock.
+and releases the session on exit: the robot then holds, unless ``--handoff`` (or a script's
+``release handoff``) hands it to autonomy. E-stop and reset wait for the robot's mode to
+confirm them (``--timeout``), as ``climbd estop`` does. Stamps are this machine's monotonic
+clock.
 
 Script lines are ``<t> <verb> [args]``, ``t`` in seconds from start, ``#`` comments::
 
@@ -12,9 +15,9 @@ Script lines are ``<t> <verb> [args]``, ``t`` in seconds from start, ``#`` comme
     3.0 mode ACTIVE
     3.1 motion vx=0.05 yaw_rate=0.1
     6.0 stop             # zero motion
-    6.5 estop reason     # engage the e-stop (no session needed)
-    7.0 reset            # leave ESTOP/FAULT
-    8.0 release
+    6.5 estop reason     # engage the e-stop (no session needed), confirmed
+    7.0 reset            # leave ESTOP/FAULT, confirmed
+    8.0 release          # the robot holds; or: release handoff (to autonomy)
 """
 
 from __future__ import annotations
@@ -27,10 +30,20 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from climbd.daemon.cli.client import add_credential_arguments, open_client
+from climbd.daemon.cli.confirm import (
+    DEFAULT_TIMEOUT,
+    ModeWatch,
+    Refused,
+    Unconfirmed,
+    engage,
+    latched,
+    reset,
+)
 from climbd.daemon.contract.messages import (
     EStop,
     Heartbeat,
@@ -40,6 +53,7 @@ from climbd.daemon.contract.messages import (
     MotionCommand,
     SessionClaim,
 )
+from climbd.daemon.runtime.network import Network
 
 MOTION_FIELDS = ("vx", "vy", "yaw_rate", "body_height", "roll", "pitch")
 KEYS = {
@@ -91,7 +105,10 @@ def parse_script(text: str, source: str = "<script>") -> list[Step]:
         elif verb == "claim":
             if args not in ((), ("override",)):
                 raise ScriptError(f"{where}: claim takes nothing or 'override'")
-        elif verb not in ("release", "stop", "estop", "reset", "wait"):
+        elif verb == "release":
+            if args not in ((), ("handoff",)):
+                raise ScriptError(f"{where}: release takes nothing or 'handoff'")
+        elif verb not in ("stop", "estop", "reset", "wait"):
             raise ScriptError(
                 f"{where}: unknown verb {verb!r} "
                 "(claim, release, mode, motion, stop, estop, reset, wait)"
@@ -116,16 +133,25 @@ def _motion_fields(args: tuple[str, ...], where: str) -> dict[str, float]:
 
 
 class TeleopClient:
-    """A controlling session over a climbd Network: claim, heartbeats, motion, modes, release."""
+    """A controlling session over a climbd Network: claim, heartbeats, motion, modes, release;
+    e-stop and reset confirmed by the robot's mode (``endpoints`` name where, in errors)."""
 
-    def __init__(self, net, client: str, heartbeat_hz: float = 20.0, rate_hz: float = 20.0):
+    def __init__(
+        self,
+        net: Network,
+        client: str,
+        heartbeat_hz: float = 20.0,
+        rate_hz: float = 20.0,
+        endpoints: Sequence[str] = (),
+        timeout: float = DEFAULT_TIMEOUT,
+    ) -> None:
         self.net = net
         self.client = client
         self.session = uuid.uuid4().hex
         self.heartbeat_period = 1.0 / heartbeat_hz
         self.rate_period = 1.0 / rate_hz
         self.motion: dict[str, float] = {}
-        self.mode: ModeState | None = None
+        self.watch = ModeWatch(net, endpoints, timeout)
         self.claimed = False
         self._pubs = {t: net.publisher(t) for t in (SessionClaim, Heartbeat, MotionCommand)}
         self._pubs[ModeRequest] = net.publisher(ModeRequest)
@@ -135,10 +161,11 @@ class TeleopClient:
         self._lock = threading.Lock()  # no heartbeat or motion may follow the release
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="teleop", daemon=True)
-        net.subscribe(ModeState, self._on_mode)
 
-    def _on_mode(self, state: ModeState) -> None:
-        self.mode = state
+    @property
+    def mode(self) -> ModeState | None:
+        """The robot's mode as last heard, None before the first ModeState."""
+        return self.watch.latest
 
     def start(self) -> None:
         self._thread.start()
@@ -174,17 +201,24 @@ class TeleopClient:
             self.claimed = True
             self._next_beat = now + self.heartbeat_period
 
-    def release(self) -> None:
+    def release(self, handoff: bool = False) -> bool:
+        """Release the session: the robot holds, unless ``handoff`` hands it to autonomy.
+        Returns whether a release was sent (False when nothing was claimed)."""
         with self._lock:
             if not self.claimed:
-                return
+                return False
             self.claimed = False
             self.motion = {}
             self._pubs[SessionClaim].put(
                 SessionClaim(
-                    stamp=time.monotonic(), session=self.session, client=self.client, release=True
+                    stamp=time.monotonic(),
+                    session=self.session,
+                    client=self.client,
+                    release=True,
+                    handoff=handoff,
                 )
             )
+            return True
 
     def set_motion(self, **fields: float) -> None:
         """Set (and send at once) the motion command repeated from now on; none means stop."""
@@ -196,29 +230,44 @@ class TeleopClient:
             ModeRequest(stamp=time.monotonic(), session=self.session, mode=mode)
         )
 
-    def reset(self) -> None:
-        self._pubs[ModeRequest].put(
-            ModeRequest(stamp=time.monotonic(), session=self.session, reset=True)
-        )
+    def reset(self) -> ModeState:
+        """Reset a latched e-stop or fault as this session's holder and wait for the robot's mode
+        to confirm it; raises confirm.Unconfirmed (no robot, refused, not in time)."""
+        if not self.claimed:
+            latched(self.watch)  # "nothing to reset" says more than "not claimed"
+            raise Refused(
+                f"refused: reset: {self.client} holds no session of {self.net.robot}: claim first"
+            )
 
-    def estop(self, reason: str = "teleop") -> None:
-        self._pubs[EStop].put(
-            EStop(stamp=time.monotonic(), engage=True, source=self.client, reason=reason)
-        )
+        def send() -> None:
+            self._pubs[ModeRequest].put(
+                ModeRequest(stamp=time.monotonic(), session=self.session, reset=True)
+            )
 
-    def close(self) -> None:
-        self.release()
+        return reset(self.watch, send, self.session, self.client)
+
+    def estop(self, reason: str = "teleop") -> ModeState:
+        """Engage the e-stop, repeated until the robot's mode shows it latched by this client;
+        raises confirm.Unconfirmed (no robot, refused, not in time)."""
+        return engage(self.watch, self._pubs[EStop], self.client, reason)
+
+    def close(self, handoff: bool = False) -> bool:
+        """Release the session (the robot holds unless ``handoff``) and stop the heartbeats;
+        returns whether a release was sent."""
+        released = self.release(handoff)
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(1.0)
+        return released
 
-    def apply(self, step: Step) -> None:
-        """Carry out one script step."""
+    def apply(self, step: Step) -> str:
+        """Carry out one script step; returns the robot's confirmation of an e-stop or reset
+        ("" for other steps). Raises confirm.Unconfirmed when the robot does not confirm."""
         verb, args = step.verb, step.args
         if verb == "claim":
             self.claim(override=args == ("override",))
         elif verb == "release":
-            self.release()
+            self.release(handoff=args == ("handoff",))
         elif verb == "mode":
             self.request(Mode[args[0].upper()])
         elif verb == "motion":
@@ -226,25 +275,42 @@ class TeleopClient:
         elif verb == "stop":
             self.set_motion()
         elif verb == "estop":
-            self.estop(" ".join(args) or "teleop script")
+            return confirmed(self.estop(" ".join(args) or "teleop script"))
         elif verb == "reset":
-            self.reset()
+            return confirmed(self.reset())
+        return ""
+
+
+def confirmed(state: ModeState) -> str:
+    """How a confirmed e-stop or reset is reported: the robot's mode and reason."""
+    return f"confirmed: {state.mode.value} ({state.reason})"
 
 
 def run_script(client: TeleopClient, steps: list[Step]) -> None:
-    """Run steps at their times (from now), printing each as it goes."""
+    """Run steps at their times (from now), printing each as it goes; an e-stop or reset the
+    robot does not confirm ends the script (confirm.Unconfirmed)."""
     start = time.monotonic()
     for step in steps:
         delay = start + step.at - time.monotonic()
         if delay > 0:
             time.sleep(delay)
-        client.apply(step)
-        print(f"{time.monotonic() - start:7.3f} s  {step.verb} {' '.join(step.args)}", flush=True)
+        outcome = client.apply(step)
+        line = f"{time.monotonic() - start:7.3f} s  {step.verb} {' '.join(step.args)}"
+        print(f"{line}  {outcome}" if outcome else line, flush=True)
+
+
+def confirm_key(action: Callable[[], ModeState], what: str) -> str:
+    """The keyboard UI's line for an e-stop or reset key: confirmed, or why not."""
+    try:
+        return f"{what} {confirmed(action())}"
+    except Unconfirmed as e:
+        return f"{what} FAILED: {e}"
 
 
 def run_keyboard(client: TeleopClient, override: bool) -> None:
     """The terminal UI: w/s a/d q/e change velocity, space stops, 1/2/3 STAND/ACTIVE/HOLD,
-    x e-stop, r reset, Esc or Ctrl-C quits (releasing the session)."""
+    x e-stop, r reset (each waits for the robot to confirm), Esc or Ctrl-C quits (releasing
+    the session: the robot holds unless --handoff)."""
     import termios
     import tty
 
@@ -279,9 +345,9 @@ def run_keyboard(client: TeleopClient, override: bool) -> None:
             elif key in "123":
                 client.request((Mode.STAND, Mode.ACTIVE, Mode.HOLD)[int(key) - 1])
             elif key == "x":
-                client.estop("teleop keyboard")
+                print("\r\n" + confirm_key(lambda: client.estop("teleop keyboard"), "e-stop"))
             elif key == "r":
-                client.reset()
+                print("\r\n" + confirm_key(client.reset, "reset"))
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
         print()
@@ -297,6 +363,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", help="client name the robot logs (default: host:pid)")
     parser.add_argument("--rate", type=float, default=20.0, help="motion command rate (Hz)")
     parser.add_argument("--heartbeat-hz", type=float, default=20.0, help="heartbeat rate (Hz)")
+    parser.add_argument(
+        "--handoff",
+        action="store_true",
+        help="on exit, hand the robot to autonomy instead of holding it",
+    )
+    parser.add_argument(
+        "--timeout",
+        type=float,
+        default=DEFAULT_TIMEOUT,
+        help=f"seconds to wait for the robot to confirm an e-stop or reset ({DEFAULT_TIMEOUT:g})",
+    )
     add_credential_arguments(parser)
 
 
@@ -320,8 +397,9 @@ def main(args: argparse.Namespace) -> int:
     if net is None:
         return 2
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    name = args.name or f"{socket.gethostname()}:{os.getpid()}"
     client = TeleopClient(
-        net, args.name or f"{socket.gethostname()}:{os.getpid()}", args.heartbeat_hz, args.rate
+        net, name, args.heartbeat_hz, args.rate, endpoints=args.connect, timeout=args.timeout
     )
     client.start()
     try:
@@ -336,7 +414,10 @@ def main(args: argparse.Namespace) -> int:
         else:
             run_keyboard(client, args.override)
         return 0
+    except Unconfirmed as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     finally:
-        client.close()
+        client.close(args.handoff)
         time.sleep(0.1)  # let the release leave before the session closes
         net.close()

@@ -184,12 +184,16 @@ class MotionCommand(Message):
 
 
 class ModeState(Message):
-    """The current mode and why it was entered."""
+    """The current mode and why it was entered. ``estop_by`` names the sources whose e-stop
+    holds the current ESTOP latch, ``reset_by`` the session that last reset an ESTOP or FAULT:
+    an operator tool confirms its own e-stop or reset by them (``climbd estop``)."""
 
     TOPIC: ClassVar[str] = "state/mode"
     RATE: ClassVar[str] = "on change and 2 Hz"
     mode: Mode = Mode.OFF
     reason: str = ""
+    estop_by: list[str] = []
+    reset_by: str = ""
 
 
 class ModeRequest(Message):
@@ -206,14 +210,16 @@ class EStop(Message):
     """Engage (or, with ``engage=False``, release) the emergency stop; repeated by the sender."""
 
     TOPIC: ClassVar[str] = "cmd/estop"
-    RATE: ClassVar[str] = "on demand, repeated 10 Hz for 1 s"
+    RATE: ClassVar[str] = "on demand, repeated 10 Hz until the robot's ModeState confirms it"
     engage: bool = True
     source: str = ""
     reason: str = ""
 
 
 class SessionClaim(Message):
-    """Claim (or release) the controlling teleop session; ``override`` preempts autonomy."""
+    """Claim (or release) the controlling teleop session; ``override`` preempts autonomy. A
+    release puts the robot in HOLD unless ``handoff`` hands it to autonomy (logged, and named
+    in the mode's reason)."""
 
     TOPIC: ClassVar[str] = "cmd/session"
     RATE: ClassVar[str] = "on demand"
@@ -221,6 +227,7 @@ class SessionClaim(Message):
     client: str = ""
     release: bool = False
     override: bool = False
+    handoff: bool = False
 
 
 class Heartbeat(Message):

@@ -41,7 +41,6 @@ from climbd.daemon.contract.messages import (
     Message,
     Mode,
     ModeRequest,
-    ModeState,
     MotionCommand,
     MotionStats,
     SessionClaim,
@@ -226,7 +225,7 @@ class Controller:
     def on_claim(self, msg: SessionClaim) -> None:
         now = self.now()
         if msg.release:
-            self.safety.release(msg.session)
+            self.safety.release(msg.session, now, msg.handoff)
         else:
             self.safety.claim(msg.session, msg.client, now, msg.override)
 
@@ -396,7 +395,7 @@ class Controller:
         self.stance[:] = True
         self.unload[:] = False
         self._stance_changed = True
-        self.publish(ModeState(stamp=t, mode=mode, reason=self.safety.reason))
+        self.publish(self.safety.mode_state(t))
         if mode == Mode.OFF or (
             mode in (Mode.ESTOP, Mode.FAULT) and self.safety.policy == EstopPolicy.TORQUE_OFF
         ):
@@ -550,4 +549,4 @@ class Controller:
 
     def publish_health(self, t: float) -> None:
         self.publish(self.health(t))
-        self.publish(ModeState(stamp=t, mode=self.safety.mode, reason=self.safety.reason))
+        self.publish(self.safety.mode_state(t))

@@ -6,6 +6,7 @@ touches a device. The control tick asks it what to do; the bus feeds it requests
 
 Modes: OFF → STAND → ACTIVE ⇄ HOLD; any → ESTOP (engaged by anyone authorised, left only
 by an explicit reset) and any → FAULT (a device or health fault, left only by a reset).
+Releasing the session means HOLD, unless its holder hands the robot to autonomy.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import logging
 import threading
 from dataclasses import dataclass, field
 
-from climbd.daemon.contract.messages import EstopPolicy, JointHealth, Mode
+from climbd.daemon.contract.messages import EstopPolicy, JointHealth, Mode, ModeState
 from climbd.daemon.contract.profile import Profile
 
 log = logging.getLogger("climbd.safety")
@@ -29,6 +30,10 @@ _ALLOWED: dict[Mode, set[Mode]] = {
 }
 
 DERATE_SCALE = 0.5
+
+MAX_ESTOP_SOURCES = 8
+"""Sources of one e-stop latch kept for ModeState.estop_by (the newest): a flood of e-stops
+from many sources cannot grow the mode message."""
 
 
 @dataclass
@@ -62,6 +67,8 @@ class Safety:
     refused: int = 0
     speed_scale: float = 1.0
     torque_on: bool = False
+    estop_by: list[str] = field(default_factory=list)
+    reset_by: str = ""
     history: list[Transition] = field(default_factory=list)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
 
@@ -83,6 +90,22 @@ class Safety:
             reason,
         )
         self.mode, self.reason = mode, reason
+        if mode in (Mode.ESTOP, Mode.FAULT):
+            self.reset_by = ""
+        if mode != Mode.ESTOP:
+            self.estop_by = []
+
+    def mode_state(self, now: float) -> ModeState:
+        """The ModeState to publish: mode, reason, and who engaged or reset the latch, so an
+        operator tool can confirm its own e-stop or reset."""
+        with self._lock:
+            return ModeState(
+                stamp=now,
+                mode=self.mode,
+                reason=self.reason,
+                estop_by=list(self.estop_by),
+                reset_by=self.reset_by,
+            )
 
     # --- requests ---------------------------------------------------------------------
 
@@ -100,9 +123,15 @@ class Safety:
             return True
 
     def estop(self, now: float, source: str, reason: str = "") -> None:
-        """Engage the e-stop: from any mode, at once; only ``reset`` leaves it."""
+        """Engage the e-stop: from any mode, at once; only ``reset`` leaves it. Each source is
+        named in ``estop_by`` (also one engaging an e-stop already latched), so it can confirm."""
+        source = source or "unknown"
         with self._lock:
-            self._enter(Mode.ESTOP, f"e-stop by {source or 'unknown'}: {reason}".rstrip(": "), now)
+            self._enter(Mode.ESTOP, f"e-stop by {source}: {reason}".rstrip(": "), now)
+            if source not in self.estop_by:
+                if self.estop_by:
+                    log.warning("e-stop also engaged by %s: %s", source, reason)
+                self.estop_by = [*self.estop_by, source][-MAX_ESTOP_SOURCES:]
 
     def fault(self, now: float, reason: str) -> None:
         """A device or health fault: FAULT applies the e-stop policy and needs a reset."""
@@ -125,6 +154,7 @@ class Safety:
                 return False
             target = Mode.HOLD if self.torque_on else Mode.OFF
             self._enter(target, f"reset by {session or 'daemon'}", now)
+            self.reset_by = session or "daemon"
             return True
 
     # --- sessions ---------------------------------------------------------------------
@@ -144,10 +174,26 @@ class Safety:
             self.session = Session(session, client, now, override)
             return True, "claimed"
 
-    def release(self, session: str) -> None:
+    def release(self, session: str, now: float, handoff: bool = False) -> bool:
+        """Release the session held by ``session``: the robot holds (release means hold), unless
+        ``handoff`` hands it to autonomy, which is logged and named in the mode's reason. Returns
+        whether ``session`` held it (another session's release changes nothing)."""
         with self._lock:
-            if self.session is not None and self.session.session == session:
-                self.session = None
+            held = self.session
+            if held is None or held.session != session:
+                return False
+            self.session = None
+            if not handoff:
+                self.hold(now, f"session of {held.client} released")
+                return True
+            log.warning(
+                "session of %s released: robot handed to autonomy in %s",
+                held.client,
+                self.mode.value,
+            )
+            if self.mode == Mode.ACTIVE:
+                self.reason = f"handed to autonomy by {held.client}"
+            return True
 
     def heartbeat(self, session: str, now: float) -> bool:
         """Renew the session's heartbeat. Another session's is ignored, not counted as refused:
