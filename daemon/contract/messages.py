@@ -339,6 +339,48 @@ class GraspablePoints(Feature):
     points: list[list[float]] = []
 
 
+class MappedHold(msgspec.Struct, kw_only=True):
+    """A graspable point of the hold map: odometry-frame position (m, its height kept), how
+    sure (1 − Π(1 − cᵢ) over its sightings), how many frames saw it, seconds since the last."""
+
+    id: int
+    position: list[float]
+    confidence: float
+    seen: int
+    age: float
+
+
+class HoldMap(Feature):
+    """The world model's graspable points (paper 001) tracked across frames, odometry frame."""
+
+    TOPIC: ClassVar[str] = "features/hold_map"
+    RATE: ClassVar[str] = "2 Hz"
+    holds: list[MappedHold] = []
+
+
+class MappedJoist(msgspec.Struct, kw_only=True):
+    """A joist of the joist map, odometry frame: its near top edge's line n·p = ``offset`` with
+    n = (cos ``heading``, sin ``heading``) pointing away from where it was first seen, its
+    ``height``, the ``endpoints`` (x, y, z) of the edge seen so far, confidence, sightings, age."""
+
+    id: int
+    heading: float
+    offset: float
+    height: float
+    endpoints: list[list[float]]
+    confidence: float
+    seen: int
+    age: float
+
+
+class JoistMap(Feature):
+    """The world model's joists (paper 000) tracked across frames, odometry frame."""
+
+    TOPIC: ClassVar[str] = "features/joist_map"
+    RATE: ClassVar[str] = "2 Hz"
+    joists: list[MappedJoist] = []
+
+
 class Stability(Message):
     """Tumble Stability Margin (m, Yoneda & Hirose, with grip forces) of a climbing gait's tick:
     ``support`` marks the limbs it counts, ``grip`` the closed grippers, ``swing`` the swinging
@@ -405,11 +447,13 @@ FEATURES: tuple[type[Feature], ...] = (
     ElevationGrid,
     TerrainMap,
     Joists,
+    JoistMap,
     GraspablePoints,
+    HoldMap,
     TrussMembers,
     Stairs,
 )
-"""The features of the contract's own perception plugins."""
+"""The features of the contract's own perception plugins and of the world model."""
 
 
 class StairStep(Message):
@@ -460,7 +504,9 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     ElevationGrid,
     TerrainMap,
     Joists,
+    JoistMap,
     GraspablePoints,
+    HoldMap,
     Stability,
     StairStep,
     DepthImage,

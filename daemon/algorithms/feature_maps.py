@@ -1,0 +1,191 @@
+"""The world model's feature maps: holds and joists tracked across frames in the odometry frame.
+
+A perception plugin reports what one frame showed, in the body frame at the frame's time; the
+feature carries that pose (``frame_position``, ``frame_orientation``), so here it is placed in
+the odometry frame and folded into its tracks (``tracks``). A track the frame could have seen
+(inside the camera's view cone and range) but did not counts a miss, so what the camera looks
+away from is kept and what it looks at and no longer finds is dropped.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from climbd.daemon.algorithms.tracks import Track, TrackConfig, Tracker, wrap
+from climbd.daemon.contract.geometry import rotation, yaw
+from climbd.daemon.contract.hardware import DepthFrame
+from climbd.daemon.contract.messages import (
+    GraspablePoints,
+    HoldMap,
+    JoistMap,
+    Joists,
+    MappedHold,
+    MappedJoist,
+)
+
+LEVER = 0.3
+"""m: a joist heading difference counts as this lever times its radians in the gate."""
+
+
+def to_odometry(points: np.ndarray, position: list[float], orientation: list[float]) -> np.ndarray:
+    """Body-frame points (N×3) placed in the odometry frame by the pose they were seen in."""
+    return np.asarray(points, float).reshape(-1, 3) @ rotation(orientation).T + position
+
+
+class ViewCone:
+    """Which odometry-frame points a frame could have seen: inside its image, in front of the
+    lens and within ``max_range`` (no occlusion test: a hidden feature may count a miss)."""
+
+    def __init__(
+        self, frame: DepthFrame, position: list[float], orientation: list[float], max_range: float
+    ) -> None:
+        body_to_odom = np.eye(4)
+        body_to_odom[:3, :3] = rotation(orientation)
+        body_to_odom[:3, 3] = position
+        self._odom_to_camera = np.linalg.inv(body_to_odom @ frame.extrinsics)
+        self.intrinsics = frame.intrinsics
+        self.max_range = max_range
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        p = np.asarray(points, float).reshape(-1, 3)
+        cam = p @ self._odom_to_camera[:3, :3].T + self._odom_to_camera[:3, 3]
+        z = cam[:, 2]
+        k = self.intrinsics
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = k.fx * cam[:, 0] / z + k.ppx
+            v = k.fy * cam[:, 1] / z + k.ppy
+        return (
+            (z > 0) & (z <= self.max_range) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+        )
+
+
+class HoldTracks:
+    """Graspable points tracked in 3-D; each keeps its height."""
+
+    def __init__(self, config: TrackConfig | None = None) -> None:
+        self.tracker = Tracker(config or TrackConfig(gate=0.02))
+
+    def update(self, seen: GraspablePoints, cone: ViewCone | None, confidence: float = 0.5) -> None:
+        """Fold one frame's graspable points in (``confidence`` per sighting: the detector
+        gives none)."""
+        points = to_odometry(seen.points, seen.frame_position, seen.frame_orientation)
+        in_view = None if cone is None else (lambda ts: cone.contains(_estimates(ts)))
+        self.tracker.update(list(points), [confidence] * len(points), seen.frame_stamp, in_view)
+
+    def message(self, stamp: float, now: float) -> HoldMap:
+        return HoldMap(
+            stamp=stamp,
+            frame_stamp=now,
+            holds=[
+                MappedHold(
+                    id=t.id,
+                    position=t.estimate.tolist(),
+                    confidence=t.confidence,
+                    seen=t.seen,
+                    age=now - t.last_seen,
+                )
+                for t in self.tracker.tracks
+            ],
+        )
+
+
+def _estimates(tracks: list[Track]) -> np.ndarray:
+    return np.array([t.estimate for t in tracks]).reshape(-1, 3)
+
+
+def _joist_distance(track: np.ndarray, seen: np.ndarray) -> float:
+    """Gate distance of two joists (offset, heading, height, edge z): either normal direction."""
+    same = abs(track[0] - seen[0]) + LEVER * abs(wrap(track[1] - seen[1]))
+    flipped = abs(track[0] + seen[0]) + LEVER * abs(wrap(track[1] - seen[1] - math.pi))
+    return min(same, flipped) + abs(track[2] - seen[2])
+
+
+def _extent(heading: float, edge: np.ndarray) -> tuple[float, float]:
+    """Where an edge's ends lie along a line of normal ``heading`` (m, signed)."""
+    tangent = np.array([-math.sin(heading), math.cos(heading)])
+    s = edge[:, :2] @ tangent
+    return float(s.min()), float(s.max())
+
+
+def _joist_start(track: Track, edge: object) -> None:
+    track.extra["extent"] = _extent(track.estimate[1], np.asarray(edge))
+
+
+def _joist_fuse(track: Track, seen: np.ndarray, gain: float, edge: object) -> None:
+    """Running mean of offset, heading (on the circle), height and edge z, in the track's own
+    normal direction; the edge's extent along the line grows to cover what was seen."""
+    offset, heading, height, z = seen
+    if abs(wrap(heading - track.estimate[1])) > math.pi / 2:
+        offset, heading = -offset, wrap(heading + math.pi)
+    c, h, top, zz = track.estimate
+    track.estimate = np.array(
+        [
+            c + gain * (offset - c),
+            wrap(h + gain * wrap(heading - h)),
+            top + gain * (height - top),
+            zz + gain * (z - zz),
+        ]
+    )
+    lo, hi = track.extra["extent"]
+    s0, s1 = _extent(track.estimate[1], np.asarray(edge))
+    track.extra["extent"] = (min(lo, s0), max(hi, s1))
+
+
+class JoistTracks:
+    """Joists tracked as lines in the odometry frame."""
+
+    def __init__(self, config: TrackConfig | None = None) -> None:
+        self.tracker = Tracker(
+            config or TrackConfig(gate=0.08), _joist_distance, _joist_fuse, _joist_start
+        )
+
+    def update(self, seen: Joists, cone: ViewCone | None) -> None:
+        """Fold one frame's joists in."""
+        heading0 = yaw(seen.frame_orientation)
+        vectors, confidences, edges = [], [], []
+        for joist in seen.joists:
+            edge = to_odometry(joist.endpoints, seen.frame_position, seen.frame_orientation)
+            heading = wrap(joist.yaw + heading0)
+            normal = np.array([math.cos(heading), math.sin(heading)])
+            offset = float(normal @ edge[:, :2].mean(axis=0))
+            vectors.append(np.array([offset, heading, joist.height, edge[:, 2].mean()]))
+            confidences.append(joist.confidence)
+            edges.append(edge)
+        in_view = None if cone is None else (lambda ts: cone.contains(_joist_middles(ts)))
+        self.tracker.update(vectors, confidences, seen.frame_stamp, in_view, edges)
+
+    def message(self, stamp: float, now: float) -> JoistMap:
+        return JoistMap(
+            stamp=stamp,
+            frame_stamp=now,
+            joists=[_mapped_joist(t, now) for t in self.tracker.tracks],
+        )
+
+
+def _edge(track: Track) -> list[list[float]]:
+    """The tracked edge's two ends (x, y, z), odometry frame."""
+    offset, heading, _, z = track.estimate
+    normal = np.array([math.cos(heading), math.sin(heading)])
+    tangent = np.array([-normal[1], normal[0]])
+    lo, hi = track.extra["extent"]
+    return [[*(offset * normal + s * tangent).tolist(), float(z)] for s in (lo, hi)]
+
+
+def _joist_middles(tracks: list[Track]) -> np.ndarray:
+    return np.array([np.mean(_edge(t), axis=0) for t in tracks]).reshape(-1, 3)
+
+
+def _mapped_joist(track: Track, now: float) -> MappedJoist:
+    offset, heading, height, _ = track.estimate
+    return MappedJoist(
+        id=track.id,
+        heading=float(heading),
+        offset=float(offset),
+        height=float(height),
+        endpoints=[[float(v) for v in e] for e in _edge(track)],
+        confidence=track.confidence,
+        seen=track.seen,
+        age=now - track.last_seen,
+    )
