@@ -13,14 +13,16 @@ from __future__ import annotations
 import argparse
 import logging
 import threading
+import time
 
 import numpy as np
+from support.still_body import StillBody
 
 from climbd.daemon.cli.sim_host import PerceptionGate, feed, sim_camera
 from climbd.daemon.contract.messages import BodyState, DepthImage, Joists, decode, encode
 from climbd.daemon.contract.profile import load
 from climbd.daemon.runtime.capture import Capture
-from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loader import Restarting, RestartPolicy
 from climbd.daemon.runtime.perception_role import PerceptionRole, make_plugins
 
 SIM_SECONDS = 300.0
@@ -135,41 +137,50 @@ def test_a_frame_with_nothing_in_range_is_answered():
 
 
 class _Cracked:
-    """A perception plugin whose every frame fails (a lens cracked, a bug)."""
+    """A perception plugin whose every frame fails (a lens cracked, a bug); ``built`` counts
+    the instances made (at start and at each restart)."""
+
+    built = 0
 
     def __init__(self) -> None:
-        self.called = threading.Event()
+        _Cracked.built += 1
 
     def process(self, frame, body):
-        self.called.set()
         raise RuntimeError("lens cracked")
 
 
-def test_a_role_whose_plugins_all_failed_says_it_answers_nothing(caplog):
-    """The role's worker on the software camera: once no plugin is left it says so, naming
-    the failures (the control role then gives up waiting and holds on stale features)."""
+def test_a_role_whose_plugin_keeps_failing_gives_it_up_and_says_so(caplog):
+    """The role's worker on the software camera with a plugin that fails every frame: it is
+    restarted after each streak, given up when it fails right after its last restart, and the
+    worker ends with the role's failure naming the plugin and its error (``run`` then exits
+    non-zero, the control role gives up waiting and holds on stale features)."""
     profile = load("robots/widowx-attic-sim.toml")
     config = profile.cameras[0]
     camera = sim_camera(profile, config)
     capture = Capture(camera, config.name)
-    cracked = _Cracked()
     role = PerceptionRole(profile, argparse.Namespace())
+    policy = RestartPolicy(failures_to_restart=2, restarts=2, first_backoff=0.02)
+    _Cracked.built = 0
+    cracked = Restarting("cracked", _Cracked, role.plugin_failed, policy)
     published = []
+    blank = np.zeros((config.height, config.width), np.uint16)
     capture.start()
-    role.on_body(BodyState(stamp=0.1))
-    worker = threading.Thread(
-        target=role._work, args=(capture, [Isolated("cracked", cracked)], published.append)
-    )
-    worker.start()
+    worker = threading.Thread(target=role._work, args=(capture, [cracked], published.append))
     try:
-        camera.push(np.zeros((config.height, config.width), np.uint16), 0.1)
-        assert cracked.called.wait(5.0), "the worker never ran the plugin"
+        with StillBody(role):
+            worker.start()
+            end = time.monotonic() + 10.0
+            while worker.is_alive() and time.monotonic() < end:
+                camera.push(blank, time.monotonic() - 0.03)
+                time.sleep(0.01)
     finally:
         role._stop.set()
         worker.join(5.0)
         capture.stop()
     assert not published and not worker.is_alive()
-    assert (
-        "every perception plugin has failed (cracked failed: RuntimeError: lens cracked)"
-        in caplog.text
+    assert _Cracked.built == 3, "started, then restarted twice"
+    assert cracked.failed and cracked.status == "failed: RuntimeError: lens cracked"
+    assert role.failure.startswith(
+        "perception plugin cracked cannot be kept going (RuntimeError: lens cracked)"
     )
+    assert "failed again right after restart 2: RuntimeError: lens cracked; given up" in caplog.text

@@ -116,9 +116,10 @@ class Health(Message):
     without credentials (read-only telemetry gate); ``features`` gives the age (s) of each
     feature topic the role last received; ``session`` names the client holding the control
     session ("" when none); ``plugin_slowest`` gives each plugin's slowest call so far (s), with
-    ``plugin_slowest_call`` naming the plugin and method of the slowest of all;
-    ``refused_frames`` counts depth frames perception gave no body pose, by reason (no_pose,
-    too_old, too_new, out_of_order, not_finite).
+    ``plugin_slowest_call`` naming the plugin and method of the slowest of all; ``plugin_errors``
+    counts each plugin's calls that raised (their results dropped; ``plugins`` says whether it
+    is failing, restarting or failed); ``refused_frames`` counts depth frames perception gave
+    no body pose, by reason (no_pose, too_old, too_new, out_of_order, not_finite).
     """
 
     TOPIC: ClassVar[str] = "state/health"
@@ -131,6 +132,7 @@ class Health(Message):
     plugins: dict[str, str] = {}
     plugin_slowest: dict[str, float] = {}
     plugin_slowest_call: str = ""
+    plugin_errors: dict[str, int] = {}
     decode_errors: int = 0
     refused_commands: int = 0
     unauthorised_commands: int = 0

@@ -3,10 +3,12 @@
 A capture thread keeps only the newest depth frame (newest wins, drops counted); a worker thread
 pairs it with the body pose at the frame's stamp (from the history of the control role's
 BodyState; a frame outside it is refused with a counted reason), runs the profile's perception
-plugins on it, each isolated (one that raises is marked failed and skipped, the role goes on),
-and publishes their features. The asyncio main thread owns the bus: BodyState into the pose
-history, Health (plugin status, dropped and refused frames) at 2 Hz, the ``perception``
-liveliness token, signals.
+plugins on it and publishes their features. Each plugin is kept going by loader.Restarting: an
+error loses that frame's result for that plugin (counted), a plugin failing frame after frame is
+restarted with back-off, and one that cannot be kept going ends the role with exit status 1 so
+that its supervisor (or systemd) restarts it. The asyncio main thread owns the bus: BodyState
+into the pose history, Health (plugin status and errors, dropped and refused frames) at 2 Hz,
+the ``perception`` liveliness token, signals.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import signal
@@ -30,12 +33,26 @@ from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.capture import Capture
 from climbd.daemon.runtime.control_role import StartupError, role_network
-from climbd.daemon.runtime.loader import Isolated, instantiate, slowest
+from climbd.daemon.runtime.loader import (
+    Isolated,
+    Restarting,
+    RestartPolicy,
+    instantiate,
+    slowest,
+)
 
 log = logging.getLogger("climbd.perception")
 
 HEALTH_PERIOD = 0.5
 """Seconds between Health publications."""
+
+RESTART_POLICY = RestartPolicy()
+"""A plugin failing 5 frames in a row is restarted, skipped 1 s, 2 s, then 4 s after each
+restart in a row; one failing right after its third restart ends the role."""
+
+GAVE_UP = 1
+"""Exit status when a plugin cannot be kept going: the supervisor or systemd restarts the role
+(2, a setup to fix, would stop the supervisor)."""
 
 
 Feed = tuple[type[m.Message], Callable[[Any], None]]
@@ -43,10 +60,14 @@ Feed = tuple[type[m.Message], Callable[[Any], None]]
 
 
 def make_plugins(
-    profile: Profile, names: list[str] | None, on_failure: Callable[[str, BaseException], None]
-) -> list[Isolated[PerceptionPlugin]]:
-    """The perception plugins to run, isolated: ``names`` or the profile's list; each must
-    declare the feature types it publishes."""
+    profile: Profile,
+    names: list[str] | None,
+    on_failure: Callable[[str, BaseException], None],
+    policy: RestartPolicy = RESTART_POLICY,
+) -> list[Restarting[PerceptionPlugin]]:
+    """The perception plugins to run, each kept going under ``policy``: ``names`` or the
+    profile's list; each must declare the feature types it publishes. ``on_failure`` hears of a
+    plugin given up."""
 
     specs = {s.name: s for s in profile.plugins.perception}
     chosen = names or list(specs)
@@ -55,12 +76,19 @@ def make_plugins(
     out = []
     for name in chosen:
         overrides = specs[name].config if name in specs else {}
-        where = f"{profile.source}: plugins.perception {name}"
-        plugin = instantiate("climbd.perception", name, overrides, profile, where)
-        if not plugin.publishes:
-            raise PluginError(f"{where}: declares no feature types (publishes) to publish")
-        out.append(Isolated(name, plugin, on_failure))
+        build = functools.partial(start_plugin, profile, name, overrides)
+        out.append(Restarting(name, build, on_failure, policy))
     return out
+
+
+def start_plugin(profile: Profile, name: str, overrides: dict[str, Any]) -> PerceptionPlugin:
+    """A new instance of perception plugin ``name`` configured from the profile: at start and
+    at each restart."""
+    where = f"{profile.source}: plugins.perception {name}"
+    plugin = instantiate("climbd.perception", name, overrides, profile, where)
+    if not plugin.publishes:
+        raise PluginError(f"{where}: declares no feature types (publishes) to publish")
+    return plugin
 
 
 class PerceptionRole:
@@ -72,31 +100,35 @@ class PerceptionRole:
         args: argparse.Namespace,
         camera: Camera | None = None,
         feeds: Sequence[Feed] = (),
+        policy: RestartPolicy = RESTART_POLICY,
     ) -> None:
         """``camera`` is what the role reads (the CLI makes it); ``feeds`` are subscriptions it
-        needs."""
+        needs; ``policy`` says when a failing plugin is restarted or given up."""
         self.profile = profile
         self.args = args
         self.camera = camera
         self.feeds = feeds
+        self.policy = policy
         self.poses = PoseHistory()
         self._poses_lock = threading.Lock()
         self.refused: dict[str, int] = {}
         """Frames given no pose, by reason (``Refusal`` values)."""
         self.published = 0
         self.undeclared = 0
+        self.failure = ""
+        """Why the role must end: a plugin given up ("" while all are kept going)."""
         self._stop = threading.Event()
 
     def _work(
         self,
         capture: Capture,
-        plugins: list[Isolated[PerceptionPlugin]],
+        plugins: Sequence[Isolated[PerceptionPlugin]],
         publish: Callable[[m.Message], None],
     ) -> None:
-        """Worker thread: newest frame → every healthy plugin → publish what they return, if it
-        is of a type the plugin declares."""
-        idle = False
-        while not self._stop.is_set() and capture.running:
+        """Worker thread: newest frame → every plugin not skipped → publish what they return, if
+        it is of a type the plugin declares; until stopped, the camera stops, or a plugin is
+        given up."""
+        while not self._stop.is_set() and capture.running and not self.failure:
             frame = capture.latest(timeout=0.2)
             if frame is None:
                 continue
@@ -122,13 +154,27 @@ class PerceptionRole:
                 feature.frame_orientation = list(body.orientation)
                 publish(feature)
                 self.published += 1
-            if not idle and all(iso.failed for iso in plugins):
-                idle = True
-                log.error(
-                    "every perception plugin has failed (%s): this role publishes no features "
-                    "until it is restarted",
-                    "; ".join(f"{iso.name} {iso.status}" for iso in plugins),
-                )
+
+    def plugin_failed(self, name: str, error: BaseException) -> None:
+        """A plugin was given up (Restarting's ``on_failure``, on the worker thread): the role
+        ends, its features would silently stop otherwise."""
+        self.failure = (
+            f"perception plugin {name} cannot be kept going ({type(error).__name__}: {error}); "
+            "the role exits to be restarted"
+        )
+
+    def health(self, plugins: Sequence[Isolated[PerceptionPlugin]], decode_errors: int) -> m.Health:
+        """The role's Health but for the camera's part (``Capture.report`` adds it): each
+        plugin's status, errors and slowest call, the bus's decode errors, refused frames."""
+        return m.Health(
+            stamp=time.monotonic(),
+            role="perception",
+            plugins={p.name: p.status for p in plugins},
+            plugin_errors={p.name: p.failures for p in plugins},
+            **slowest(plugins),
+            decode_errors=decode_errors,
+            refused_frames=dict(self.refused),
+        )
 
     def on_body(self, body: m.BodyState) -> None:
         """A body state from the control role: into the pose history."""
@@ -162,7 +208,7 @@ class PerceptionRole:
             raise StartupError(f"{profile.source}: the perception role was given no camera")
         aio = asyncio.get_running_loop()
         try:
-            plugins = make_plugins(profile, args.plugin, lambda name, e: None)
+            plugins = make_plugins(profile, args.plugin, self.plugin_failed, self.policy)
         except (RuntimeError, ValueError) as e:  # PluginError: a setup to fix
             print(f"error: {e}", file=sys.stderr)
             return 2
@@ -193,15 +239,9 @@ class PerceptionRole:
         end = aio.time() + args.duration if args.duration else math.inf
         try:
             while not stop.is_set() and aio.time() < end:
-                health = m.Health(
-                    stamp=time.monotonic(),
-                    role="perception",
-                    plugins={p.name: p.status for p in plugins},
-                    **slowest(plugins),
-                    decode_errors=net.decode_errors,
-                    refused_frames=dict(self.refused),
-                )
-                publish(capture.report(health))
+                publish(capture.report(self.health(plugins, net.decode_errors)))
+                if self.failure:
+                    break
                 if not capture.running and not self._stop.is_set():
                     log.error("camera stopped: %s", capture.error or "end of stream")
                 with contextlib.suppress(asyncio.TimeoutError):
@@ -217,4 +257,7 @@ class PerceptionRole:
             + ", ".join(f"{p.name} {p.status}" for p in plugins),
             flush=True,
         )
+        if self.failure:
+            print(f"error: {self.failure}", file=sys.stderr)
+            return GAVE_UP
         return 0
