@@ -1,4 +1,5 @@
-"""The world model's terrain: one rolling elevation map in the odometry frame, with its layers.
+"""The world model: one rolling elevation map in the odometry frame with its terrain layers,
+and the feature maps (holds, joists) of ``feature_maps``, fed by every frame and every feature.
 
 Every depth frame is fused with the body pose at its stamp (ElevationMap); the terrain layers
 (normals, slope, roughness, step height, traversability: ``terrain``) are recomputed over the
@@ -16,19 +17,44 @@ import zlib
 import msgspec
 import numpy as np
 
+from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.algorithms.elevation import ElevationConfig, ElevationMap, Window
+from climbd.daemon.algorithms.feature_maps import HoldTracks, JoistTracks, ViewCone
 from climbd.daemon.algorithms.terrain import TerrainConfig, terrain_layers
-from climbd.daemon.contract.messages import TERRAIN_LAYERS, BodyState, TerrainMap
+from climbd.daemon.contract.hardware import DepthFrame
+from climbd.daemon.contract.messages import (
+    TERRAIN_LAYERS,
+    BodyState,
+    Feature,
+    GraspablePoints,
+    Joists,
+    TerrainMap,
+)
+from climbd.daemon.contract.units import Positive
 
 ZLIB_LEVEL = 1
 """Fast compression: the layers are mostly NaN or smooth, level 1 takes most of the gain."""
 
 
 class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """The map's extent, cells and fusion (elevation) and its terrain filter chain."""
+    """The map's extent, cells and fusion (elevation), its terrain filter chain, the depth
+    decimation it fuses at, the camera range features are expected within, its publish rate."""
 
-    elevation: ElevationConfig = msgspec.field(default_factory=ElevationConfig)
+    elevation: ElevationConfig = msgspec.field(
+        default_factory=lambda: ElevationConfig(z_min=-1.0, z_max=0.6)
+    )
+    """Paper 000's 1 m × 1.2 m crop and 1 cm cells; heights from 1 m below the body (steps
+    down, a stair flight) to 0.6 m above it."""
     terrain: TerrainConfig = msgspec.field(default_factory=TerrainConfig)
+    decimation: int = 2
+    """Every n-th depth row and column: 2 keeps 1 cm cells dense to 1.5 m at 640×480."""
+    view_range: Positive = 2.0
+    """m: a feature farther than this from the camera is not expected in a frame (no miss)."""
+    publish_period: Positive = 0.5
+
+    def __post_init__(self) -> None:
+        if self.decimation < 1:
+            raise ValueError(f"world config: decimation must be >= 1, got {self.decimation}")
 
 
 class TerrainModel:
@@ -167,3 +193,41 @@ class TerrainView:
         """Seconds since a frame last saw (x, y), at ``now``; inf where never seen."""
         age = self.value("age", x, y)
         return math.inf if math.isnan(age) else age + (now - self.message.frame_stamp)
+
+
+class WorldModel:
+    """The robot's maps in the odometry frame: terrain from every depth frame, holds and joists
+    from the plugins' features, each with the body pose at its frame's time."""
+
+    def __init__(self, config: WorldConfig | None = None) -> None:
+        self.config = config or WorldConfig()
+        self.terrain = TerrainModel(self.config)
+        self.holds = HoldTracks()
+        self.joists = JoistTracks()
+        self._cone: ViewCone | None = None
+        self._body: BodyState | None = None
+
+    def frame(self, frame: DepthFrame, body: BodyState) -> None:
+        """Fuse one depth frame taken at ``body`` (the pose at its stamp)."""
+        points = frame_to_points(frame, decimation=self.config.decimation)
+        self.terrain.update(points, body)
+        self._cone = ViewCone(frame, body.position, body.orientation, self.config.view_range)
+        self._body = body
+
+    def feature(self, feature: Feature) -> None:
+        """Fold a plugin's feature (of the last frame) into its map; other kinds pass by."""
+        if isinstance(feature, Joists):
+            self.joists.update(feature, self._cone)
+        elif isinstance(feature, GraspablePoints):
+            self.holds.update(feature, self._cone)
+
+    def messages(self, stamp: float) -> list[Feature]:
+        """The maps to publish (nothing before the first frame)."""
+        body = self._body
+        if body is None:
+            return []
+        return [
+            self.terrain.message(stamp, body),
+            self.holds.message(stamp, body.stamp),
+            self.joists.message(stamp, body.stamp),
+        ]
