@@ -5,11 +5,16 @@ JSON Schema from its msgspec Struct embedded (``schema encoding = "jsonschema"``
 ``climbd.<Type>``), so Foxglove and the ``mcap`` tools decode it without climbd. JSON has no
 NaN: a NaN float is stored as ``null`` and ``climbd replay`` turns it back into NaN.
 
-Zenoh callbacks only decode and enqueue; the main thread writes. Log times are the wall clock
-at start plus monotonic time since, so a wall-clock jump never reorders a recording. A write
-that fails (disk full, file size limit) stops the recording cleanly: the file is cut back to
-its last whole record and sealed so it stays readable, the reason is printed, and nothing on
-the bus notices (the recorder only subscribes).
+Zenoh callbacks only decode and enqueue; the main thread writes, and flushes and fsyncs every
+FLUSH_PERIOD. Log times are the wall clock at start plus monotonic time since, so a wall-clock
+jump never reorders a recording. A write that fails (disk full, file size limit) stops the
+recording cleanly: the file is cut back to its last whole record and sealed so it stays
+readable, the reason is printed, and nothing on the bus notices (the recorder only subscribes).
+A recording that cannot start (full disk, unwritable path) or keeps no message is removed.
+
+A recorder killed outright (kill -9, power cut) leaves a file without its footer:
+RecordingFile reads every complete message of it, and ``climbd record --recover FILE`` rewrites
+those into a sealed, indexed MCAP.
 """
 
 from __future__ import annotations
@@ -19,37 +24,55 @@ import collections
 import contextlib
 import fnmatch
 import logging
+import math
 import os
 import queue
 import signal
+import struct
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import TYPE_CHECKING, BinaryIO, NamedTuple
+
+import msgspec
 
 from climbd.daemon.cli.client import add_credential_arguments, client_config
 from climbd.daemon.contract.messages import ALL_MESSAGES, SchemaMismatch, decode, key
 from climbd.daemon.runtime.access import AccessError
 
+if TYPE_CHECKING:
+    from mcap.records import Channel, Message, Schema
+
 log = logging.getLogger("climbd.record")
 
 FLUSH_PERIOD = 0.5
-"""Seconds between flushes to disk: how much a power cut or a full disk can lose."""
+"""Seconds between flush + fsync to disk: how much a crash, power cut or full disk can lose."""
 
 QUEUE_LIMIT = 100_000
 """Messages waiting for the writer beyond which new ones are dropped (and counted)."""
 
 SCHEMA_PREFIX = "climbd."
 
+MAGIC = b"\x89MCAP0\r\n"
+"""The 8 bytes an MCAP file starts and ends with."""
+
+FOOTER_SIZE = 1 + 8 + 20
+"""Bytes of a Footer record: opcode, length, summary start, summary offset start, CRC."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--robot", required=True, help="robot name, or '*' for every robot")
+    parser.add_argument("--robot", help="robot name, or '*' for every robot (required to record)")
     parser.add_argument(
         "--connect", action="append", default=[], help="Zenoh endpoint of the robot (repeatable)"
     )
-    parser.add_argument("-o", "--output", help="MCAP file (default: climbd-<robot>-<time>.mcap)")
+    parser.add_argument(
+        "-o",
+        "--output",
+        help="MCAP file (default: climbd-<robot>-<time>.mcap; with --recover FILE.recovered.mcap)",
+    )
     parser.add_argument(
         "--topics",
         nargs="+",
@@ -57,6 +80,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="topics or patterns to record, e.g. state/joints 'features/*' (default: all)",
     )
     parser.add_argument("--duration", type=float, help="stop by itself after S seconds")
+    parser.add_argument(
+        "--recover",
+        metavar="FILE",
+        help="rewrite the complete messages of a recording that was not closed cleanly "
+        "(recorder killed, power cut) into a sealed, indexed MCAP, then exit",
+    )
     add_credential_arguments(parser)
 
 
@@ -76,9 +105,33 @@ def json_schema(message: type) -> bytes:
 
     Encoded by msgspec, so a NaN default is written as null: strict JSON, as MCAP readers expect.
     """
-    import msgspec
-
     return msgspec.json.encode(msgspec.json.schema(message))
+
+
+def restore_nan(value, info):
+    """``value`` decoded from JSON with ``null`` back to NaN wherever ``info`` expects a float.
+
+    JSON has no NaN, so ``climbd record`` stores NaN floats as null; fields that may be None
+    (``float | None``) keep their null.
+    """
+    from msgspec import inspect as mi
+
+    if isinstance(info, mi.FloatType):
+        return math.nan if value is None else value
+    if isinstance(info, mi.StructType) and isinstance(value, dict):
+        fields = {f.encode_name: f.type for f in info.fields}
+        return {k: restore_nan(v, fields[k]) if k in fields else v for k, v in value.items()}
+    if isinstance(info, (mi.ListType, mi.VarTupleType)) and isinstance(value, list):
+        return [restore_nan(v, info.item_type) for v in value]
+    if isinstance(info, mi.DictType) and isinstance(value, dict):
+        return {k: restore_nan(v, info.value_type) for k, v in value.items()}
+    return value
+
+
+def from_json(data: bytes, message: type):
+    """Decode one recorded JSON payload as ``message`` (NaN restored, schema checked)."""
+    obj = msgspec.json.decode(data)
+    return msgspec.convert(restore_nan(obj, msgspec.inspect.type_info(message)), message)
 
 
 @dataclass
@@ -94,19 +147,25 @@ class WriteFailed(OSError):
     """Writing the recording failed (disk full, size limit); the message names file and reason."""
 
 
+class RecordingError(ValueError):
+    """A file that cannot be read as a recording; the message names file and channel."""
+
+
 class McapSink:
-    """Writes Samples to an MCAP file, flushing every FLUSH_PERIOD; seals it on a write failure.
+    """Writes Samples to an MCAP file, flushing and fsyncing every FLUSH_PERIOD; seals it on a
+    write failure.
 
     Records are written unchunked, so every message ends at a known offset; on a failed write
     the file is cut back to the last whole record that fits together with a closing footer.
+    With ``robot`` the channels of its topics are declared up front, silent ones included.
     """
 
-    def __init__(self, path: Path, messages: list[type]) -> None:
+    def __init__(self, path: Path, messages: list[type], robot: str | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
-        self.path = path
+        self.path = Path(path)
         try:
-            self.file: BinaryIO = open(path, "wb")  # noqa: SIM115 - closed by close()/fail()
+            self.file: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed by close()/fail()
         except OSError as e:
             raise WriteFailed(f"{path}: cannot create the recording: {e.strerror or e}") from None
         self.writer = Writer(self.file, compression=CompressionType.NONE, use_chunking=False)
@@ -116,34 +175,45 @@ class McapSink:
         self.schemas: dict[type, int] = {}
         self._marks: collections.deque[tuple[int, int]] = collections.deque(maxlen=4096)
         self._last_flush = time.monotonic()
-        self._encoder = None
         try:
-            self.writer.start(profile="climbd", library="climbd record")
-            for m in messages:
-                self.schemas[m] = self.writer.register_schema(
-                    SCHEMA_PREFIX + m.__name__, "jsonschema", json_schema(m)
-                )
-            self.file.flush()
+            self._start(messages, robot)
         except OSError as e:
-            self.file.close()
+            self._discard()
             raise WriteFailed(f"{path}: cannot start the recording: {e.strerror or e}") from None
         self._first = self.file.tell()
 
+    def _start(self, messages: list[type], robot: str | None) -> None:
+        """Write the header, the schemas (and ``robot``'s channels) and sync them to disk, so a
+        full disk or size limit shows now rather than after the recording has begun.
+
+        The writer holds schemas and channels back until the next record it writes itself: a
+        metadata record naming robot and topics is that record.
+        """
+        self.writer.start(profile="climbd", library="climbd record")
+        for m in messages:
+            self.schemas[m] = self.writer.register_schema(
+                SCHEMA_PREFIX + m.__name__, "jsonschema", json_schema(m)
+            )
+        if robot is not None:
+            for m in messages:
+                self.channel(key(robot, m), m)
+        topics = " ".join(m.TOPIC for m in messages)
+        self.writer.add_metadata("climbd", {"robot": robot or "*", "topics": topics})
+        self.file.flush()
+        os.fsync(self.file.fileno())
+
     def write(self, sample: Sample) -> None:
         """Add one message (and its channel on first sight); raises WriteFailed once sealed."""
-        import msgspec
-
         try:
             channel = self.channel(sample.key, type(sample.message))
             data = msgspec.json.encode(sample.message)
             self.writer.add_message(channel, sample.log_time, data, sample.log_time, self.count)
-            self.count += 1
-            self._marks.append((self.file.tell(), self.count))
-            self.topics[sample.key] = self.topics.get(sample.key, 0) + 1
-            if time.monotonic() - self._last_flush >= FLUSH_PERIOD:
-                self.flush()
         except OSError as e:
             self.fail(e)
+        self.count += 1
+        self._marks.append((self.file.tell(), self.count))
+        self.topics[sample.key] = self.topics.get(sample.key, 0) + 1
+        self.flush_due()
 
     def channel(self, key: str, message: type) -> int:
         """The channel id of ``key``, registered (with its schema) on first use."""
@@ -155,28 +225,40 @@ class McapSink:
             )
         return channel
 
+    def flush_due(self) -> None:
+        """Flush and fsync if FLUSH_PERIOD has passed since the last time."""
+        if time.monotonic() - self._last_flush >= FLUSH_PERIOD:
+            self.flush()
+
     def flush(self) -> None:
-        self.file.flush()
+        """Write what is buffered and fsync it: a crash or power cut then loses nothing of it."""
+        try:
+            self.file.flush()
+            os.fsync(self.file.fileno())
+        except OSError as e:
+            self.fail(e)
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
-        """Write the summary (schemas, channels, statistics, index) and close the file."""
+        """Write the summary (schemas, channels, statistics, index), sync and close the file."""
         try:
             self.writer.finish()
+            self.file.flush()
+            os.fsync(self.file.fileno())
             self.file.close()
         except OSError as e:
             self.fail(e)
 
     def fail(self, error: OSError) -> None:
-        """Cut the file back to the last whole record that fits with a footer, seal, raise."""
+        """Cut the file back to the last whole record that fits with a footer, seal, raise;
+        a file left without any message is removed instead."""
         from mcap.data_stream import RecordBuilder
         from mcap.records import DataEnd, Footer
-        from mcap.writer import MCAP0_MAGIC
 
         builder = RecordBuilder()
         DataEnd(data_section_crc=0).write(builder)
         Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(builder)
-        trailer = builder.end() + MCAP0_MAGIC
+        trailer = builder.end() + MAGIC
         fd = self.file.fileno()
         on_disk = os.fstat(fd).st_size
         kept, sealed = 0, False
@@ -191,14 +273,240 @@ class McapSink:
             if sealed:
                 kept = count
                 break
-        self.count = kept
-        # The buffered writer still holds bytes it could not write: they go with the fd.
-        os.close(fd)
         with contextlib.suppress(OSError):
-            self.file.close()
+            os.fsync(fd)
+        self.count = kept
         reason = error.strerror or str(error)
+        if kept == 0:
+            self._discard()
+            raise WriteFailed(f"{self.path}: {reason}; no message kept, file removed") from None
+        self._close_unflushed()
         state = "file sealed and readable" if sealed else "file could not be sealed"
         raise WriteFailed(f"{self.path}: {reason}; {kept} messages kept, {state}") from None
+
+    def _close_unflushed(self) -> None:
+        """Close the file dropping the bytes its buffer could not write.
+
+        The descriptor is pointed at /dev/null first, so the buffer's last flush goes there and
+        close() never writes to (or closes) a descriptor number another thread has reused.
+        """
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, self.file.fileno())
+        finally:
+            os.close(null)
+        with contextlib.suppress(OSError):
+            self.file.close()
+
+    def _discard(self) -> None:
+        """Close and remove a recording that could not start, so no empty file is left."""
+        self._close_unflushed()
+        with contextlib.suppress(FileNotFoundError):
+            self.path.unlink()
+
+
+class Entry(NamedTuple):
+    """One complete message of a recording: its MCAP records and the decoded Struct."""
+
+    schema: Schema
+    channel: Channel
+    message: Message
+    value: object
+
+
+class RecordingFile:
+    """The messages of a recording in file order, read to the end of its last complete record.
+
+    A file that ends with its footer (sealed) is read strictly: any damage raises
+    RecordingError. One that does not (recorder killed, power cut, still being written) is
+    read up to the first record that is cut short or unreadable; ``reason`` then says where
+    reading stopped and ``count`` how many messages were recovered.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.sealed = False
+        self.reason = ""
+        self.count = 0
+
+    def describe(self) -> str:
+        """One line: whether the file was closed cleanly, and how many messages were read."""
+        if self.sealed:
+            return f"{self.path}: {self.count} messages"
+        return (
+            f"{self.path}: not closed cleanly ({self.reason}); "
+            f"recovered {self.count} complete messages"
+        )
+
+    def __iter__(self) -> Iterator[Entry]:
+        try:
+            f = open(self.path, "rb")  # noqa: SIM115 - closed below, also when the generator is dropped
+        except OSError as e:
+            raise RecordingError(f"{self.path}: {e.strerror or e}") from None
+        with f:
+            size = os.fstat(f.fileno()).st_size
+            head = f.read(len(MAGIC))
+            if not MAGIC.startswith(head):
+                raise RecordingError(f"{self.path}: not an MCAP file")
+            self.sealed = ends_sealed(f.fileno(), size)
+            self.count = 0
+            if len(head) < len(MAGIC):
+                self._damaged("the file ends inside the MCAP header")
+                return
+            yield from self._entries(f, size)
+
+    def _entries(self, f: BinaryIO, size: int) -> Iterator[Entry]:
+        """The messages after the magic, one top-level record at a time (chunks broken up)."""
+        from mcap.exceptions import McapError
+        from mcap.records import Channel, Chunk, Footer, Message, Schema
+        from mcap.stream_reader import StreamReader, breakup_chunk
+
+        types = {SCHEMA_PREFIX + m.__name__: m for m in ALL_MESSAGES}
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        records = StreamReader(f, skip_magic=True, emit_chunks=True, record_size_limit=size).records
+        while True:
+            at = f.tell()
+            cut = record_cut_short(f.fileno(), at, size)
+            if cut:
+                self._damaged(cut)
+                return
+            try:
+                record = next(records)
+                inner = breakup_chunk(record) if isinstance(record, Chunk) else [record]
+            except (McapError, ValueError, struct.error, UnicodeDecodeError) as e:
+                self._damaged(f"unreadable record at byte {at}: {e}")
+                return
+            for r in inner:
+                if isinstance(r, Schema):
+                    schemas[r.id] = r
+                elif isinstance(r, Channel):
+                    channels[r.id] = r
+                elif isinstance(r, Message):
+                    entry = self._entry(r, at, schemas, channels, types)
+                    if entry is None:
+                        return
+                    self.count += 1
+                    yield entry
+            if isinstance(record, Footer):
+                if not self.sealed:
+                    self._damaged(f"{size - f.tell()} bytes after the footer are not its magic")
+                return
+
+    def _entry(
+        self,
+        msg: Message,
+        at: int,
+        schemas: dict[int, Schema],
+        channels: dict[int, Channel],
+        types: dict[str, type],
+    ) -> Entry | None:
+        """``msg`` decoded as the climbd message its channel's schema names; None (reading
+        stops) if it is damaged, RecordingError if it is not a climbd message at all."""
+        channel = channels.get(msg.channel_id)
+        if channel is None:
+            self._damaged(f"message on unknown channel {msg.channel_id} at byte {at}")
+            return None
+        schema = schemas.get(channel.schema_id)
+        if schema is None or schema.name not in types:
+            name = schema.name if schema is not None else "none"
+            raise RecordingError(
+                f"{self.path}: channel {channel.topic}: schema {name!r} is not a climbd message"
+            )
+        try:
+            value = from_json(msg.data, types[schema.name])
+        except (msgspec.DecodeError, msgspec.ValidationError) as e:
+            self._damaged(f"channel {channel.topic}, message {msg.sequence} at byte {at}: {e}")
+            return None
+        return Entry(schema, channel, msg, value)
+
+    def _damaged(self, reason: str) -> None:
+        """Stop reading at ``reason``: an error in a sealed file, the torn end of another."""
+        if self.sealed:
+            raise RecordingError(f"{self.path}: not a readable MCAP file: {reason}")
+        self.reason = reason
+
+
+def ends_sealed(fd: int, size: int) -> bool:
+    """Whether the file ends with a Footer record and the closing magic, as a sealed MCAP does."""
+    if size < 2 * len(MAGIC) + FOOTER_SIZE:
+        return False
+    tail = os.pread(fd, FOOTER_SIZE + len(MAGIC), size - FOOTER_SIZE - len(MAGIC))
+    opcode, length = struct.unpack_from("<BQ", tail)
+    return tail.endswith(MAGIC) and opcode == 0x02 and length == FOOTER_SIZE - 9
+
+
+def record_cut_short(fd: int, at: int, size: int) -> str:
+    """Why the file has no whole record at byte ``at`` ("" if it has one)."""
+    if at >= size:
+        return "the file ends without a footer"
+    head = os.pread(fd, 9, at)
+    if len(head) < 9:
+        return f"the last record is cut short at byte {at}"
+    _, length = struct.unpack("<BQ", head)
+    if at + 9 + length > size:
+        return f"the last record is cut short at byte {at}"
+    return ""
+
+
+def recovered_path(source: Path) -> Path:
+    """Where ``--recover FILE`` writes by default: FILE with the suffix ``.recovered.mcap``."""
+    return source.with_suffix(".recovered.mcap")
+
+
+def recover(source: Path, target: Path) -> RecordingFile:
+    """Rewrite the complete messages of ``source`` into a sealed, indexed MCAP at ``target``.
+
+    Written under a temporary name and renamed once synced, so a failed recovery leaves no
+    partial file; RecordingError if ``source`` holds no complete message.
+    """
+    if target.resolve() == source.resolve():
+        raise RecordingError(f"{source}: the recovered recording needs another name (-o)")
+    partial = target.with_name(target.name + ".partial")
+    try:
+        recording = _rewrite(source, partial)
+        os.replace(partial, target)
+    except OSError as e:
+        partial.unlink(missing_ok=True)
+        reason = e.strerror or str(e)
+        raise WriteFailed(f"{target}: cannot write the recovered recording: {reason}") from None
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    return recording
+
+
+def _rewrite(source: Path, target: Path) -> RecordingFile:
+    """Copy the messages of ``source`` with their schemas and channels to a new, chunked MCAP."""
+    from mcap.writer import CompressionType, Writer
+
+    recording = RecordingFile(source)
+    with open(target, "wb") as f:
+        writer = Writer(f, compression=CompressionType.NONE)
+        writer.start(profile="climbd", library="climbd record --recover")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, msg, _ in recording:
+            if channel.id not in channels:
+                if schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(
+                        schema.name, schema.encoding, schema.data
+                    )
+                channels[channel.id] = writer.register_channel(
+                    channel.topic,
+                    channel.message_encoding,
+                    schemas[schema.id],
+                    channel.metadata,
+                )
+            writer.add_message(
+                channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence
+            )
+        if recording.count == 0:
+            raise RecordingError(f"{source}: no complete message to recover ({recording.reason})")
+        writer.finish()
+        f.flush()
+        os.fsync(f.fileno())
+    return recording
 
 
 class Recorder:
@@ -227,8 +535,6 @@ class Recorder:
             )
 
     def _handler(self, message: type):
-        import msgspec
-
         def on_sample(sample) -> None:
             try:
                 msg = decode(sample.payload.to_bytes(), message)
@@ -250,12 +556,16 @@ class Recorder:
         self._subscribers.clear()
 
     def drain(self, sink: McapSink, stop: threading.Event, until: float | None) -> None:
-        """Write queued samples until ``stop`` or ``until`` (monotonic); then what is queued."""
+        """Write queued samples until ``stop`` or ``until`` (monotonic); then what is queued.
+
+        Runs on the thread that owns the file, so the periodic flush + fsync happens here, also
+        while no message arrives, never on a Zenoh callback thread.
+        """
         while not stop.is_set() and (until is None or time.monotonic() < until):
             try:
                 sample = self.queue.get(timeout=0.1)
             except queue.Empty:
-                sink.flush()
+                sink.flush_due()
                 continue
             sink.write(sample)
         self.stop()
@@ -271,10 +581,34 @@ def default_output(robot: str) -> Path:
     return Path(f"climbd-{name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
 
 
+def main_recover(args: argparse.Namespace) -> int:
+    """``climbd record --recover FILE [-o OUT]``: print what was recovered; 1 if nothing was."""
+    source = Path(args.recover)
+    target = Path(args.output) if args.output else recovered_path(source)
+    try:
+        recording = recover(source, target)
+    except (RecordingError, WriteFailed) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    state = "closed cleanly" if recording.sealed else f"not closed cleanly: {recording.reason}"
+    print(
+        f"climbd: recovered {recording.count} messages from {source} to {target}; "
+        f"{source} was {state}",
+        flush=True,
+    )
+    return 0
+
+
 def main(args: argparse.Namespace) -> int:
     import zenoh
 
+    # A file size limit fails a write (EFBIG), handled like a full disk, not a kill.
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    if args.recover:
+        return main_recover(args)
     try:
+        if not args.robot:
+            raise ValueError("--robot is required to record (or --recover FILE)")
         messages = select_topics(args.topics)
         config = client_config(args, "record")
     except (ValueError, AccessError) as e:
@@ -282,24 +616,15 @@ def main(args: argparse.Namespace) -> int:
         return 2
     path = Path(args.output) if args.output else default_output(args.robot)
     try:
-        sink = McapSink(path, messages)
-    except (WriteFailed, OSError) as e:
+        sink = McapSink(path, messages, None if args.robot == "*" else args.robot)
+    except WriteFailed as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
-    if args.robot != "*":
-        try:
-            for m in messages:
-                sink.channel(key(args.robot, m), m)
-        except OSError as e:
-            print(f"error: {path}: {e.strerror or e}", file=sys.stderr)
-            return 1
     session = zenoh.open(config)
     recorder = Recorder(session, args.robot, messages)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    # A file size limit then fails the write (EFBIG), handled like a full disk, not a kill.
-    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     recorder.start()
     print(f"climbd: recording {len(messages)} topics of {args.robot} to {path}", flush=True)
     until = time.monotonic() + args.duration if args.duration else None

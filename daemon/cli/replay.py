@@ -10,6 +10,8 @@ operator's motion or mode requests onto a live robot would move it.
 from __future__ import annotations
 
 import argparse
+import fnmatch
+import logging
 import math
 import signal
 import sys
@@ -19,17 +21,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import msgspec
-
 from climbd.daemon.cli.client import add_credential_arguments, client_config
-from climbd.daemon.cli.record import SCHEMA_PREFIX
-from climbd.daemon.contract.messages import ALL_MESSAGES
+from climbd.daemon.cli.record import RecordingError, RecordingFile
 from climbd.daemon.runtime.access import AccessError
 from climbd.daemon.runtime.network import Network
 
-
-class RecordingError(ValueError):
-    """A file that cannot be replayed; the message names file and channel."""
+log = logging.getLogger("climbd.replay")
 
 
 @dataclass
@@ -63,68 +60,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_credential_arguments(parser)
 
 
-def restore_nan(value, info):
-    """``value`` decoded from JSON with ``null`` back to NaN wherever ``info`` expects a float.
-
-    JSON has no NaN, so ``climbd record`` stores NaN floats as null; fields that may be None
-    (``float | None``) keep their null.
-    """
-    from msgspec import inspect as mi
-
-    if isinstance(info, mi.FloatType):
-        return math.nan if value is None else value
-    if isinstance(info, mi.StructType) and isinstance(value, dict):
-        fields = {f.encode_name: f.type for f in info.fields}
-        return {k: restore_nan(v, fields[k]) if k in fields else v for k, v in value.items()}
-    if isinstance(info, (mi.ListType, mi.VarTupleType)) and isinstance(value, list):
-        return [restore_nan(v, info.item_type) for v in value]
-    if isinstance(info, mi.DictType) and isinstance(value, dict):
-        return {k: restore_nan(v, info.value_type) for k, v in value.items()}
-    return value
-
-
-def from_json(data: bytes, message: type):
-    """Decode one recorded JSON payload as ``message`` (NaN restored, schema checked)."""
-    obj = msgspec.json.decode(data)
-    return msgspec.convert(restore_nan(obj, msgspec.inspect.type_info(message)), message)
-
-
 def read(path: str | Path, topics: list[str] | None = None) -> Iterator[Recorded]:
-    """The messages of a recording in log-time order, decoded to their Structs."""
-    import fnmatch
+    """The messages of a recording in log-time order, decoded to their Structs.
 
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-
-    types = {SCHEMA_PREFIX + m.__name__: m for m in ALL_MESSAGES}
+    A recording that was not closed cleanly (recorder killed, power cut) gives every complete
+    message, with one warning saying so and how many were recovered.
+    """
     patterns = topics or ["*"]
-    path = Path(path)
-    try:
-        f = open(path, "rb")  # noqa: SIM115 - closed below, also when the generator is dropped
-    except OSError as e:
-        raise RecordingError(f"{path}: {e.strerror or e}") from None
-    with f:
-        try:
-            for schema, channel, msg in make_reader(f).iter_messages(log_time_order=True):
-                if schema is None or schema.name not in types:
-                    name = schema.name if schema is not None else "none"
-                    raise RecordingError(
-                        f"{path}: channel {channel.topic}: schema {name!r} is not a climbd message"
-                    )
-                m = types[schema.name]
-                if not any(fnmatch.fnmatchcase(m.TOPIC, p) for p in patterns):
-                    continue
-                try:
-                    value = from_json(msg.data, m)
-                except (msgspec.DecodeError, msgspec.ValidationError) as e:
-                    raise RecordingError(
-                        f"{path}: channel {channel.topic}, message {msg.sequence}: {e}"
-                    ) from None
-                yield Recorded(channel.topic, value, msg.log_time)
-        except (McapError, ValueError, EOFError) as e:
-            if isinstance(e, RecordingError):
-                raise
-            raise RecordingError(f"{path}: not a readable MCAP file: {e}") from None
+    recording = RecordingFile(path)
+    items = [
+        Recorded(e.channel.topic, e.value, e.message.log_time)
+        for e in recording
+        if any(fnmatch.fnmatchcase(type(e.value).TOPIC, p) for p in patterns)
+    ]
+    if not recording.sealed:
+        log.warning(recording.describe())
+    items.sort(key=lambda r: r.log_time)
+    yield from items
 
 
 def pace(log_times: list[int], speed: float) -> list[float]:
