@@ -83,7 +83,10 @@ def test_the_documented_plugin_runs_in_the_perception_role_and_reaches_a_subscri
     capture = Capture(camera, camera.config.name)
     published: list[m.Message] = []
     capture.start()
-    worker = threading.Thread(target=role._work, args=(capture, [plugin], published.append))
+    worker = threading.Thread(
+        target=role._work,
+        args=(capture, [plugin], lambda m: published.append(m) if isinstance(m, lowest) else None),
+    )
     worker.start()
     try:
         with StillBody(role):

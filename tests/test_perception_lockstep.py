@@ -165,7 +165,10 @@ def test_a_role_whose_plugin_keeps_failing_gives_it_up_and_says_so(caplog):
     published = []
     blank = np.zeros((config.height, config.width), np.uint16)
     capture.start()
-    worker = threading.Thread(target=role._work, args=(capture, [cracked], published.append))
+    worker = threading.Thread(
+        target=role._work,
+        args=(capture, [cracked], lambda m: published.append(m) if isinstance(m, Joists) else None),
+    )
     try:
         with StillBody(role):
             worker.start()

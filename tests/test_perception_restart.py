@@ -24,7 +24,7 @@ from support.still_body import StillBody
 
 from climbd.daemon.cli.run import make_camera
 from climbd.daemon.contract.hardware import DepthFrame, Intrinsics
-from climbd.daemon.contract.messages import BodyState, Joists
+from climbd.daemon.contract.messages import BodyState, Joists, Message
 from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
 from climbd.daemon.contract.profile import NetworkConfig, PluginSpec, Profile, load
 from climbd.daemon.runtime.capture import Capture
@@ -195,12 +195,17 @@ def test_failures_are_logged_once_with_their_traceback_then_summarised(caplog) -
 
 def _run_worker(role: PerceptionRole, plugin: Restarting, done: Callable[[list], bool]) -> list:
     """The role's worker on the floor camera with ``plugin`` until ``done(published)`` (10 s at
-    most); what it published."""
+    most); what it published of the plugin's types (the world model's maps aside)."""
     camera = make_camera(role.profile, "floor", None, None)
     capture = Capture(camera, camera.config.name)
     published: list = []
+
+    def publish(message: Message) -> None:
+        if isinstance(message, plugin.plugin.publishes):
+            published.append(message)
+
     capture.start()
-    worker = threading.Thread(target=role._work, args=(capture, [plugin], published.append))
+    worker = threading.Thread(target=role._work, args=(capture, [plugin], publish))
     worker.start()
     try:
         with StillBody(role):

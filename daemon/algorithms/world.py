@@ -168,6 +168,10 @@ class TerrainView:
             self._layers[name] = array.astype(np.float32).reshape(shape)
         self._inv = 1.0 / message.resolution
 
+    def layer(self, name: str) -> np.ndarray:
+        """One whole layer (rows × cols, float32, NaN unknown; heights less ``origin_z``)."""
+        return self._layers[name]
+
     def _cell(self, x: float, y: float) -> tuple[int, int] | None:
         m = self.message
         row = math.floor((x - m.origin_x) * self._inv)

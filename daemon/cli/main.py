@@ -39,6 +39,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "climbd.daemon.cli.record",
         "record a robot's topics to an MCAP file (JSON + JSON Schema)",
     ),
+    "rebuild": (
+        "climbd.daemon.cli.rebuild",
+        "re-run perception on a recording and rebuild its maps, compared with the live ones",
+    ),
     "replay": (
         "climbd.daemon.cli.replay",
         "republish an MCAP recording on the bus at real or chosen speed",

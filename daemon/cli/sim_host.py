@@ -23,7 +23,7 @@ import numpy as np
 
 from climbd.daemon.algorithms.estimation import EstimatorConfig
 from climbd.daemon.contract.geometry import rotation
-from climbd.daemon.contract.hardware import Imu, ImuSample, mount_extrinsics
+from climbd.daemon.contract.hardware import DepthFrame, Imu, ImuSample, mount_extrinsics
 from climbd.daemon.contract.messages import DepthImage, Feature, Joists, Message
 from climbd.daemon.contract.profile import CameraConfig, Profile
 from climbd.daemon.runtime.loop import MonotonicClock, SteppedClock
@@ -274,6 +274,21 @@ def sim_camera(profile: Profile, config: CameraConfig):
         fps=config.fps,
         model=config.model,
         config=config,
+    )
+
+
+def frame_of(image: DepthImage, config: CameraConfig) -> DepthFrame:
+    """The DepthFrame the perception role's software camera makes of a ``sim/depth`` image of
+    ``config``'s camera: the same intrinsics, depth units, mount and stamp (librealsense keeps
+    it in ms: s → ms → s), so a recording's frames replay as they were perceived live."""
+    spec = model(config.model)
+    depth = np.frombuffer(image.depth, dtype="<u2").reshape(image.height, image.width)
+    return DepthFrame(
+        depth=depth,
+        depth_scale=config.depth_units or spec.depth_unit,
+        intrinsics=spec.intrinsics(config.width, config.height),
+        extrinsics=mount_extrinsics(config),
+        timestamp=(image.stamp * 1000.0) / 1000.0,
     )
 
 

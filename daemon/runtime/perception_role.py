@@ -3,12 +3,14 @@
 A capture thread keeps only the newest depth frame (newest wins, drops counted); a worker thread
 pairs it with the body pose at the frame's stamp (from the history of the control role's
 BodyState; a frame outside it is refused with a counted reason), runs the profile's perception
-plugins on it and publishes their features. Each plugin is kept going by loader.Restarting: an
-error loses that frame's result for that plugin (counted), a plugin failing frame after frame is
-restarted with back-off, and one that cannot be kept going ends the role with exit status 1 so
-that its supervisor (or systemd) restarts it. The asyncio main thread owns the bus: BodyState
-into the pose history, Health (plugin status and errors, dropped and refused frames) at 2 Hz,
-the ``perception`` liveliness token, signals.
+plugins on it and publishes their features, then folds the frame and the features into the world
+model (``algorithms.world``: terrain, holds, joists in the odometry frame) and publishes its maps
+every ``publish_period``. Each plugin, and the world model, is kept going by loader.Restarting:
+an error loses that frame's result for it (counted), one failing frame after frame is restarted
+with back-off, and one that cannot be kept going ends the role with exit status 1 so that its
+supervisor (or systemd) restarts it. The asyncio main thread owns the bus: BodyState into the
+pose history, Health (plugin status and errors, dropped and refused frames) at 2 Hz, the
+``perception`` liveliness token, signals.
 """
 
 from __future__ import annotations
@@ -27,8 +29,9 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from climbd.daemon.algorithms.pose_history import PoseHistory, PoseRefused, Refusal
+from climbd.daemon.algorithms.world import WorldModel
 from climbd.daemon.contract import messages as m
-from climbd.daemon.contract.hardware import Camera, DriverError
+from climbd.daemon.contract.hardware import Camera, DepthFrame, DriverError
 from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.capture import Capture
@@ -117,6 +120,8 @@ class PerceptionRole:
         self.undeclared = 0
         self.failure = ""
         """Why the role must end: a plugin given up ("" while all are kept going)."""
+        self.world = Restarting("world", WorldModel, self.plugin_failed, policy)
+        self._next_map = -math.inf
         self._stop = threading.Event()
 
     def _work(
@@ -130,30 +135,60 @@ class PerceptionRole:
         given up."""
         while not self._stop.is_set() and capture.running and not self.failure:
             frame = capture.latest(timeout=0.2)
-            if frame is None:
+            if frame is not None:
+                self.perceive(frame, plugins, publish)
+
+    def perceive(
+        self,
+        frame: DepthFrame,
+        plugins: Sequence[Isolated[PerceptionPlugin]],
+        publish: Callable[[m.Message], None],
+    ) -> None:
+        """One frame: the pose at its stamp, every plugin not skipped, their features published
+        (those of a type the plugin declares), then the world model (``climbd rebuild`` runs
+        the same on a recording)."""
+        body = self._pose_at(frame.timestamp)
+        if body is None:
+            return
+        features = []
+        for iso in plugins:
+            feature = iso.call(iso.plugin.process, frame, body)
+            if feature is None:
                 continue
-            body = self._pose_at(frame.timestamp)
-            if body is None:
+            if not isinstance(feature, iso.plugin.publishes):
+                if not self.undeclared:
+                    log.error(
+                        "plugin %s returned %s, which it does not declare (publishes %s): dropped",
+                        iso.name,
+                        type(feature).__name__,
+                        ", ".join(t.__name__ for t in iso.plugin.publishes),
+                    )
+                self.undeclared += 1
                 continue
-            for iso in plugins:
-                feature = iso.call(iso.plugin.process, frame, body)
-                if feature is None:
-                    continue
-                if not isinstance(feature, iso.plugin.publishes):
-                    if not self.undeclared:
-                        log.error(
-                            "plugin %s returned %s, which it does not declare (publishes %s): "
-                            "dropped",
-                            iso.name,
-                            type(feature).__name__,
-                            ", ".join(t.__name__ for t in iso.plugin.publishes),
-                        )
-                    self.undeclared += 1
-                    continue
-                feature.frame_position = list(body.position)
-                feature.frame_orientation = list(body.orientation)
-                publish(feature)
-                self.published += 1
+            feature.frame_position = list(body.position)
+            feature.frame_orientation = list(body.orientation)
+            publish(feature)
+            self.published += 1
+            features.append(feature)
+        self._map(frame, body, features, publish)
+
+    def _map(
+        self,
+        frame: DepthFrame,
+        body: m.BodyState,
+        features: list[m.Feature],
+        publish: Callable[[m.Message], None],
+    ) -> None:
+        """Fold a frame and its features into the world model (after they are published, so a
+        lock-stepped twin never waits for the maps) and publish the maps when due."""
+        world = self.world
+        world.call(world.plugin.frame, frame, body)
+        for feature in features:
+            world.call(world.plugin.feature, feature)
+        if frame.timestamp >= self._next_map:
+            self._next_map = frame.timestamp + world.plugin.config.publish_period
+            for message in world.call(world.plugin.messages, time.monotonic()) or ():
+                publish(message)
 
     def plugin_failed(self, name: str, error: BaseException) -> None:
         """A plugin was given up (Restarting's ``on_failure``, on the worker thread): the role
@@ -239,7 +274,8 @@ class PerceptionRole:
         end = aio.time() + args.duration if args.duration else math.inf
         try:
             while not stop.is_set() and aio.time() < end:
-                publish(capture.report(self.health(plugins, net.decode_errors)))
+                health = self.health([*plugins, self.world], net.decode_errors)
+                publish(capture.report(health))
                 if self.failure:
                     break
                 if not capture.running and not self._stop.is_set():
