@@ -90,7 +90,7 @@ HEIGHT, WEIGHT, COUNT, VARIANCE = range(4)
 
 @dataclass(frozen=True)
 class Window:
-    """Rows ``r0:r1`` and columns ``c0:c1`` of the odometry window (a frame's footprint)."""
+    """Rows ``r0:r1`` and columns ``c0:c1`` of the odometry window: the cells a frame touched."""
 
     r0: int
     r1: int
@@ -262,7 +262,13 @@ class ElevationMap:
         stamps = self._seen[r0:r1, c0:c1].reshape(-1)
         stamps[seen] = body.stamp
         self._seen[r0:r1, c0:c1] = stamps.reshape(r1 - r0, wcols)
-        return Window(int(r0), int(r1), int(c0), int(c1))
+        rows, cols = np.divmod(seen, wcols)
+        return Window(
+            int(r0 + rows.min()),
+            int(r0 + rows.max() + 1),
+            int(c0 + cols.min()),
+            int(c0 + cols.max() + 1),
+        )
 
     def _warp(self, body: BodyState) -> np.ndarray:
         """2×3 affine taking crop-box cells (col, row) to odometry-window cells (col, row)."""
