@@ -341,15 +341,20 @@ class GraspablePoints(Feature):
     points: list[list[float]] = []
 
 
-class MappedHold(msgspec.Struct, kw_only=True):
-    """A graspable point of the hold map: odometry-frame position (m, its height kept), how
-    sure (1 − Π(1 − cᵢ) over its sightings), how many frames saw it, seconds since the last."""
+class Tracked(msgspec.Struct, kw_only=True):
+    """What the world model keeps of a feature tracked across frames: its identity, how sure
+    (1 − Π(1 − cᵢ) over its sightings), how many frames saw it, seconds since the last."""
 
     id: int
-    position: list[float]
     confidence: float
     seen: int
     age: float
+
+
+class MappedHold(Tracked, kw_only=True):
+    """A graspable point of the hold map: its odometry-frame position (m, its height kept)."""
+
+    position: list[float]
 
 
 class HoldMap(Feature):
@@ -360,19 +365,15 @@ class HoldMap(Feature):
     holds: list[MappedHold] = []
 
 
-class MappedJoist(msgspec.Struct, kw_only=True):
+class MappedJoist(Tracked, kw_only=True):
     """A joist of the joist map, odometry frame: its near top edge's line n·p = ``offset`` with
     n = (cos ``heading``, sin ``heading``) pointing away from where it was first seen, its
-    ``height``, the ``endpoints`` (x, y, z) of the edge seen so far, confidence, sightings, age."""
+    ``height``, the ``endpoints`` (x, y, z) of the edge seen so far."""
 
-    id: int
     heading: float
     offset: float
     height: float
     endpoints: list[list[float]]
-    confidence: float
-    seen: int
-    age: float
 
 
 class JoistMap(Feature):
