@@ -1,0 +1,63 @@
+"""Odometry drift of each robot over a straight walk in the twin, through its own driver.
+
+WidowX (tripod) and HubRobo (crawl) on the Dynamixel driver with leg odometry and the twin's IMU;
+Qingzhui (tripod) on the MIT-mode torque driver with paper 004's estimator (stance kinematics,
+foot forces, IMU). The twin's true pose scores the estimate at the end of the walk: position
+error as a share of the distance walked, heading error. Baseline, same run: dead reckoning of
+the commanded velocity. Goal (issue #32): ≤ 2 % of the distance and ≤ 2° over 5 m.
+
+    .venv/bin/python bench/odometry.py [--distance 5] [--robots widowx hubrobo qingzhui]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path[:0] = [str(ROOT / "tests")]
+
+from support.walk_run import Walk, dynamixel_walk, qingzhui_walk  # noqa: E402
+
+GAITS = {"widowx": ("tripod", 0.05), "hubrobo": ("crawl", 0.02), "qingzhui": ("tripod", 0.1)}
+"""Robot → (gait, commanded speed m/s) of its walk."""
+
+
+def walk(robot: str, distance: float) -> Walk:
+    gait, vx = GAITS[robot]
+    seconds = distance / vx
+    if robot == "qingzhui":
+        return qingzhui_walk(vx, seconds)
+    return dynamixel_walk(robot, gait, vx, seconds)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--distance", type=float, default=5.0, help="commanded distance (m)")
+    parser.add_argument("--robots", nargs="+", default=list(GAITS), choices=list(GAITS))
+    args = parser.parse_args()
+    print(
+        "| robot (gait, speed) | walked (m) | position error | heading error | dead reckoning "
+        "of the command | wall time |"
+    )
+    print("|---|---|---|---|---|---|")
+    for robot in args.robots:
+        t0 = time.monotonic()
+        w = walk(robot, args.distance)
+        gait, vx = GAITS[robot]
+        share = w.position_error / w.distance if w.distance else float("nan")
+        base = w.baseline_error / w.distance if w.distance else float("nan")
+        error = f"{w.position_error * 100:.1f} cm ({share:.1%})"
+        baseline = f"{w.baseline_error * 100:.1f} cm ({base:.1%})"
+        print(
+            f"| {robot} ({gait}, {vx:g} m/s) | {w.distance:.2f} | {error} | "
+            f"{w.yaw_error_deg:.2f}° | {baseline} | {time.monotonic() - t0:.0f} s |",
+            flush=True,
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

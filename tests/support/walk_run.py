@@ -1,0 +1,158 @@
+"""A straight walk on flat ground in the twin through the robot's own driver, for odometry drift.
+
+Dynamixel robots (WidowX, HubRobo): the DynamixelBus on the twin's emulated servos (pty), the
+control stack and a periodic gait under a teleop session, on a stepped clock; their odometry is
+LegOdometry with the twin's IMU. Qingzhui: the MIT-mode torque driver and paper 004's estimator
+(tests/support/qingzhui_twin.py). The twin's true pose scores the estimate; the baseline is dead
+reckoning of the commanded velocity along the start heading.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+from conftest import ROOT
+
+from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.geometry import yaw
+from climbd.daemon.contract.messages import Heartbeat, Mode, MotionCommand
+from climbd.daemon.runtime.loader import instantiate
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
+from climbd.drivers.dynamixel.bus import DynamixelBus
+from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.worlds import Floor, World
+from support.qingzhui_twin import QingzhuiRig, flat_world
+
+SESSION = "walk"
+CHUNK = 0.1
+"""Seconds of loop between teleop messages (heartbeat and motion, 10 Hz)."""
+
+
+@dataclass
+class Walk:
+    """Where the robot truly went and where its odometry says it went (odometry frame = the
+    start pose), over ``seconds`` of walking."""
+
+    robot: str
+    seconds: float
+    true_start: np.ndarray
+    true_end: np.ndarray
+    true_yaw: float
+    estimated_end: np.ndarray
+    estimated_yaw: float
+    commanded: float
+
+    @property
+    def distance(self) -> float:
+        return float(np.linalg.norm(self.true_end[:2] - self.true_start[:2]))
+
+    @property
+    def position_error(self) -> float:
+        return float(np.linalg.norm(self.estimated_end[:2] - self.true_end[:2]))
+
+    @property
+    def yaw_error_deg(self) -> float:
+        d = self.estimated_yaw - self.true_yaw
+        return abs(math.degrees(math.atan2(math.sin(d), math.cos(d))))
+
+    @property
+    def baseline_error(self) -> float:
+        """Position error (m) of dead reckoning the command: ``commanded`` m straight ahead."""
+        return float(np.linalg.norm(self.true_end[:2] - [self.commanded, 0.0]))
+
+
+def _relative(twin: Twin, start: tuple[np.ndarray, float]) -> tuple[np.ndarray, float]:
+    """The twin's pose in the start pose's frame (the odometry frame's origin)."""
+    pos, quat = twin.body_pose()
+    p0, h0 = start
+    c, s = math.cos(-h0), math.sin(-h0)
+    d = pos[:2] - p0[:2]
+    return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]]), yaw(quat) - h0
+
+
+def dynamixel_walk(robot: str, gait: str, vx: float, seconds: float) -> Walk:
+    """``robot`` walks ``gait`` at ``vx`` for ``seconds`` through DynamixelBus on the twin."""
+    profile = profiles.load(ROOT / "robots" / f"{robot}.toml")
+    twin = Twin(profile, World(name="flat", floor=Floor(size=12.0)), stepped=True, bus=True)
+    twin.start()
+    bus = DynamixelBus.from_profile(
+        profile, port=twin.port, timeout_margin_ms=STEPPED_TIMEOUT_MARGIN_MS
+    )
+    bus.open()
+    try:
+        twin.driver_sent = lambda: bus.sent
+        clock = SteppedClock(on_advance=lambda t0, t1: twin.advance_to(t1))
+        plugin = instantiate("climbd.gaits", gait, {}, profile, f"walk {gait}")
+        stack = control_stack(
+            profile, bus, clock, plugin, imu=SimpleNamespace(read=twin.imu_sample)
+        )
+        return _walk(robot, twin, stack, clock, profile.rate_hz, vx, seconds)
+    finally:
+        bus.close()
+        twin.stop()
+
+
+def qingzhui_walk(vx: float, seconds: float) -> Walk:
+    """Qingzhui's tripod at ``vx`` for ``seconds`` through MitJointBus, with its estimator."""
+    gait = instantiate(
+        "climbd.gaits", "tripod", {}, profiles.load(ROOT / "robots" / "qingzhui.toml"), "walk"
+    )
+    rig = QingzhuiRig(world=flat_world(), gait=gait)
+    try:
+        rig.stand()
+        rig.start_estimator()
+        stack = SimpleNamespace(safety=rig.safety, controller=rig.controller, loop=rig.loop)
+        return _walk("qingzhui", rig.twin, stack, rig.clock, rig.profile.rate_hz, vx, seconds)
+    finally:
+        rig.close()
+
+
+def _walk(
+    robot: str, twin: Twin, stack, clock: SteppedClock, rate: float, vx: float, seconds: float
+) -> Walk:
+    safety, controller, loop = stack.safety, stack.controller, stack.loop
+    if safety.mode != Mode.HOLD:
+        assert safety.request(Mode.STAND, clock.now(), reason="start-up")
+        while safety.mode == Mode.STAND and clock.now() < 30.0:
+            loop.run(max_ticks=loop.ticks + round(CHUNK * rate))
+        assert safety.mode == Mode.HOLD, safety.reason
+    pos, quat = twin.body_pose()
+    start = (pos.copy(), yaw(quat))
+    body0 = controller.body
+    est0 = (np.asarray(body0.position[:2], float), yaw(body0.orientation))
+    safety.claim(SESSION, "walk", clock.now())
+    seq = 0
+
+    def teleop() -> None:
+        nonlocal seq
+        seq += 1
+        controller.on_heartbeat(Heartbeat(stamp=clock.now(), session=SESSION, seq=seq))
+        controller.on_motion(MotionCommand(stamp=clock.now(), session=SESSION, vx=vx))
+
+    teleop()
+    assert safety.request(Mode.ACTIVE, clock.now(), SESSION), safety.reason
+    end = clock.now() + seconds
+    while clock.now() < end and safety.mode == Mode.ACTIVE:
+        loop.run(max_ticks=loop.ticks + round(CHUNK * rate))
+        teleop()
+    assert safety.mode == Mode.ACTIVE, safety.reason
+    true_xy, true_yaw = _relative(twin, start)
+    body = controller.body
+    c, s = math.cos(-est0[1]), math.sin(-est0[1])
+    d = np.asarray(body.position[:2], float) - est0[0]
+    est_xy = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+    return Walk(
+        robot=robot,
+        seconds=seconds,
+        true_start=np.zeros(2),
+        true_end=true_xy,
+        true_yaw=true_yaw,
+        estimated_end=est_xy,
+        estimated_yaw=yaw(body.orientation) - est0[1],
+        commanded=vx * seconds,
+    )
