@@ -235,7 +235,7 @@ safety.request(Mode.STAND, t)
 controller.on_claim(SessionClaim(session="bench", client="bench"))
 for k in range(int(3 * profile.safety.stand_time * profile.rate_hz) + ticks):
     if k % every == 0:
-        controller.on_heartbeat(Heartbeat(session="bench"))
+        controller.on_heartbeat(Heartbeat(session="bench", seq=k + 1, stamp=t))
         controller.on_motion(MotionCommand(vx=0.1, session="bench"))
     if safety.mode == Mode.HOLD and safety.reason == "stand complete":
         safety.request(Mode.ACTIVE, t, "bench")

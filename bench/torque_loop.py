@@ -172,8 +172,10 @@ def torque_loop(seconds: float, kind: str) -> tuple[np.ndarray, np.ndarray, int,
         def operator() -> None:
             """The teleop client: session, heartbeats and the walk command at 10 Hz."""
             safety.claim(SESSION, "bench", clock.now())
-            while not stop.wait(0.1):
-                controller.on_heartbeat(Heartbeat(session=SESSION))
+            for beat in itertools.count(1):
+                if stop.wait(0.1):
+                    break
+                controller.on_heartbeat(Heartbeat(session=SESSION, seq=beat, stamp=clock.now()))
                 controller.on_motion(command)
                 if safety.mode == Mode.HOLD:
                     safety.request(Mode.ACTIVE, clock.now(), SESSION)

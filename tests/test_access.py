@@ -7,28 +7,16 @@ import time
 
 import pytest
 from conftest import free_port
+from support.auth_roles import auth_profile, control_health
 from support.zenoh_roles import Observer, Proc
 
 from climbd.daemon.cli.certs import generate
 from climbd.daemon.contract import profile as profiles
-from climbd.daemon.contract.messages import EStop, Health, Mode, ModeState
+from climbd.daemon.contract.messages import EStop, Mode, ModeState
 from climbd.daemon.runtime.access import AccessError
 from climbd.daemon.runtime.network import Endpoints, zenoh_config
 
 GRID = "features/grid"
-
-
-def auth_profile(tmp_path, robots, auth: str, telemetry: str) -> str:
-    path = tmp_path / "widowx-auth.toml"
-    path.write_text(
-        f'include = "{robots / "widowx.toml"}"\n[network.auth]\n{auth}\n'
-        f'telemetry_listen = ["{telemetry}"]\ncommanders = ["operator"]\n'
-    )
-    return str(path)
-
-
-def control_health(obs: Observer, pred, timeout: float = 30.0) -> Health:
-    return obs.wait(Health, lambda h: h.role == "control" and pred(h), timeout)
 
 
 def test_mutual_tls_only_commanders_command_and_anonymous_peers_only_read(tmp_path, robots) -> None:

@@ -344,7 +344,7 @@ def overload(robot, make, tmp_path, endpoint) -> str:
         assert not servo.torque_enabled, "no re-torque before the operator asks"
         now = rig.clock.now()
         assert rig.safety.claim("operator", "campaign", now)[0]
-        rig.controller.on_mode(m.ModeRequest(stamp=now, session="operator", reset=True))
+        rig.controller.on_reset(m.ResetRequest(stamp=now, session="operator"))
         rig.safety.release("operator", now)
 
     took = _hold_and_recover(
@@ -460,11 +460,13 @@ def heartbeat_lost(robot, make, tmp_path, endpoint) -> str:
     rig.stand()
     c = rig.controller
     c.on_claim(m.SessionClaim(session="op", client="operator"))
-    c.on_heartbeat(m.Heartbeat(session="op"))
+    c.on_heartbeat(m.Heartbeat(session="op", seq=0, stamp=time.monotonic()))
     c.on_mode(m.ModeRequest(session="op", mode=Mode.ACTIVE))
     t_end = time.monotonic() + 0.6
+    seq = 0
     while time.monotonic() < t_end:
-        c.on_heartbeat(m.Heartbeat(session="op"))
+        seq += 1
+        c.on_heartbeat(m.Heartbeat(session="op", seq=seq, stamp=time.monotonic()))
         lost_at = time.monotonic()
         c.on_motion(m.MotionCommand(session="op", vx=0.02))
         time.sleep(0.05)

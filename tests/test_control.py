@@ -164,8 +164,8 @@ def test_lost_heartbeat_holds_and_foreign_commands_are_refused(widowx) -> None:
     c.on_mode(ModeRequest(session="s1", mode=Mode.ACTIVE))
     rig.run(0.05)
     assert rig.safety.mode == Mode.ACTIVE
-    for _ in range(10):
-        c.on_heartbeat(Heartbeat(session="s1"))
+    for k in range(1, 11):
+        c.on_heartbeat(Heartbeat(session="s1", seq=k, stamp=float(k)))
         rig.run(0.1)
     assert rig.safety.mode == Mode.ACTIVE
     last = rig.clock.now()

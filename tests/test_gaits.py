@@ -7,6 +7,7 @@ integrated tick by tick (leg odometry with a 2-D Kabsch fit).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,8 @@ from climbd.plugins.gaits.periodic import layout_offsets
 from climbd.plugins.gaits.swing import lift, progress
 
 PROFILES = {name: profiles.load(path) for name, path in stock_profiles().items()}
+BEATS = itertools.count(1)
+"""Heartbeat sequence numbers (and stamps): the robot refuses one that does not advance."""
 
 
 def rigid_step(prev: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, float]:
@@ -254,7 +257,8 @@ class Teleop:
         """Run, with heartbeats (and the command, if any) every 50 ms."""
         end = self.clock.now() + seconds
         while self.clock.now() < end:
-            self.controller.on_heartbeat(Heartbeat(session="op"))
+            beat = next(BEATS)
+            self.controller.on_heartbeat(Heartbeat(session="op", seq=beat, stamp=float(beat)))
             if command is not None:
                 self.controller.on_motion(command)
             self.loop.run(max_ticks=self.loop.ticks + round(0.05 * self.profile.rate_hz))

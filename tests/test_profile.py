@@ -74,12 +74,12 @@ MALFORMED = [
     (
         "negative rate",
         lambda t: replace_once(t, "rate_hz = 100.0", "rate_hz = -5.0"),
-        ["$.rate_hz", "expected > 0", "-5.0"],
+        ["$.rate_hz", "expected 1..5000 Hz", "-5.0"],
     ),
     (
         "zero stand tolerance",
         lambda t: replace_once(t, "[safety]\n", "[safety]\nstand_tolerance = 0.0\n"),
-        ["$.safety.stand_tolerance", "expected > 0", "0.0"],
+        ["$.safety.stand_tolerance", "expected 0.001..0.5 rad", "0.0"],
     ),
     (
         "negative servo stiffness",

@@ -68,7 +68,7 @@ def test_lost_heartbeat_holds_within_the_window(safety: Safety) -> None:
     safety.request(Mode.STAND, 0.0, session="s1")
     safety.request(Mode.ACTIVE, 0.0, session="s1")
     for k in range(1, 10):
-        assert safety.heartbeat("s1", 0.1 * k)
+        assert safety.heartbeat("s1", 0.1 * k, seq=k, stamp=0.1 * k)
         safety.check_heartbeat(0.1 * k + 0.05)
     assert safety.mode == Mode.ACTIVE
     last = 0.9
@@ -88,10 +88,10 @@ def test_foreign_heartbeats_keep_nothing_alive_and_are_not_refused_commands(
     safety.request(Mode.STAND, 0.0, session="s1")
     safety.request(Mode.ACTIVE, 0.0, session="s1")
     for k in range(1, 10):
-        assert not safety.heartbeat("intruder", 0.1 * k)
+        assert not safety.heartbeat("intruder", 0.1 * k, seq=k, stamp=0.1 * k)
     safety.check_heartbeat(window + 0.01)
     assert safety.mode == Mode.HOLD, "another session's heartbeats must not keep s1 alive"
-    assert not safety.heartbeat("s1", window + 0.02), "a late beat of the expired session"
+    assert not safety.heartbeat("s1", window + 0.02, seq=1, stamp=1.0), "a late beat, expired"
     assert safety.refused == 0, "heartbeats overtake claims and releases; they command nothing"
 
 

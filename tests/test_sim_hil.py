@@ -6,6 +6,7 @@ safety supervisor and tripod gait run on a stepped clock that advances the physi
 
 from __future__ import annotations
 
+import itertools
 import signal
 import subprocess
 import sys
@@ -92,8 +93,11 @@ class Hil:
         c.on_claim(SessionClaim(session="t", client="test"))
         c.on_mode(ModeRequest(session="t", mode=Mode.ACTIVE))
 
+        beats = itertools.count(1)
+
         def drive():
-            c.on_heartbeat(Heartbeat(session="t"))
+            n = next(beats)
+            c.on_heartbeat(Heartbeat(session="t", seq=n, stamp=float(n)))
             c.on_motion(MotionCommand(session="t", vx=vx))
             heights.append(self.twin.body_pose()[0][2])
             assert not self.twin.fallen(self.profile.stand.body_height)

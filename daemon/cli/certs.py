@@ -1,7 +1,8 @@
 """``climbd certs``: a certificate authority and one certificate per role or operator, for mTLS.
 
 Zenoh's mutual TLS checks every peer's certificate against the CA, and its access control
-matches the certificate's common name (CN) against the profile's ``network.auth.commanders``.
+matches the certificate's common name (CN) against the profile's ``network.auth.rights``
+(and ``commanders``).
 So each role (``control``, ``perception``) and each operator laptop gets its own certificate
 whose CN names it. Keys are ECDSA P-256 in PKCS#8 PEM; certificates serve as server and client.
 """

@@ -30,7 +30,8 @@ def check_plugins(profile: profiles.Profile) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    status = 0
+    """Check each file, reporting each (an unreadable one too) and going on; 1 if any failed."""
+    failed = 0
     for path in args.file:
         try:
             p = profiles.load(path)
@@ -38,10 +39,12 @@ def main(args: argparse.Namespace) -> int:
             check_plugins(p)
         except (profiles.ProfileError, PluginError) as e:
             print(f"error: {e}", file=sys.stderr)
-            status = 1
+            failed += 1
             continue
         print(
             f"{path}: ok — {p.name} ({p.model}), {len(p.legs)} legs, {len(p.joints)} joints, "
             f"{p.rate_hz:g} Hz, bus {p.bus.kind}, e-stop {p.safety.estop_policy.value}"
         )
-    return status
+    if failed and len(args.file) > 1:
+        print(f"error: {failed} of {len(args.file)} profiles failed", file=sys.stderr)
+    return 1 if failed else 0

@@ -119,8 +119,7 @@ def main(args: argparse.Namespace) -> int:
         return 2
     frames = sum(isinstance(r, m.TerrainMap) for r in rebuilt)
     print(
-        f"climbd: rebuilt {len(rebuilt)} features and maps ({frames} terrain maps) "
-        f"from {args.file}"
+        f"climbd: rebuilt {len(rebuilt)} features and maps ({frames} terrain maps) from {args.file}"
     )
     pair = last_pair(rebuilt, live)
     print(str(compare(*pair)) if pair else "no terrain map recorded live to compare with")

@@ -51,6 +51,8 @@ from climbd.daemon.contract.messages import (
     ModeRequest,
     ModeState,
     MotionCommand,
+    OverrideClaim,
+    ResetRequest,
     SessionClaim,
 )
 from climbd.daemon.runtime.network import Network
@@ -156,6 +158,8 @@ class TeleopClient:
         self._pubs = {t: net.publisher(t) for t in (SessionClaim, Heartbeat, MotionCommand)}
         self._pubs[ModeRequest] = net.publisher(ModeRequest)
         self._pubs[EStop] = net.publisher(EStop)
+        self._pubs[ResetRequest] = net.publisher(ResetRequest)
+        self._pubs[OverrideClaim] = net.publisher(OverrideClaim)
         self._seq = 0
         self._next_beat = 0.0
         self._lock = threading.Lock()  # no heartbeat or motion may follow the release
@@ -191,13 +195,19 @@ class TeleopClient:
         self._pubs[MotionCommand].put(MotionCommand(stamp=now, session=self.session, **self.motion))
 
     def claim(self, override: bool = False) -> None:
-        """Claim the session; heartbeats follow one period later: the claim and the heartbeats
-        leave on different publishers, and one sent at once could reach the robot first."""
+        """Claim the session (``override`` on cmd/override, which needs that right); heartbeats
+        follow one period later: the claim and the heartbeats leave on different publishers,
+        and one sent at once could reach the robot first."""
         with self._lock:
             now = time.monotonic()
-            self._pubs[SessionClaim].put(
-                SessionClaim(stamp=now, session=self.session, client=self.client, override=override)
-            )
+            if override:
+                self._pubs[OverrideClaim].put(
+                    OverrideClaim(stamp=now, session=self.session, client=self.client)
+                )
+            else:
+                self._pubs[SessionClaim].put(
+                    SessionClaim(stamp=now, session=self.session, client=self.client)
+                )
             self.claimed = True
             self._next_beat = now + self.heartbeat_period
 
@@ -240,9 +250,7 @@ class TeleopClient:
             )
 
         def send() -> None:
-            self._pubs[ModeRequest].put(
-                ModeRequest(stamp=time.monotonic(), session=self.session, reset=True)
-            )
+            self._pubs[ResetRequest].put(ResetRequest(stamp=time.monotonic(), session=self.session))
 
         return reset(self.watch, send, self.session, self.client)
 

@@ -8,11 +8,48 @@ docs/architecture.md (body frame: x forward, y left, z up). ``docs/topics.md`` l
 from __future__ import annotations
 
 import enum
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
 import msgspec
 
 SCHEMA_VERSION = 1
+
+# --- bounds -----------------------------------------------------------------------------
+# Every string, list, map and bytes field has a maximum size, enforced at decode: a payload
+# over it is refused (msgspec.ValidationError, a decode error to the bus) before a role keeps
+# or repeats it. The limits fit the largest real use with margin.
+
+MAX_NAME = 256
+"""Characters of a name, session id, client, source, behaviour, map key or e-stop reason."""
+
+MAX_TEXT = 1024
+"""Characters of a text the robot composes from names and errors: a mode's reason, a message."""
+
+MAX_ENTRIES = 64
+"""Entries of a per-joint list or another short list of names, and keys of a map."""
+
+MAX_LEGS = 8
+"""Entries of a per-leg list (feet, stance, grip, tripod legs): legs of one robot."""
+
+MAX_VECTOR = 8
+"""Entries of a small vector (position, quaternion, axis) or list of them (an edge's ends)."""
+
+MAX_FEATURES = 16384
+"""Items of a feature or plan list: graspable points, holds, joists, members, steps, lengths."""
+
+MAX_GRID_BYTES = 8 * 1024 * 1024
+"""Bytes of an ElevationGrid's heights or one (compressed) TerrainMap layer."""
+
+MAX_DEPTH_BYTES = 2 * 1280 * 960
+"""Bytes of a DepthImage's uint16 depth: a 1280 × 960 frame."""
+
+Name = Annotated[str, msgspec.Meta(max_length=MAX_NAME)]
+Text = Annotated[str, msgspec.Meta(max_length=MAX_TEXT)]
+Names = Annotated[list[Name], msgspec.Meta(max_length=MAX_ENTRIES)]
+JointValues = Annotated[list[float], msgspec.Meta(max_length=MAX_ENTRIES)]
+LegFlags = Annotated[list[bool], msgspec.Meta(max_length=MAX_LEGS)]
+Vector = Annotated[list[float], msgspec.Meta(max_length=MAX_VECTOR)]
+Vectors = Annotated[list[Vector], msgspec.Meta(max_length=MAX_VECTOR)]
 
 
 class Message(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
@@ -55,10 +92,10 @@ class JointState(Message):
 
     TOPIC: ClassVar[str] = "state/joints"
     RATE: ClassVar[str] = "control rate (100 Hz WidowX/HubRobo, 1 kHz Qingzhui)"
-    names: list[str] = []
-    position: list[float] = []
-    velocity: list[float] = []
-    effort: list[float] = []
+    names: Names = []
+    position: JointValues = []
+    velocity: JointValues = []
+    effort: JointValues = []
 
 
 class JointCommand(Message):
@@ -67,21 +104,21 @@ class JointCommand(Message):
 
     TOPIC: ClassVar[str] = "state/command"
     RATE: ClassVar[str] = "control rate"
-    position: list[float] = []
-    velocity: list[float] | None = None
-    effort: list[float] | None = None
-    kp: list[float] | None = None
-    kd: list[float] | None = None
+    position: JointValues = []
+    velocity: JointValues | None = None
+    effort: JointValues | None = None
+    kp: JointValues | None = None
+    kd: JointValues | None = None
 
 
 class JointHealth(msgspec.Struct, kw_only=True):
     """Health of one joint's actuator: temperature (°C), voltage (V), device error bits."""
 
-    name: str
+    name: Name
     temperature: float = float("nan")
     voltage: float = float("nan")
     error: int = 0
-    errors: list[str] = []
+    errors: Names = []
     lost: bool = False
     derated: bool = False
 
@@ -102,7 +139,7 @@ class LoopStats(msgspec.Struct, kw_only=True):
 class MotionStats(msgspec.Struct, kw_only=True):
     """What the motion pipeline did since the current mode was entered."""
 
-    unreachable_legs: list[str] = []
+    unreachable_legs: Annotated[list[Name], msgspec.Meta(max_length=MAX_LEGS)] = []
     unreachable_ticks: int = 0
     clamps: int = 0
     smoothing_fallbacks: int = 0
@@ -111,15 +148,23 @@ class MotionStats(msgspec.Struct, kw_only=True):
 class Health(Message):
     """Whole-robot health: mode, joints, loop timing, plugins, bus decode errors, refusals.
 
-    ``refused_commands`` counts claims, mode and motion commands refused for their session (a
-    stray heartbeat is not a command); ``unauthorised_commands`` counts command puts from peers
-    without credentials (read-only telemetry gate); ``features`` gives the age (s) of each
-    feature topic the role last received; ``session`` names the client holding the control
+    ``refused_commands`` counts claims, mode and motion commands refused for their session, and
+    a reset or override sent in ``ModeRequest.reset``/``SessionClaim.override`` over the wire
+    (they ride on ``cmd/reset``/``cmd/override``; a stray heartbeat is not a command);
+    ``refused_heartbeats`` counts heartbeats of the holding session whose ``seq`` or ``stamp``
+    did not advance (replayed or stale); ``unauthorised_commands`` counts puts on the read-only
+    telemetry endpoint (``network.auth.telemetry_listen``) on command, feature and sim keys,
+    from any peer; ``features`` gives the age (s) of each feature topic the role last received;
+    ``session`` names the client holding the control
     session ("" when none); ``plugin_slowest`` gives each plugin's slowest call so far (s), with
     ``plugin_slowest_call`` naming the plugin and method of the slowest of all; ``plugin_errors``
     counts each plugin's calls that raised (their results dropped; ``plugins`` says whether it
     is failing, restarting or failed); ``refused_frames`` counts depth frames perception gave
     no body pose, by reason (no_pose, too_old, too_new, out_of_order, not_finite).
+    ``decode_errors_by`` breaks ``decode_errors`` down by topic ("cmd/motion"), or topic and
+    peer ("cmd/motion from <zid>") when the sample names its source; ``refused_by`` breaks
+    ``refused_commands`` down by topic. Both hold at most 64 keys, later ones summed under
+    "other".
     """
 
     TOPIC: ClassVar[str] = "state/health"
@@ -134,7 +179,10 @@ class Health(Message):
     plugin_slowest_call: str = ""
     plugin_errors: dict[str, int] = {}
     decode_errors: int = 0
+    decode_errors_by: dict[str, int] = {}
     refused_commands: int = 0
+    refused_by: dict[str, int] = {}
+    refused_heartbeats: int = 0
     unauthorised_commands: int = 0
     dropped_frames: int = 0
     refused_frames: dict[str, int] = {}
@@ -151,11 +199,11 @@ class BodyState(Message):
 
     TOPIC: ClassVar[str] = "state/body"
     RATE: ClassVar[str] = "control rate"
-    position: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    orientation: list[float] = msgspec.field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
-    linear_velocity: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    angular_velocity: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    stance: list[bool] = []
+    position: Vector = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    orientation: Vector = msgspec.field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
+    linear_velocity: Vector = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    angular_velocity: Vector = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    stance: LegFlags = []
 
 
 class FootTargets(Message):
@@ -164,10 +212,10 @@ class FootTargets(Message):
 
     TOPIC: ClassVar[str] = "state/feet"
     RATE: ClassVar[str] = "control rate"
-    positions: list[list[float]] = []
-    stance: list[bool] = []
-    grip: list[bool] | None = None
-    unload: list[bool] | None = None
+    positions: Annotated[list[Vector], msgspec.Meta(max_length=MAX_LEGS)] = []
+    stance: LegFlags = []
+    grip: LegFlags | None = None
+    unload: LegFlags | None = None
 
 
 class MotionCommand(Message):
@@ -175,14 +223,14 @@ class MotionCommand(Message):
 
     TOPIC: ClassVar[str] = "cmd/motion"
     RATE: ClassVar[str] = "operator rate, typically 10-50 Hz"
-    session: str = ""
+    session: Name = ""
     vx: float = 0.0
     vy: float = 0.0
     yaw_rate: float = 0.0
     body_height: float | None = None
     roll: float = 0.0
     pitch: float = 0.0
-    behaviour: str | None = None
+    behaviour: Name | None = None
 
 
 class ModeState(Message):
@@ -193,9 +241,14 @@ class ModeState(Message):
     TOPIC: ClassVar[str] = "state/mode"
     RATE: ClassVar[str] = "on change and 2 Hz"
     mode: Mode = Mode.OFF
-    reason: str = ""
-    estop_by: list[str] = []
-    reset_by: str = ""
+    reason: Text = ""
+    estop_by: Names = []
+    reset_by: Name = ""
+
+    def __post_init__(self) -> None:
+        """Clip a reason the robot composed (it may quote an error) to what a peer decodes."""
+        if len(self.reason) > MAX_TEXT:
+            self.reason = self.reason[: MAX_TEXT - 1] + "…"
 
 
 class ModeRequest(Message):
@@ -203,7 +256,7 @@ class ModeRequest(Message):
 
     TOPIC: ClassVar[str] = "cmd/mode"
     RATE: ClassVar[str] = "on demand"
-    session: str = ""
+    session: Name = ""
     mode: Mode = Mode.HOLD
     reset: bool = False
 
@@ -214,8 +267,13 @@ class EStop(Message):
     TOPIC: ClassVar[str] = "cmd/estop"
     RATE: ClassVar[str] = "on demand, repeated 10 Hz until the robot's ModeState confirms it"
     engage: bool = True
-    source: str = ""
-    reason: str = ""
+    source: Name = ""
+    reason: Name = ""
+
+    def __post_init__(self) -> None:
+        """Clip an operator's long reason, so the robot never refuses an e-stop for its words."""
+        if len(self.reason) > MAX_NAME:
+            self.reason = self.reason[: MAX_NAME - 1] + "…"
 
 
 class SessionClaim(Message):
@@ -225,20 +283,43 @@ class SessionClaim(Message):
 
     TOPIC: ClassVar[str] = "cmd/session"
     RATE: ClassVar[str] = "on demand"
-    session: str = ""
-    client: str = ""
+    session: Name = ""
+    client: Name = ""
     release: bool = False
     override: bool = False
     handoff: bool = False
 
 
 class Heartbeat(Message):
-    """Keep-alive of the session holder; its absence past the profile's window means HOLD."""
+    """Keep-alive of the session holder; its absence past the profile's window means HOLD.
+
+    ``seq`` rises by one per heartbeat and ``stamp`` is the sender's monotonic clock: the robot
+    accepts one only if both advanced past the last it accepted for the session, so a captured
+    heartbeat sent again is refused (counted in ``Health.refused_heartbeats``)."""
 
     TOPIC: ClassVar[str] = "cmd/heartbeat"
     RATE: ClassVar[str] = "10 Hz or more"
     session: str = ""
     seq: int = 0
+
+
+class ResetRequest(Message):
+    """Reset a latched e-stop or fault, by the session holder: on its own key so Zenoh's ACL
+    admits it only from identities with the ``reset`` right (docs/access.md)."""
+
+    TOPIC: ClassVar[str] = "cmd/reset"
+    RATE: ClassVar[str] = "on demand"
+    session: Name = ""
+
+
+class OverrideClaim(Message):
+    """Claim the controlling session even when another holds it: on its own key so Zenoh's ACL
+    admits it only from identities with the ``override`` right (docs/access.md)."""
+
+    TOPIC: ClassVar[str] = "cmd/override"
+    RATE: ClassVar[str] = "on demand"
+    session: Name = ""
+    client: Name = ""
 
 
 # --- perception features ----------------------------------------------------------------
@@ -252,8 +333,8 @@ class Feature(Message):
     body-frame feature in the odometry frame."""
 
     frame_stamp: float = 0.0
-    frame_position: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    frame_orientation: list[float] = msgspec.field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
+    frame_position: Vector = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    frame_orientation: Vector = msgspec.field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
 
 
 class ElevationGrid(Feature):
@@ -269,7 +350,7 @@ class ElevationGrid(Feature):
     resolution: float = 0.01
     rows: int = 0
     cols: int = 0
-    heights: bytes = b""
+    heights: Annotated[bytes, msgspec.Meta(max_length=MAX_GRID_BYTES)] = b""
 
 
 TERRAIN_LAYERS = (
@@ -306,7 +387,10 @@ class TerrainMap(Feature):
     resolution: float = 0.01
     rows: int = 0
     cols: int = 0
-    layers: dict[str, bytes] = {}
+    layers: Annotated[
+        dict[Name, Annotated[bytes, msgspec.Meta(max_length=MAX_GRID_BYTES)]],
+        msgspec.Meta(max_length=MAX_ENTRIES),
+    ] = {}
 
 
 class Joist(msgspec.Struct, kw_only=True):
@@ -321,7 +405,7 @@ class Joist(msgspec.Struct, kw_only=True):
     distance: float
     yaw: float
     height: float
-    endpoints: list[list[float]]
+    endpoints: Vectors
     confidence: float = 1.0
 
 
@@ -330,7 +414,7 @@ class Joists(Feature):
 
     TOPIC: ClassVar[str] = "features/joists"
     RATE: ClassVar[str] = "camera rate"
-    joists: list[Joist] = []
+    joists: Annotated[list[Joist], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
 class GraspablePoints(Feature):
@@ -338,7 +422,7 @@ class GraspablePoints(Feature):
 
     TOPIC: ClassVar[str] = "features/graspable"
     RATE: ClassVar[str] = "camera rate"
-    points: list[list[float]] = []
+    points: Annotated[list[Vector], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
 class Tracked(msgspec.Struct, kw_only=True):
@@ -354,7 +438,7 @@ class Tracked(msgspec.Struct, kw_only=True):
 class MappedHold(Tracked, kw_only=True):
     """A graspable point of the hold map: its odometry-frame position (m, its height kept)."""
 
-    position: list[float]
+    position: Vector
 
 
 class HoldMap(Feature):
@@ -362,7 +446,7 @@ class HoldMap(Feature):
 
     TOPIC: ClassVar[str] = "features/hold_map"
     RATE: ClassVar[str] = "2 Hz"
-    holds: list[MappedHold] = []
+    holds: Annotated[list[MappedHold], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
 class MappedJoist(Tracked, kw_only=True):
@@ -373,7 +457,7 @@ class MappedJoist(Tracked, kw_only=True):
     heading: float
     offset: float
     height: float
-    endpoints: list[list[float]]
+    endpoints: Vectors
 
 
 class JoistMap(Feature):
@@ -381,7 +465,7 @@ class JoistMap(Feature):
 
     TOPIC: ClassVar[str] = "features/joist_map"
     RATE: ClassVar[str] = "2 Hz"
-    joists: list[MappedJoist] = []
+    joists: Annotated[list[MappedJoist], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
 class Stability(Message):
@@ -393,8 +477,8 @@ class Stability(Message):
     TOPIC: ClassVar[str] = "state/stability"
     RATE: ClassVar[str] = "control rate"
     tsm: float = 0.0
-    support: list[bool] = []
-    grip: list[bool] = []
+    support: LegFlags = []
+    grip: LegFlags = []
     swing: int = -1
     plan_late: bool = False
 
@@ -403,10 +487,10 @@ class TrussMember(msgspec.Struct, kw_only=True):
     """A cylindrical truss member (paper 003): end points (m), radius (m), unit axis p0 -> p1;
     confidence is the fraction of its length covered by points."""
 
-    p0: list[float]
-    p1: list[float]
+    p0: Vector
+    p1: Vector
     radius: float
-    axis: list[float]
+    axis: Vector
     confidence: float = 1.0
 
 
@@ -415,7 +499,7 @@ class TrussMembers(Feature):
 
     TOPIC: ClassVar[str] = "features/truss"
     RATE: ClassVar[str] = "on model update"
-    members: list[TrussMember] = []
+    members: Annotated[list[TrussMember], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
 class Stair(msgspec.Struct, kw_only=True):
@@ -424,7 +508,7 @@ class Stair(msgspec.Struct, kw_only=True):
     height: float
     rise: float
     depth: float
-    edge: list[list[float]]
+    edge: Vectors
 
 
 class AlignedFeature(Feature):
@@ -433,8 +517,8 @@ class AlignedFeature(Feature):
     ``constrained``, the unit directions the structure in view pins; the estimator's drift
     measurement (paper 004 filter 2). Both empty when the cloud was not aligned."""
 
-    alignment: list[float] = []
-    constrained: list[list[float]] = []
+    alignment: Vector = []
+    constrained: Vectors = []
 
 
 class Stairs(AlignedFeature):
@@ -443,7 +527,7 @@ class Stairs(AlignedFeature):
 
     TOPIC: ClassVar[str] = "features/stairs"
     RATE: ClassVar[str] = "camera rate"
-    steps: list[Stair] = []
+    steps: Annotated[list[Stair], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
 FEATURES: tuple[type[Feature], ...] = (
@@ -470,12 +554,12 @@ class StairStep(Message):
     TOPIC: ClassVar[str] = "state/stair_step"
     RATE: ClassVar[str] = "every half cycle of the stair gait"
     body: float = 0.0
-    legs: list[int] = []
+    legs: Annotated[list[int], msgspec.Meta(max_length=MAX_LEGS)] = []
     length: float = 0.0
     height: float = 0.0
     next_length: float = 0.0
     limit: float = 0.0
-    feasible: list[float] = []
+    feasible: Annotated[list[float], msgspec.Meta(max_length=MAX_FEATURES)] = []
     blocked: bool = False
 
 
@@ -485,11 +569,11 @@ class DepthImage(Message):
 
     TOPIC: ClassVar[str] = "sim/depth"
     RATE: ClassVar[str] = "the simulated camera's frame rate"
-    camera: str = ""
+    camera: Name = ""
     width: int = 0
     height: int = 0
     depth_scale: float = 0.001
-    depth: bytes = b""
+    depth: Annotated[bytes, msgspec.Meta(max_length=MAX_DEPTH_BYTES)] = b""
 
 
 ALL_MESSAGES: tuple[type[Message], ...] = (
@@ -504,6 +588,8 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     EStop,
     SessionClaim,
     Heartbeat,
+    ResetRequest,
+    OverrideClaim,
     ElevationGrid,
     TerrainMap,
     Joists,

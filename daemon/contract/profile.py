@@ -13,7 +13,7 @@ from typing import Any, Literal, TypeVar
 
 import msgspec
 
-from climbd.daemon.contract.messages import EstopPolicy
+from climbd.daemon.contract.messages import MAX_LEGS, MAX_NAME, EstopPolicy
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -23,6 +23,37 @@ else:  # pragma: no cover - Python 3.10
 
 class ProfileError(ValueError):
     """A profile that cannot be used; the message names file, field path, expected and found."""
+
+
+# Physical bounds (inclusive) of the values a typo makes dangerous: a dead-man that never
+# fires, a loop the machine cannot run, a stand that never completes.
+
+RATE_HZ = (1.0, 5000.0)
+"""Control rate (Hz): from a slow position-servo bus to a fast torque bus with margin."""
+
+HEARTBEAT_WINDOW = (0.05, 5.0)
+"""Seconds without a heartbeat before HOLD: longer leaves the robot unwatched."""
+
+COMMAND_TIMEOUT = (0.05, 5.0)
+"""Seconds a motion command is obeyed without a newer one."""
+
+FEATURE_MAX_AGE = (0.05, 10.0)
+"""Seconds a perception feature is used after its frame."""
+
+STAND_TIME = (0.1, 60.0)
+"""Seconds the stand takes."""
+
+STAND_TOLERANCE = (0.001, 0.5)
+"""Radians the joints may sit off the stand command when it counts as complete."""
+
+CAMERA_FPS = (1, 300)
+"""Frames per second of a depth camera's stream."""
+
+CAMERA_WIDTH = (16, 1280)
+"""Pixels across a depth frame; with CAMERA_HEIGHT, a frame fits a DepthImage."""
+
+CAMERA_HEIGHT = (16, 960)
+"""Pixels down a depth frame."""
 
 
 class Limits(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -194,11 +225,19 @@ class RoleEndpoints(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     connect: list[str] = []
 
 
+Right = Literal["telemetry", "teleop", "override", "estop", "reset", "features"]
+"""What an identity may do on a role's authenticated session (docs/access.md): ``telemetry``
+observe; ``teleop`` claim, release, heartbeats, motion and mode requests; ``override`` claim a
+session another holds; ``estop`` engage the e-stop; ``reset`` reset a latched e-stop or fault;
+``features`` publish ``features/**`` (perception roles)."""
+
+
 class AuthConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Who may command: TLS files or a user/password file, and the authorised peers.
 
     Paths are relative to the profile file; ``{role}`` in a path or in ``user`` becomes the
-    role's name. ``commanders`` are the certificate CNs or user names allowed on ``cmd/**``;
+    role's name. ``rights`` gives each certificate CN or user name its rights; ``commanders``
+    (the older form) gives each of its names every right but ``features``; the two add up.
     ``telemetry_listen`` endpoints serve peers without credentials read-only (docs/access.md).
     """
 
@@ -209,6 +248,7 @@ class AuthConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     password: str = ""
     credentials_file: str = ""
     commanders: list[str] = []
+    rights: dict[str, list[Right]] = {}
     telemetry_listen: list[str] = []
 
 
@@ -271,13 +311,19 @@ def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     path = path.resolve()
     if path in chain:
         raise ProfileError(f"{chain[0]}: include cycle through {path}")
+    where = f"{chain[-1]}: include: " if chain else ""
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        where = f"{chain[-1]}: include: " if chain else ""
         raise ProfileError(f"{where}profile file not found: {path}") from None
+    except IsADirectoryError:
+        raise ProfileError(f"{where}{path}: a directory, not a profile file") from None
+    except OSError as e:
+        raise ProfileError(f"{where}{path}: cannot read: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise ProfileError(f"{where}{path}: not UTF-8 text: byte {e.start}: {e.reason}") from None
     except tomllib.TOMLDecodeError as e:
-        raise ProfileError(f"{path}: not valid TOML: {e}") from None
+        raise ProfileError(f"{where}{path}: not valid TOML: {e}") from None
     include = data.get("include")
     if include is None:
         return data
@@ -294,11 +340,25 @@ def _check(cond: bool, source: str, field: str, message: str) -> None:
         raise ProfileError(f"{source}: {field}: {message}")
 
 
+def _check_range(
+    value: float, bounds: tuple[float, float], source: str, field: str, unit: str
+) -> None:
+    """``value`` lies within ``bounds`` (inclusive; NaN does not), else a ProfileError."""
+    lo, hi = bounds
+    _check(lo <= value <= hi, source, field, f"expected {lo:g}..{hi:g} {unit}, found {value}")
+
+
 def validate(profile: Profile) -> Profile:
-    """Check what the schema cannot: limit order, unique ids/names, three joints per leg."""
+    """Check what the schema cannot: physical bounds, limit order, unique ids/names, three
+    joints per leg, legs and names that fit the wire contract's messages."""
     src = profile.source or profile.name
-    _check(profile.rate_hz > 0, src, "$.rate_hz", f"expected > 0, found {profile.rate_hz}")
-    _check(profile.mass > 0, src, "$.mass", f"expected > 0, found {profile.mass}")
+    _check_range(profile.rate_hz, RATE_HZ, src, "$.rate_hz", "Hz")
+    _check(
+        profile.mass > 0 and math.isfinite(profile.mass),
+        src,
+        "$.mass",
+        f"expected a finite value > 0, found {profile.mass}",
+    )
     k = profile.bus.stiffness
     _check(
         k >= 0 and math.isfinite(k),
@@ -306,9 +366,12 @@ def validate(profile: Profile) -> Profile:
         "$.bus.stiffness",
         f"expected a finite value >= 0, found {k}",
     )
-    tol = profile.safety.stand_tolerance
-    _check(tol > 0, src, "$.safety.stand_tolerance", f"expected > 0, found {tol}")
-    _check(len(profile.legs) >= 2, src, "$.legs", f"expected >= 2 legs, found {len(profile.legs)}")
+    _check(
+        2 <= len(profile.legs) <= MAX_LEGS,
+        src,
+        "$.legs",
+        f"expected 2..{MAX_LEGS} legs, found {len(profile.legs)}",
+    )
     ids: dict[int, str] = {}
     names: set[str] = set()
     for i, leg in enumerate(profile.legs):
@@ -328,12 +391,18 @@ def validate(profile: Profile) -> Profile:
         )
         for k, joint in enumerate(leg.joints):
             jat = f"{at}.joints[{k}]"
+            _check(
+                len(joint.name) <= MAX_NAME,
+                src,
+                f"{jat}.name",
+                f"expected at most {MAX_NAME} characters, found {len(joint.name)}",
+            )
             lim = joint.limits
             _check(
-                lim.lower < lim.upper,
+                math.isfinite(lim.lower) and math.isfinite(lim.upper) and lim.lower < lim.upper,
                 src,
                 f"{jat}.limits",
-                f"expected lower < upper, found lower={lim.lower} upper={lim.upper}",
+                f"expected finite lower < upper, found lower={lim.lower} upper={lim.upper}",
             )
             for fname in ("velocity", "acceleration", "jerk", "effort"):
                 val = getattr(lim, fname)
@@ -353,6 +422,16 @@ def validate(profile: Profile) -> Profile:
             _check(joint.name not in names, src, f"{jat}.name", f"duplicate name {joint.name!r}")
             names.add(joint.name)
     for i, cam in enumerate(profile.cameras):
+        cat = f"$.cameras[{i}]"
+        _check_range(cam.fps, CAMERA_FPS, src, f"{cat}.fps", "frames/s")
+        _check_range(cam.width, CAMERA_WIDTH, src, f"{cat}.width", "pixels")
+        _check_range(cam.height, CAMERA_HEIGHT, src, f"{cat}.height", "pixels")
+        _check(
+            0 <= cam.min_range < cam.max_range and math.isfinite(cam.max_range),
+            src,
+            f"{cat}.max_range",
+            f"expected finite 0 <= min_range < max_range, found {cam.min_range}..{cam.max_range}",
+        )
         tilt = cam.mount.tilt_deg
         _check(
             0 <= tilt <= 90,
@@ -367,12 +446,11 @@ def validate(profile: Profile) -> Profile:
         f"expected > 0, found {profile.bus.health_rate_hz}",
     )
     s = profile.safety
-    _check(
-        s.heartbeat_window > 0,
-        src,
-        "$.safety.heartbeat_window",
-        f"expected > 0 s, found {s.heartbeat_window}",
-    )
+    _check_range(s.heartbeat_window, HEARTBEAT_WINDOW, src, "$.safety.heartbeat_window", "s")
+    _check_range(s.command_timeout, COMMAND_TIMEOUT, src, "$.safety.command_timeout", "s")
+    _check_range(s.feature_max_age, FEATURE_MAX_AGE, src, "$.safety.feature_max_age", "s")
+    _check_range(s.stand_time, STAND_TIME, src, "$.safety.stand_time", "s")
+    _check_range(s.stand_tolerance, STAND_TOLERANCE, src, "$.safety.stand_tolerance", "rad")
     _check(
         s.derate_temperature <= s.max_temperature,
         src,

@@ -1,10 +1,12 @@
-"""Access control: who may command a robot over Zenoh, and read-only telemetry for everyone else.
+"""Access control: what each identity may do to a robot over Zenoh, and read-only telemetry.
 
 The role's own Zenoh session admits only authenticated peers (mutual TLS with certificates from
-``climbd certs``, or Zenoh user/password), and its access-control list lets every such peer
-observe and publish state and features, but only ``commanders`` put on ``climbd/<robot>/cmd/**``.
-Peers without credentials may reach a separate read-only ``TelemetryGate`` session: it mirrors
-the role's telemetry and counts (and never forwards) every command put to it.
+``climbd certs``, or Zenoh user/password), and its access-control list gives each identity the
+rights the profile names (``network.auth.rights``, or ``commanders``): which keys it may put is
+decided by Zenoh before climbd sees the sample, so resets and override claims ride on keys of
+their own (``cmd/reset``, ``cmd/override``). Peers without credentials may reach a separate
+read-only ``TelemetryGate`` session: it serves only what the role mirrors to it, and refuses
+(counting those it can see) every put from its peers.
 """
 
 from __future__ import annotations
@@ -12,11 +14,13 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
+from collections.abc import Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, get_args
 
 from climbd.daemon.contract.messages import Message, encode
-from climbd.daemon.contract.profile import AuthConfig, Profile
+from climbd.daemon.contract.profile import AuthConfig, Profile, Right
 
 if TYPE_CHECKING:  # the CLI parser imports this module: zenoh loads only when used
     import zenoh
@@ -33,6 +37,28 @@ OBSERVE_MESSAGES = (
     "declare_liveliness_subscriber",
 )
 SECURE_PROTOCOLS = ("tls", "quic")
+
+RIGHTS: tuple[Right, ...] = get_args(Right)
+
+COMMANDER_RIGHTS: frozenset[Right] = frozenset(RIGHTS) - {"features"}
+"""What a name in ``network.auth.commanders`` may do: everything on ``cmd/**``, as before."""
+
+ROLES = ("control", "perception")
+"""climbd's roles: their identities (CN or user name, ``{role}`` expanded) publish state."""
+
+ROLE_KEYS = ("climbd/*/state/**", "climbd/*/features/**", "climbd/*/sim/**")
+"""What the roles themselves publish to each other."""
+
+COMMAND_TOPICS: dict[Right, tuple[str, ...]] = {
+    "teleop": ("cmd/motion", "cmd/mode", "cmd/session", "cmd/heartbeat"),
+    "estop": ("cmd/estop",),
+    "reset": ("cmd/reset",),
+    "override": ("cmd/override",),
+}
+"""The command keys (under ``climbd/<robot>/``) each right may put."""
+
+REFUSAL_LOG_PERIOD = 5.0
+"""Seconds between log lines about refused puts on the telemetry gate (the rest only counted)."""
 
 
 class AccessError(ValueError):
@@ -59,49 +85,107 @@ def tls_settings(ca: str, certificate: str, private_key: str) -> dict:
     }
 
 
+def identity_rights(auth: AuthConfig) -> dict[str, frozenset[Right]]:
+    """Each named identity's rights: its ``rights`` entry and, for a name in ``commanders``,
+    every right but ``features``; any right implies ``telemetry`` (a commander must see the
+    mode that confirms its e-stop)."""
+    rights: dict[str, set[Right]] = {name: set(granted) for name, granted in auth.rights.items()}
+    for name in auth.commanders:
+        rights.setdefault(name, set()).update(COMMANDER_RIGHTS)
+    return {name: frozenset({"telemetry", *granted}) for name, granted in rights.items()}
+
+
+def role_identities(auth: AuthConfig) -> list[str]:
+    """The identities climbd's own roles authenticate as: the role names (the CNs ``climbd
+    certs`` writes) and ``user`` with ``{role}`` expanded."""
+    names = list(ROLES) if auth.tls_certificate else []
+    if auth.user:
+        names += [auth.user.format(role=role) for role in ROLES]
+    return sorted(set(names))
+
+
+def _subjects(group: str, names: Iterable[str], auth: AuthConfig) -> list[dict]:
+    """ACL subjects matching ``names`` by certificate CN and/or user name, per auth kind."""
+    names = sorted(set(names))
+    if not names:
+        return []
+    subjects = []
+    if auth.tls_certificate:
+        subjects.append({"id": f"{group}-tls", "cert_common_names": names})
+    if auth.user:
+        subjects.append({"id": f"{group}-user", "usernames": names})
+    return subjects
+
+
+def _rule(rule_id: str, flows: list[str], messages: list[str], keys: list[str]) -> dict:
+    """One ``allow`` rule of a Zenoh ACL."""
+    return {
+        "id": rule_id,
+        "permission": "allow",
+        "flows": flows,
+        "messages": messages,
+        "key_exprs": keys,
+    }
+
+
 def command_acl(robot: str, auth: AuthConfig) -> dict:
-    """Zenoh ACL of a role: all peers observe and publish state, only commanders command."""
-    commanders = list(auth.commanders)
-    subjects: list[dict] = [{"id": "peers"}]
-    command_subjects = []
-    if commanders and auth.tls_certificate:
-        subjects.append({"id": "commanders-tls", "cert_common_names": commanders})
-        command_subjects.append("commanders-tls")
-    if commanders and auth.user:
-        subjects.append({"id": "commanders-user", "usernames": commanders})
-        command_subjects.append("commanders-user")
+    """Zenoh ACL of a role from the identities' rights: holders of any right (every
+    authenticated peer when the profile has no ``rights`` table) observe and receive; the roles
+    publish state and features; ``features`` holders publish features; each command key is put
+    only by holders of its right (COMMAND_TOPICS)."""
+    rights = identity_rights(auth)
     rules = [
-        {
-            "id": "observe",
-            "permission": "allow",
-            "flows": ["ingress", "egress"],
-            "messages": list(OBSERVE_MESSAGES),
-            "key_exprs": ["climbd/**"],
-        },
-        {
-            "id": "publish",
-            "permission": "allow",
-            "flows": ["ingress", "egress"],
-            "messages": ["put", "delete"],
-            "key_exprs": ["climbd/*/state/**", "climbd/*/features/**"],
-        },
-        {
-            "id": "command",
-            "permission": "allow",
-            "flows": ["ingress", "egress"],
-            "messages": ["put"],
-            "key_exprs": [f"climbd/{robot}/cmd/**"],
-        },
+        _rule("observe", ["ingress", "egress"], list(OBSERVE_MESSAGES), ["climbd/**"]),
+        _rule("receive", ["egress"], ["put", "delete"], ["climbd/**"]),
+        _rule("role", ["ingress"], ["put", "delete"], list(ROLE_KEYS)),
+        _rule("features", ["ingress"], ["put", "delete"], ["climbd/*/features/**"]),
     ]
-    policies = [{"rules": ["observe", "publish"], "subjects": ["peers"]}]
-    if command_subjects:
-        policies.append({"rules": ["command"], "subjects": command_subjects})
+    for right, topics in COMMAND_TOPICS.items():
+        rules.append(_rule(right, ["ingress"], ["put"], [f"climbd/{robot}/{t}" for t in topics]))
+    roles = role_identities(auth)
+    groups: dict[str, tuple[list[str], list[str]]] = {
+        "role": (roles, ["observe", "receive", "role"]),
+        "telemetry": (list(rights), ["observe", "receive"]),
+    }
+    for right in ("features", *COMMAND_TOPICS):
+        groups[right] = ([n for n, r in rights.items() if right in r], [right])
+    subjects: list[dict] = []
+    policies: list[dict] = []
+    if not auth.rights:
+        subjects.append({"id": "peers"})
+        policies.append({"rules": ["observe", "receive"], "subjects": ["peers"]})
+    for group, (names, group_rules) in groups.items():
+        found = _subjects(group, names, auth)
+        subjects += found
+        if found:
+            policies.append({"rules": group_rules, "subjects": [s["id"] for s in found]})
     return {
         "enabled": True,
         "default_permission": "deny",
         "rules": rules,
         "subjects": subjects,
         "policies": policies,
+    }
+
+
+def gate_acl(robot: str) -> dict:
+    """Zenoh ACL of the telemetry gate, whatever the peer's session mode: it observes, and
+    receives only the role's state; a put on a command, feature or sim key reaches the gate
+    alone (counted there, never forwarded), and any other put is refused by Zenoh."""
+    observe = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query"]
+    counted = [f"climbd/{robot}/{k}/**" for k in ("cmd", "features", "sim")]
+    rules = [
+        _rule("ask", ["ingress"], observe, ["climbd/**"]),
+        _rule("attempt", ["ingress"], ["put", "delete"], counted),
+        _rule("answer", ["egress"], list(OBSERVE_MESSAGES), ["climbd/**"]),
+        _rule("serve", ["egress"], ["put"], [f"climbd/{robot}/state/**"]),
+    ]
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": [{"id": "anyone"}],
+        "policies": [{"rules": [r["id"] for r in rules], "subjects": ["anyone"]}],
     }
 
 
@@ -157,10 +241,12 @@ def client_credentials(
 
 
 class TelemetryGate:
-    """A read-only Zenoh session for peers without credentials.
+    """A read-only Zenoh session for peers without credentials, client or peer mode alike.
 
-    It is not linked to the role's authenticated session: the role mirrors telemetry to it
-    with ``put``, and every command put to it is counted in ``attempts`` and dropped.
+    It is not linked to the role's authenticated session: the role mirrors telemetry to it with
+    ``put``, and its ACL (``gate_acl``) forwards no peer's put to another, so its subscribers see
+    only the role's own telemetry. Puts on command, feature and sim keys reach the gate, which
+    counts them in ``attempts`` and logs them (rate-limited); other puts Zenoh refuses unseen.
     """
 
     def __init__(self, robot: str, listen: list[str]) -> None:
@@ -172,22 +258,33 @@ class TelemetryGate:
         cfg.insert_json5("scouting/gossip/enabled", "false")
         cfg.insert_json5("listen/endpoints", json.dumps(listen))
         cfg.insert_json5("connect/endpoints", "[]")
+        cfg.insert_json5("access_control", json.dumps(gate_acl(robot)))
         self.robot = robot
         self.session = zenoh.open(cfg)
         self.attempts = 0
+        self._logged = -1e9
         self._lock = threading.Lock()
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._subscriber = self.session.declare_subscriber(f"climbd/{robot}/cmd/**", self._refuse)
+        self._subscriber = self.session.declare_subscriber(
+            f"climbd/{robot}/**", self._refuse, allowed_origin=zenoh.Locality.REMOTE
+        )
         self._token = self.session.liveliness().declare_token(f"climbd/{robot}/alive/telemetry")
 
     def _refuse(self, sample: zenoh.Sample) -> None:
+        """Count a peer's put (never acted on, never forwarded); log it every few seconds."""
         with self._lock:
             self.attempts += 1
-            first = self.attempts == 1
-        if first:
+            now = time.monotonic()
+            due = now - self._logged >= REFUSAL_LOG_PERIOD
+            if due:
+                self._logged = now
+        if due:
             log.warning(
-                "refused %s from a peer without credentials (further ones only counted)",
+                "refused %s from a peer without credentials on the read-only telemetry endpoint "
+                "(%d so far; more only counted for %.0f s)",
                 sample.key_expr,
+                self.attempts,
+                REFUSAL_LOG_PERIOD,
             )
 
     def put(self, message: Message) -> None:

@@ -34,6 +34,7 @@ from climbd.daemon.contract.messages import (
     BodyState,
     EStop,
     EstopPolicy,
+    FootTargets,
     Health,
     Heartbeat,
     JointCommand,
@@ -43,9 +44,12 @@ from climbd.daemon.contract.messages import (
     ModeRequest,
     MotionCommand,
     MotionStats,
+    OverrideClaim,
+    ResetRequest,
     SessionClaim,
 )
 from climbd.daemon.contract.profile import Profile
+from climbd.daemon.runtime.counting import Tally
 from climbd.daemon.runtime.loader import Isolated, slowest
 from climbd.daemon.runtime.safety import Safety
 
@@ -142,6 +146,9 @@ class Controller:
         self.target: np.ndarray | None = None
         self.measured: JointState | None = None
         self.command: JointCommand | None = None
+        self.feet: FootTargets | None = None
+        """The gait's foot targets of the current tick (None when no gait stepped)."""
+        self._unpublishable: set[str] = set()
         self.motion_command: Timed | None = None
         self.features: dict[str, Timed] = {}
         self._alignment: AlignedFeature | None = None
@@ -155,6 +162,10 @@ class Controller:
         self.messages: list[str] = []
         self.loop_stats: Callable | None = None
         self.unauthorised: Callable[[], int] = lambda: 0
+        self.undecodable = Tally()
+        """Payloads the role's network dropped, by topic (the role hands over its network's)."""
+        self.refused_by = Tally()
+        """Safety.refused broken down by the topic of the refused command."""
         self.sit_q = self._sit_joints()
         self.shutdown: Shutdown | None = None
         self.sat_down = False
@@ -204,18 +215,39 @@ class Controller:
 
     # --- handlers (asyncio thread) ----------------------------------------------------
 
+    def _count_refused(self, topic: str, before: int) -> None:
+        """Count under ``topic`` what a handler added to Safety.refused since ``before``; the
+        handlers run on the asyncio thread, the only one whose requests Safety refuses."""
+        added = self.safety.refused - before
+        if added > 0:
+            self.refused_by.add(topic, added)
+
     def on_motion(self, cmd: MotionCommand) -> None:
+        before = self.safety.refused
         if self.safety.accepts(cmd.session):
             self.motion_command = Timed(cmd, self.now())
+        self._count_refused(MotionCommand.TOPIC, before)
 
     def on_mode(self, req: ModeRequest) -> None:
-        now = self.now()
+        """A mode request on ``cmd/mode``. A reset there is refused and counted: resets ride on
+        ``cmd/reset``, which Zenoh's ACL admits only from identities with the reset right."""
+        before = self.safety.refused
         if req.reset:
-            if self.safety.accepts(req.session):
-                self.safety.reset(now, req.session)
-                self.fault_reset = True  # the loop thread owns the bus: the next tick clears
+            self.safety.refused += 1
+            log.warning(
+                "refused a reset on cmd/mode from session %s: send it on cmd/reset", req.session
+            )
         else:
-            self.safety.request(req.mode, now, req.session)
+            self.safety.request(req.mode, self.now(), req.session)
+        self._count_refused(ModeRequest.TOPIC, before)
+
+    def on_reset(self, req: ResetRequest) -> None:
+        """Reset a latched e-stop or fault for the session holder (``cmd/reset``)."""
+        before = self.safety.refused
+        if self.safety.accepts(req.session):
+            self.safety.reset(self.now(), req.session)
+            self.fault_reset = True  # the loop thread owns the bus: the next tick clears
+        self._count_refused(ResetRequest.TOPIC, before)
 
     def on_estop(self, msg: EStop) -> None:
         now = self.now()
@@ -223,14 +255,31 @@ class Controller:
             self.safety.estop(now, msg.source, msg.reason)
 
     def on_claim(self, msg: SessionClaim) -> None:
-        now = self.now()
+        """Claim or release the session (``cmd/session``). An override there is refused and
+        counted: it rides on ``cmd/override``, which Zenoh's ACL admits only from identities
+        with the override right."""
+        now, before = self.now(), self.safety.refused
         if msg.release:
             self.safety.release(msg.session, now, msg.handoff)
+        elif msg.override:
+            self.safety.refused += 1
+            log.warning(
+                "refused an override claim on cmd/session by %s: send it on cmd/override",
+                msg.client,
+            )
         else:
-            self.safety.claim(msg.session, msg.client, now, msg.override)
+            self.safety.claim(msg.session, msg.client, now)
+        self._count_refused(SessionClaim.TOPIC, before)
+
+    def on_override(self, msg: OverrideClaim) -> None:
+        """Claim the session even when another holds it (``cmd/override``)."""
+        before = self.safety.refused
+        self.safety.claim(msg.session, msg.client, self.now(), override=True)
+        self._count_refused(OverrideClaim.TOPIC, before)
 
     def on_heartbeat(self, msg: Heartbeat) -> None:
-        self.safety.heartbeat(msg.session, self.now())
+        """Renew the session's heartbeat; replayed or stale ones are refused (Safety.heartbeat)."""
+        self.safety.heartbeat(msg.session, self.now(), msg.seq, msg.stamp)
 
     def on_feature(self, msg: Message) -> None:
         self.features[msg.TOPIC] = Timed(msg, self.now())
@@ -282,6 +331,7 @@ class Controller:
         if mode != self.mode:
             self._enter(mode, q, t)
         self._q = q
+        self.feet = None
         command = self._behave(t, dt, q)
         if command is not None:
             try:
@@ -291,11 +341,33 @@ class Controller:
                 return
             self.command = command
         if self._ticks % self._state_every == 0:
-            self.publish(state)
-            self.publish(self.body)
+            self._publish_state(t, state, command)
         if t - self._last_health_publish >= HEALTH_PERIOD:
             self._last_health_publish = t
             self.publish_health(t)
+
+    def _publish_state(self, t: float, state: JointState, command: JointCommand | None) -> None:
+        """The state messages of a state tick: measured joints, body, the command written to
+        the bus this tick (after the guard; none while nothing was written) and the gait's
+        foot targets it came from (only while a gait steps). The tick's own objects are sent."""
+        self.publish(state)
+        self.publish(self.body)
+        if command is not None:
+            command.stamp = t
+            self._publish_sent(command)
+        if self.feet is not None:
+            self._publish_sent(self.feet)
+
+    def _publish_sent(self, message: JointCommand | FootTargets) -> None:
+        """Publish what was sent; one the wire cannot encode (a gait's numpy arrays, which the
+        motion pipeline takes) is skipped and noted once per topic: telemetry never faults."""
+        try:
+            self.publish(message)
+        except (TypeError, ValueError, OverflowError) as e:
+            if message.TOPIC not in self._unpublishable:
+                self._unpublishable.add(message.TOPIC)
+                self.messages.append(f"{message.TOPIC} not published: {e}")
+                log.warning("%s not published (further ones skipped): %s", message.TOPIC, e)
 
     def _estimate(self, t: float, dt: float, q: np.ndarray, state: JointState) -> None:
         """Body state from the stance feet and the IMU (paper 004 eqs. 5-9, filter 1), with the
@@ -457,6 +529,7 @@ class Controller:
                 if self.gait.plugin.done:
                     self.safety.hold(t, f"behaviour {self.gait.name} done")
                 command = motion.feet_step(feet)
+                self.feet = feet
                 stance = np.asarray(feet.stance, bool)
                 self._stance_changed = not np.array_equal(stance, self.stance)
                 self.stance = stance
@@ -529,7 +602,11 @@ class Controller:
             motion=self.motion_stats(),
             plugins={p.name: p.status for p in isolated},
             **slowest(isolated),
+            decode_errors=self.undecodable.total,
+            decode_errors_by=self.undecodable.counts(),
             refused_commands=self.safety.refused,
+            refused_by=self.refused_by.counts(),
+            refused_heartbeats=self.safety.refused_heartbeats,
             unauthorised_commands=self.unauthorised(),
             features={k: t - v.at for k, v in list(self.features.items())},
             session=held.client if (held := self.safety.session) is not None else "",

@@ -151,7 +151,7 @@ class ControlRole:
         aio = asyncio.get_running_loop()
         clock: Clock = MonotonicClock()
         net = role_network(profile, "control", args, aio)
-        net.declare(m.JointState, m.BodyState, m.Health, m.ModeState)
+        net.declare(m.JointState, m.JointCommand, m.BodyState, m.FootTargets, m.Health, m.ModeState)
         gate = None
         if profile.network.auth is not None and profile.network.auth.telemetry_listen:
             gate = TelemetryGate(profile.name, list(profile.network.auth.telemetry_listen))
@@ -194,6 +194,7 @@ class ControlRole:
             feed_forward=estimator is not None,
         )
         safety, controller, loop = stack.safety, stack.controller, stack.loop
+        controller.undecodable = net.undecodable
         if gate is not None:
             controller.unauthorised = lambda: gate.attempts
         net.subscribe(m.MotionCommand, controller.on_motion, latest_only=True)
@@ -201,6 +202,8 @@ class ControlRole:
         net.subscribe(m.EStop, controller.on_estop)
         net.subscribe(m.SessionClaim, controller.on_claim)
         net.subscribe(m.Heartbeat, controller.on_heartbeat)
+        net.subscribe(m.ResetRequest, controller.on_reset)
+        net.subscribe(m.OverrideClaim, controller.on_override)
         for feature in feature_types(profile):
             net.subscribe(feature, controller.on_feature, latest_only=True)
             if sim is not None:

@@ -4,7 +4,8 @@ to asyncio safely ("bus" is the joint bus; this is the network).
 Zenoh callbacks run on Zenoh's own threads. There we only decode (cheap, and it lets garbage
 be dropped at once) and queue the message for the asyncio loop, waking it with
 ``call_soon_threadsafe`` once per batch; we never block and never call Zenoh from a callback.
-An undecodable or wrong-schema payload is dropped, counted, and logged once per sender.
+An undecodable or wrong-schema payload is dropped, counted by topic (and by peer where the
+sample names its source), and logged once per sender.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from climbd.daemon.contract.messages import (
     Message,
     ModeRequest,
     MotionCommand,
+    OverrideClaim,
+    ResetRequest,
     SchemaMismatch,
     SessionClaim,
     decode,
@@ -36,13 +39,20 @@ from climbd.daemon.contract.messages import (
 )
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.access import apply_auth
+from climbd.daemon.runtime.counting import Tally
 
 log = logging.getLogger("climbd.bus")
 
 CONTROL_STREAMS: tuple[type[Message], ...] = (JointState, JointCommand, MotionCommand, Heartbeat)
 """Streams sent REAL_TIME, express, congestion DROP: a stale sample is worth nothing."""
 
-ONE_SHOT_COMMANDS: tuple[type[Message], ...] = (EStop, SessionClaim, ModeRequest)
+ONE_SHOT_COMMANDS: tuple[type[Message], ...] = (
+    EStop,
+    SessionClaim,
+    ModeRequest,
+    ResetRequest,
+    OverrideClaim,
+)
 """Sent REAL_TIME, reliable, congestion BLOCK: each must arrive, and none waits behind
 lower-priority traffic."""
 
@@ -64,7 +74,7 @@ def zenoh_config(
     """Zenoh config from the profile's network section: peer mode, explicit endpoints, no multicast.
 
     ``endpoints`` overrides the profile's for this role (tests pick free loopback ports).
-    With ``network.auth`` the session admits only authenticated peers and commanders
+    With ``network.auth`` the session admits only authenticated peers, each to its rights
     (daemon/runtime/access.py); raises access.AccessError naming the field when that cannot work.
     """
     net = profile.network if profile is not None else None
@@ -129,7 +139,8 @@ class Network:
         self.robot = robot
         self.loop = loop
         self.session = zenoh.open(config)
-        self.decode_errors = 0
+        self.undecodable = Tally()
+        """Dropped payloads by ``drop_key``: topic, and peer where the sample names one."""
         self._warned: set[str] = set()
         self._lock = threading.Lock()
         self._declared: list = []
@@ -174,9 +185,25 @@ class Network:
                     self._publishers[kind] = self.publisher(kind)
             return [self._publishers[kind] for kind in kinds]
 
+    @property
+    def decode_errors(self) -> int:
+        """Payloads dropped as undecodable or of another schema, on every subscription."""
+        return self.undecodable.total
+
+    def drop_key(self, sample: zenoh.Sample) -> str:
+        """Where a dropped payload is counted: its topic (``climbd/<this robot>/`` left out,
+        ``robot/topic`` for another robot's), with `` from <zid>`` when the sample carries its
+        source. Zenoh fills ``source_info`` only when the sender sets it, so most samples,
+        garbage from plain zenoh included, are counted by topic alone."""
+        topic = str(sample.key_expr)
+        own = f"climbd/{self.robot}/"
+        topic = topic.removeprefix(own) if topic.startswith(own) else topic.removeprefix("climbd/")
+        info = sample.source_info
+        return topic if info is None else f"{topic} from {info.source_id.zid()}"
+
     def _drop(self, sample: zenoh.Sample, error: Exception) -> None:
+        self.undecodable.add(self.drop_key(sample))
         with self._lock:
-            self.decode_errors += 1
             info = sample.source_info
             sender = str(info.source_id.zid()) if info is not None else str(sample.key_expr)
             first = sender not in self._warned

@@ -275,6 +275,7 @@ class PerceptionRole:
         try:
             while not stop.is_set() and aio.time() < end:
                 health = self.health([*plugins, self.world], net.decode_errors)
+                health.decode_errors_by = net.undecodable.counts()
                 publish(capture.report(health))
                 if self.failure:
                     break

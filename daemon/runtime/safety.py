@@ -35,6 +35,22 @@ MAX_ESTOP_SOURCES = 8
 """Sources of one e-stop latch kept for ModeState.estop_by (the newest): a flood of e-stops
 from many sources cannot grow the mode message."""
 
+MAX_HEARTBEAT_SESSIONS = 64
+"""Sessions whose last accepted heartbeat (seq, stamp) is remembered (the most recently beating
+ones): a session claimed again after it lapsed keeps its watermark, so its captured heartbeats
+stay refused."""
+
+REFUSAL_LOG_PERIOD = 5.0
+"""Seconds between log lines about refused heartbeats (the others are only counted)."""
+
+
+@dataclass
+class Beat:
+    """The last heartbeat accepted for a session: its sequence number and sender stamp."""
+
+    seq: int
+    stamp: float
+
 
 @dataclass
 class Session:
@@ -65,11 +81,14 @@ class Safety:
     reason: str = "start"
     session: Session | None = None
     refused: int = 0
+    refused_heartbeats: int = 0
     speed_scale: float = 1.0
     torque_on: bool = False
     estop_by: list[str] = field(default_factory=list)
     reset_by: str = ""
     history: list[Transition] = field(default_factory=list)
+    _beats: dict[str, Beat] = field(default_factory=dict, repr=False)
+    _refusal_logged: float = field(default=-1e9, repr=False)
     _lock: threading.RLock = field(default_factory=threading.RLock, repr=False)
 
     @property
@@ -195,14 +214,46 @@ class Safety:
                 self.reason = f"handed to autonomy by {held.client}"
             return True
 
-    def heartbeat(self, session: str, now: float) -> bool:
-        """Renew the session's heartbeat. Another session's is ignored, not counted as refused:
-        heartbeats are express and overtake a claim or release sent just before or after them."""
+    def heartbeat(self, session: str, now: float, seq: int, stamp: float) -> bool:
+        """Renew the session's heartbeat if its ``seq`` and sender ``stamp`` both advanced past
+        the last accepted for that session: a replayed or stale one is refused and counted, so a
+        captured heartbeat cannot keep the dead-man alive. Another session's is ignored, not
+        counted: heartbeats are express and overtake a claim or release sent around them."""
         with self._lock:
-            if self.session is None or self.session.session != session:
+            held = self.session
+            if held is None or held.session != session:
                 return False
-            self.session.last_heartbeat = now
+            last = self._beats.get(session)
+            if last is not None and (seq <= last.seq or stamp <= last.stamp):
+                self._refuse_heartbeat(held, seq, stamp, last, now)
+                return False
+            self._beats.pop(session, None)
+            self._beats[session] = Beat(seq, stamp)
+            while len(self._beats) > MAX_HEARTBEAT_SESSIONS:
+                del self._beats[next(iter(self._beats))]
+            held.last_heartbeat = now
             return True
+
+    def _refuse_heartbeat(
+        self, held: Session, seq: int, stamp: float, last: Beat, now: float
+    ) -> None:
+        """Count a replayed or stale heartbeat; log it at most every REFUSAL_LOG_PERIOD."""
+        self.refused_heartbeats += 1
+        if now - self._refusal_logged < REFUSAL_LOG_PERIOD:
+            return
+        self._refusal_logged = now
+        log.warning(
+            "refused heartbeat of session %s (%s): seq %d stamp %.3f not after seq %d stamp %.3f "
+            "(replayed or stale; %d refused so far, more only counted for %.0f s)",
+            held.session,
+            held.client,
+            seq,
+            stamp,
+            last.seq,
+            last.stamp,
+            self.refused_heartbeats,
+            REFUSAL_LOG_PERIOD,
+        )
 
     def accepts(self, session: str) -> bool:
         """Whether a command from ``session`` may act; a refusal is counted."""

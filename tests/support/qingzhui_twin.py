@@ -27,9 +27,16 @@ from climbd.drivers.torque.config import TorqueConfig
 
 _channels = itertools.count()
 SESSION = "qz-test"
+_beats = itertools.count(1)
 LOCKSTEP_REPLY_TIMEOUT = 1.0
 """Wall seconds the driver waits for replies: stepped time stands still while it waits, so a
 loaded machine delays the run instead of turning late replies into lost motors."""
+
+
+def heartbeat() -> Heartbeat:
+    """The test session's next heartbeat: the robot refuses one whose seq or stamp repeats."""
+    n = next(_beats)
+    return Heartbeat(session=SESSION, seq=n, stamp=float(n))
 
 
 class TwinImu:
@@ -109,7 +116,7 @@ class QingzhuiRig:
     def _advance(self, t0: float, t1: float) -> None:
         self.coupling.advance(t0, t1)
         if self.command is not None and round(t1 * 1000) % 100 == 0:
-            self.controller.on_heartbeat(Heartbeat(session=SESSION))
+            self.controller.on_heartbeat(heartbeat())
             self.controller.on_motion(self.command)
         for hook in self.hooks:
             hook(t1)
@@ -135,7 +142,7 @@ class QingzhuiRig:
         if command is not None:
             self.safety.claim(SESSION, "test", now)
             self.command = msgspec.structs.replace(command, session=SESSION)
-            self.controller.on_heartbeat(Heartbeat(session=SESSION))
+            self.controller.on_heartbeat(heartbeat())
             self.controller.on_motion(self.command)
         assert self.safety.request(Mode.ACTIVE, now, SESSION if command else None)
 
