@@ -35,7 +35,7 @@ TYPES = (m.JointState, m.Health, m.Heartbeat, m.ElevationGrid)
 RATE = 100.0
 """Publisher rounds per second."""
 
-KILLS, WORKERS, MAX_DELAY = 20, 2, 2.5
+KILLS, WORKERS, MAX_DELAY = 20, 4, 2.5
 """Recorders killed, how many run at once, and the latest kill (s after "recording")."""
 
 
