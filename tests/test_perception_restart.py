@@ -28,6 +28,7 @@ from climbd.daemon.contract.messages import BodyState, Joists, Message
 from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
 from climbd.daemon.contract.profile import NetworkConfig, PluginSpec, Profile, load
 from climbd.daemon.runtime.capture import Capture
+from climbd.daemon.runtime.counting import Tally
 from climbd.daemon.runtime.loader import Restarting, RestartPolicy
 from climbd.daemon.runtime.perception_role import GAVE_UP, PerceptionRole
 
@@ -227,7 +228,7 @@ def test_the_worker_drops_a_failed_frame_and_publishes_the_next_ones() -> None:
     assert len(published) >= 4 and not role.failure
     answered = [c for c in script.calls if not c[2]]
     assert len(published) == len(answered), "every answer published, the failed frame's none"
-    health = role.health([plugin], 0)
+    health = role.health([plugin], Tally())
     assert health.plugin_errors == {"flaky": 1} and health.plugins == {"flaky": "ok"}
 
 
@@ -246,7 +247,7 @@ def test_the_worker_restarts_a_plugin_failing_in_a_row_and_publishes_once_it_is_
     answers = [c for c in script.calls if not c[2]]
     assert all(c[0] is fresh for c in answers)
     assert answers[0][1] - failed[-1][1] >= 0.3, "the back-off is respected"
-    health = role.health([plugin], 0)
+    health = role.health([plugin], Tally())
     assert health.plugin_errors == {"flaky": 5} and health.plugins == {"flaky": "ok"}
 
 

@@ -337,19 +337,22 @@ class Feature(Message):
     frame_orientation: Vector = msgspec.field(default_factory=lambda: [1.0, 0.0, 0.0, 0.0])
 
 
-class ElevationGrid(Feature):
-    """Height map in the body frame: ``heights`` is row-major float32 little-endian, NaN unknown.
+class GridFeature(Feature):
+    """A feature on a grid of ``rows`` × ``cols`` square cells: cell (row, col) covers
+    x = origin_x + row · resolution, y = origin_y + col · resolution (m)."""
 
-    Cell (row, col) covers x = origin_x + row * resolution, y = origin_y + col * resolution.
-    """
-
-    TOPIC: ClassVar[str] = "features/grid"
-    RATE: ClassVar[str] = "camera rate, up to 30 Hz"
     origin_x: float = 0.0
     origin_y: float = 0.0
     resolution: float = 0.01
     rows: int = 0
     cols: int = 0
+
+
+class ElevationGrid(GridFeature):
+    """Height map in the body frame: ``heights`` is row-major float32 little-endian, NaN unknown."""
+
+    TOPIC: ClassVar[str] = "features/grid"
+    RATE: ClassVar[str] = "camera rate, up to 30 Hz"
     heights: Annotated[bytes, msgspec.Meta(max_length=MAX_GRID_BYTES)] = b""
 
 
@@ -368,25 +371,18 @@ TERRAIN_LAYERS = (
 rad, m, m, [0, 1], s since a frame last saw the cell."""
 
 
-class TerrainMap(Feature):
+class TerrainMap(GridFeature):
     """The world model's elevation map in the odometry frame (grid_map style): a rolling window
     around the robot fused from every frame, with its terrain layers (TERRAIN_LAYERS).
 
     ``layers`` holds each layer as row-major float16 little-endian, zlib-compressed, NaN
-    unknown, over the window's observed part: cell (row, col) covers x = origin_x +
-    row·resolution, y = origin_y + col·resolution. Heights are stored less ``origin_z`` (the
-    body's height when published) to keep float16's millimetres; ages count back from
-    ``frame_stamp``.
+    unknown, over the window's observed part. Heights are stored less ``origin_z`` (the body's
+    height when published) to keep float16's millimetres; ages count back from ``frame_stamp``.
     """
 
     TOPIC: ClassVar[str] = "features/terrain"
     RATE: ClassVar[str] = "2 Hz"
-    origin_x: float = 0.0
-    origin_y: float = 0.0
     origin_z: float = 0.0
-    resolution: float = 0.01
-    rows: int = 0
-    cols: int = 0
     layers: Annotated[
         dict[Name, Annotated[bytes, msgspec.Meta(max_length=MAX_GRID_BYTES)]],
         msgspec.Meta(max_length=MAX_ENTRIES),

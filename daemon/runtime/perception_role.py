@@ -36,6 +36,7 @@ from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.runtime.capture import Capture
 from climbd.daemon.runtime.control_role import StartupError, role_network
+from climbd.daemon.runtime.counting import Tally
 from climbd.daemon.runtime.loader import (
     Isolated,
     Restarting,
@@ -198,16 +199,18 @@ class PerceptionRole:
             "the role exits to be restarted"
         )
 
-    def health(self, plugins: Sequence[Isolated[PerceptionPlugin]], decode_errors: int) -> m.Health:
+    def health(self, plugins: Sequence[Isolated[PerceptionPlugin]], undecodable: Tally) -> m.Health:
         """The role's Health but for the camera's part (``Capture.report`` adds it): each
-        plugin's status, errors and slowest call, the bus's decode errors, refused frames."""
+        plugin's status, errors and slowest call, the bus's decode errors (by topic), refused
+        frames."""
         return m.Health(
             stamp=time.monotonic(),
             role="perception",
             plugins={p.name: p.status for p in plugins},
             plugin_errors={p.name: p.failures for p in plugins},
             **slowest(plugins),
-            decode_errors=decode_errors,
+            decode_errors=undecodable.total,
+            decode_errors_by=undecodable.counts(),
             refused_frames=dict(self.refused),
         )
 
@@ -274,8 +277,7 @@ class PerceptionRole:
         end = aio.time() + args.duration if args.duration else math.inf
         try:
             while not stop.is_set() and aio.time() < end:
-                health = self.health([*plugins, self.world], net.decode_errors)
-                health.decode_errors_by = net.undecodable.counts()
+                health = self.health([*plugins, self.world], net.undecodable)
                 publish(capture.report(health))
                 if self.failure:
                     break
