@@ -4,6 +4,7 @@ graspable points detected on the real cloud (the paper's §4.1 map)."""
 from __future__ import annotations
 
 import functools
+import math
 import threading
 from pathlib import Path
 
@@ -16,7 +17,8 @@ from climbd.daemon.contract.cloudio import read_cloud
 from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
-    GraspablePoints,
+    HoldMap,
+    MappedHold,
     Mode,
     Stability,
     decode,
@@ -75,6 +77,17 @@ def tile() -> np.ndarray:
 def hold_map(tile: np.ndarray, seed: int) -> np.ndarray:
     """Copies of the detection up the slope, plus the four starting grips."""
     return np.vstack((tile_map(tile, seed, (-0.3, 1.2), (-0.4, 0.4)), start_feet()))
+
+
+def mapped(holds: np.ndarray, origin: np.ndarray) -> HoldMap:
+    """The world model's hold map of wall-frame ``holds`` for a wall frame at ``origin``
+    (odometry frame), each seen once."""
+    return HoldMap(
+        holds=[
+            MappedHold(id=i, confidence=0.5, seen=1, age=0.0, position=(p + origin).tolist())
+            for i, p in enumerate(holds)
+        ]
+    )
 
 
 def climb(tile: np.ndarray, periodic: bool, seed: int, seconds: float = SECONDS):
@@ -263,8 +276,7 @@ def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):
         gait.stepped = True
         feet = KIN.stand_feet(CFG.base_height)
         gait.start(BodyState(position=[0.0, 0.0, CFG.base_height]), feet)
-        holds = GraspablePoints(points=hold_map(tile, 1).tolist())
-        world = {GraspablePoints.TOPIC: holds}
+        world = {HoldMap.TOPIC: mapped(hold_map(tile, 1), np.zeros(3))}
         assert gait.telemetry() == []
         out, stability = [], []
         for i in range(50):
@@ -304,8 +316,9 @@ def test_control_role_publishes_stability_while_climbing(tile):
     safety, controller, loop = stack.safety, stack.controller, stack.loop
     assert safety.request(Mode.STAND, clock.now())
     loop.run(max_ticks=int(PROFILE.safety.stand_time * 3 * PROFILE.rate_hz))
-    body = (hold_map(tile, 3) - [0.0, 0.0, CFG.base_height]).tolist()
-    controller.on_feature(GraspablePoints(stamp=clock.now(), points=body))
+    origin = np.asarray(controller.body.position) - [0.0, 0.0, CFG.base_height]
+    holds = msgspec.structs.replace(mapped(hold_map(tile, 3), origin), stamp=clock.now())
+    controller.on_feature(holds)
     assert safety.request(Mode.ACTIVE, clock.now())
     loop.run(max_ticks=loop.ticks + int(0.5 * PROFILE.rate_hz))
     assert safety.mode == Mode.ACTIVE, safety.reason
@@ -359,7 +372,7 @@ def test_planning_runs_off_the_tick_and_stance_holds_while_a_plan_is_late(tile):
     feet = KIN.stand_feet(CFG.base_height)
     gait.start(BodyState(position=[0.0, 0.0, CFG.base_height]), feet)
     gated = GatedPlans(gait.planner)
-    world = {GraspablePoints.TOPIC: GraspablePoints(points=hold_map(tile, 1).tolist())}
+    world = {HoldMap.TOPIC: mapped(hold_map(tile, 1), np.zeros(3))}
     t = 0.0
 
     def tick() -> tuple[FootTargets, Stability]:
@@ -406,3 +419,20 @@ def test_planning_runs_off_the_tick_and_stance_holds_while_a_plan_is_late(tile):
     (worker,) = gated.threads
     worker.join(timeout=60)
     assert not worker.is_alive()  # stop ended the worker
+
+
+def test_hold_map_becomes_wall_frame_foot_targets_with_heights_and_confidence():
+    """The gait plans over the world model's map (odometry frame), not over a frame: a map hold
+    seen from a body turned 90° and raised is placed in the wall frame the gait started in,
+    keeps its height over the wall, is raised by the gripper's contact radius, and a hold below
+    ``min_confidence`` is not a foothold."""
+    config = ClimbConfig(foot_radius=0.01, min_confidence=0.3)
+    gait = instantiate("climbd.gaits", "free_climb", msgspec.to_builtins(config), PROFILE, "t")
+    turned = [math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]  # 90° about z
+    gait.start(BodyState(position=[1.0, 2.0, 0.3], orientation=turned), start_feet())
+    ahead = MappedHold(id=1, confidence=0.5, seen=2, age=0.0, position=[1.0, 2.1, 0.27])
+    unsure = MappedHold(id=2, confidence=0.2, seen=1, age=0.0, position=[0.9, 2.0, 0.24])
+    gait.step(0.0, DT, BodyState(), {HoldMap.TOPIC: HoldMap(holds=[ahead, unsure])}, None)
+    # 0.1 m along the body's x (odometry +y), 0.03 m above the wall plane the feet stand on
+    np.testing.assert_allclose(gait.holds, [[0.1, 0.0, 0.04]], atol=1e-12)
+    gait.stop()

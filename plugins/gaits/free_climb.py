@@ -46,10 +46,11 @@ import numpy as np
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.planning import PlanWorker
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
-    GraspablePoints,
+    HoldMap,
     Message,
     MotionCommand,
     Stability,
@@ -72,10 +73,12 @@ KNOWN_POSTURES = 4096
 
 class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Paper 001 §4.1 conditions (swing height/period, base height, grip force, slope, gravity,
-    mass) and the foothold rule's limits: ``max_stride`` is ClimbLab's allowable maximum stride
-    for discrete footholds, ``min_stride`` its same-point distance, ``hold_spacing`` the least
-    distance (m) between two grippers' holds (one palm's width). ``horizon`` (swings) and
-    ``beam`` (postures kept per swing) bound the non-periodic gait's look-ahead."""
+        mass) and the foothold rule's limits: ``max_stride`` is ClimbLab's allowable maximum stride
+        for discrete footholds, ``min_stride`` its same-point distance, ``hold_spacing`` the least
+        distance (m) between two grippers' holds (one palm's width). ``horizon`` (swings) and
+        ``beam`` (postures kept per swing) bound the non-periodic gait's look-ahead. The holds are
+    the world model's hold map: those at least ``min_confidence`` sure, each a foot target
+    ``foot_radius`` (m, the gripper's contact sphere) above the top perception saw."""
 
     swing_height: float = 0.02
     swing_period: float = 4.0
@@ -87,6 +90,8 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_stride: float = 0.1
     min_stride: float = 0.005
     hold_spacing: float = 0.03
+    foot_radius: Annotated[float, msgspec.Meta(ge=0.0)] = 0.0
+    min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.0
     horizon: Annotated[int, msgspec.Meta(ge=1)] = 8
     beam: Annotated[int, msgspec.Meta(ge=1)] = 6
 
@@ -459,10 +464,11 @@ class ClimbRunner:
 
 
 class FreeClimb(GaitPlugin):
-    """Non-periodic free-climbing gait (paper 001) as a gait plugin over GraspablePoints."""
+    """Non-periodic free-climbing gait (paper 001) as a gait plugin over the hold map."""
 
     name: ClassVar[str] = "free_climb"
     Config: ClassVar[type[msgspec.Struct]] = ClimbConfig
+    needs: ClassVar[tuple[str, ...]] = (HoldMap.TOPIC,)
     periodic: ClassVar[bool] = False
 
     def __init__(self, config: ClimbConfig | None = None, profile: object = None) -> None:
@@ -471,17 +477,21 @@ class FreeClimb(GaitPlugin):
         self.planner: ClimbPlanner | None = None
         self.runner: ClimbRunner | None = None
         self.holds = np.zeros((0, 3))
+        self.to_wall = np.eye(3)
+        self.origin = np.zeros(3)
         self.last: Tick | None = None
         self.stamp = 0.0
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
-        """Take the measured feet (body frame) as gripping; the wall frame starts at the base.
-        Starts the planning worker (a fresh planner: a stopped one may still be finishing)."""
+        """Take the measured feet (body frame) as gripping; the wall frame starts at the base,
+        its axes the body's at start (the body keeps the wall's orientation). Starts the
+        planning worker (a fresh planner: a stopped one may still be finishing)."""
         self.stop()
         base = np.array([0.0, 0.0, self.config.base_height])
         wall_feet = np.asarray(feet, float) + base
         wall_feet[:, 2] = 0.0
-        self.origin = np.asarray(body.position, float) - base
+        self.to_wall = rotation(body.orientation).T
+        self.origin = np.asarray(body.position, float) - self.to_wall.T @ base
         self.planner = ClimbPlanner(self.kinematics, self.config, self.periodic)
         ahead = PlanAhead(self.planner, wait=self.stepped)
         self.runner = ClimbRunner(self.planner, wall_feet, base, ahead)
@@ -499,12 +509,10 @@ class FreeClimb(GaitPlugin):
         world: dict[str, Message],
         command: MotionCommand | None,
     ) -> FootTargets:
-        """Foot targets (body frame) of this tick; holds come from ``features/graspable``."""
-        seen = world.get(GraspablePoints.TOPIC)
-        if isinstance(seen, GraspablePoints) and seen.points:
-            points = np.asarray(seen.points, float) + np.asarray(body.position) - self.origin
-            points[:, 2] = 0.0
-            self.holds = points
+        """Foot targets (body frame) of this tick, planned over the latest hold map."""
+        seen = world.get(HoldMap.TOPIC)
+        if isinstance(seen, HoldMap):
+            self.holds = self.wall_holds(seen)
         tick = self.runner.tick(dt, self.holds)
         self.last = tick
         self.stamp = t
@@ -514,6 +522,12 @@ class FreeClimb(GaitPlugin):
             stance=list(tick.grip),
             grip=tick.grip,
         )
+
+    def wall_holds(self, holds: HoldMap) -> np.ndarray:
+        """The map's holds sure enough to grip, as wall-frame foot targets (heights kept)."""
+        sure = [h.position for h in holds.holds if h.confidence >= self.config.min_confidence]
+        tops = (np.reshape(sure, (-1, 3)) - self.origin) @ self.to_wall.T
+        return tops + self.config.foot_radius * NORMAL
 
     def telemetry(self) -> list[Message]:
         """This tick's Stability (TSM, holding limbs, grips) for the control role to publish."""
