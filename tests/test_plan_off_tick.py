@@ -9,15 +9,16 @@ import time
 import numpy as np
 import pytest
 from support.joist_scenes import JoistSpec
-from support.joist_world import body_state, perceive
+from support.joist_world import body_state, oracle_map
 
+from climbd.daemon.algorithms.feature_maps import JoistTracks
 from climbd.daemon.algorithms.planning import PlanWorker
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import (
     EStop,
     FootTargets,
     Heartbeat,
-    Joists,
+    JoistMap,
     Mode,
     ModeRequest,
     SessionClaim,
@@ -187,11 +188,12 @@ def test_joist_climb_holds_still_while_its_crossing_is_planned(widowx, monkeypat
     plans = GatedPlans(monkeypatch)
     b = wall_clock_joist_climb(widowx)
     joists = [JoistSpec(0.7, 0.0, 0.06)]
+    tracks = JoistTracks()
     dt, held, planned_feet = 0.01, 0, None
     try:
         for k in range(int(120 / dt)):
             t = k * dt
-            world = {Joists.TOPIC: perceive(joists, b.pose, t)}
+            world = {JoistMap.TOPIC: oracle_map(tracks, joists, b.pose, t)}
             feet = np.array(b.step(t, dt, body_state(b.pose, t), world, None).positions)
             if b.mode == Phase.PLAN:
                 planned_feet = feet if planned_feet is None else planned_feet
@@ -215,10 +217,11 @@ def test_a_crossing_plan_made_while_the_joist_moved_is_made_again(widowx, monkey
     plans = GatedPlans(monkeypatch)
     b = wall_clock_joist_climb(widowx)
     joists = [JoistSpec(0.7, 0.0, 0.06)]
+    tracks = JoistTracks()
     dt, t, moved_at = 0.01, 0.0, None
     try:
         while t < 120.0 and b.mode != Phase.CROSS:
-            world = {Joists.TOPIC: perceive(joists, b.pose, t)}
+            world = {JoistMap.TOPIC: oracle_map(tracks, joists, b.pose, t)}
             b.step(t, dt, body_state(b.pose, t), world, None)
             t += dt
             if b.mode == Phase.PLAN and moved_at is None:

@@ -17,13 +17,21 @@ from climbd.daemon.algorithms.tracks import Track, TrackConfig, Tracker, wrap
 from climbd.daemon.contract.geometry import rotation, yaw
 from climbd.daemon.contract.hardware import DepthFrame
 from climbd.daemon.contract.messages import (
+    BodyState,
     GraspablePoints,
     HoldMap,
+    Joist,
     JoistMap,
     Joists,
     MappedHold,
     MappedJoist,
 )
+
+JOIST_MEMORY = 4.0
+"""Sightings a joist's estimate averages over. A joist is a landmark in the odometry frame,
+which drifts (2-5 cm over a crossing when feet slip); a behaviour localises on it, so the
+map must follow the frame within a fraction of a second (4 frames: 0.4 s at 10 Hz), not
+smooth the drift away over seconds. The detector's own noise is millimetres."""
 
 LEVER = 0.3
 """m: a joist heading difference counts as this lever times its radians in the gate."""
@@ -32,6 +40,41 @@ LEVER = 0.3
 def to_odometry(points: np.ndarray, position: list[float], orientation: list[float]) -> np.ndarray:
     """Body-frame points (N×3) placed in the odometry frame by the pose they were seen in."""
     return np.asarray(points, float).reshape(-1, 3) @ rotation(orientation).T + position
+
+
+def to_body(points: np.ndarray, body: BodyState) -> np.ndarray:
+    """Odometry-frame points (N×3) in the body frame of ``body``: ``to_odometry`` undone."""
+    offset = np.asarray(points, float).reshape(-1, 3) - body.position
+    return offset @ rotation(body.orientation)
+
+
+def joists_seen_from(joists: JoistMap, body: BodyState) -> list[Joist]:
+    """The map's joists as joist perception would report them from ``body`` (paper 000): body
+    frame, the normal turned to point ahead, the distance along the heading where the line
+    crosses the path (the nearest edge point to y = 0), nearest first."""
+    out = []
+    heading = yaw(body.orientation)
+    for joist in joists.joists:
+        ends = to_body(joist.endpoints, body)
+        psi = wrap(joist.heading - heading)
+        if math.cos(psi) < 0.0:
+            psi = wrap(psi + math.pi)
+        n = np.array([math.cos(psi), math.sin(psi)])
+        if abs(n[0]) < 1e-6:
+            continue  # along the path: it never crosses it
+        ys = np.sort(ends[:, 1])
+        y_path = min(max(0.0, ys[0]), ys[1])
+        distance = (float(n @ ends[0, :2]) - n[1] * y_path) / n[0]
+        out.append(
+            Joist(
+                distance=float(distance),
+                yaw=psi,
+                height=joist.height,
+                endpoints=ends.tolist(),
+                confidence=joist.confidence,
+            )
+        )
+    return sorted(out, key=lambda j: j.distance)
 
 
 class ViewCone:
@@ -138,7 +181,7 @@ class JoistTracks:
 
     def __init__(self, config: TrackConfig | None = None) -> None:
         self.tracker = Tracker(
-            config or TrackConfig(gate=0.08), _joist_distance, _joist_fuse, _joist_start
+            config or TrackConfig(gate=0.08, memory=JOIST_MEMORY), _joist_distance, _joist_fuse, _joist_start
         )
 
     def update(self, seen: Joists, cone: ViewCone | None) -> None:

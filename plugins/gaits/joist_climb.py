@@ -18,7 +18,9 @@ over its support) is gone round the same way. The crossing is planned standing s
 tick that ends the settle (about 0.2–2 s of computation). The joist is tracked on the ground
 by dead reckoning of the behaviour's own motion from the moment it is chosen, so it stays
 known once it is under the body and out of view; at each settle the measured pose takes over
-and the tracked joist keeps its place relative to the body.
+and the tracked joist keeps its place relative to the body. Every decision reads the world
+model's joist map (``features/joist_map``, odometry frame), seen from the body's pose of the
+tick (``feature_maps.joists_seen_from``); without a map the robot holds.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from typing import ClassVar
 import msgspec
 import numpy as np
 
+from climbd.daemon.algorithms.feature_maps import joists_seen_from
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.planning import Outcome, PlanWorker
 from climbd.daemon.contract import geometry
@@ -38,7 +41,7 @@ from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
     Joist,
-    Joists,
+    JoistMap,
     Message,
     MotionCommand,
 )
@@ -242,6 +245,7 @@ class JoistClimb(GaitPlugin):
 
     name: ClassVar[str] = "joist_climb"
     Config: ClassVar[type[msgspec.Struct]] = JoistClimbConfig
+    needs: ClassVar[tuple[str, ...]] = (JoistMap.TOPIC,)
 
     def __init__(self, config: JoistClimbConfig | None = None, profile=None) -> None:
         super().__init__(config, profile)
@@ -323,14 +327,11 @@ class JoistClimb(GaitPlugin):
         yaw = math.atan2(n[1], n[0]) - self.pose[2]
         return distance, math.atan2(math.sin(yaw), math.cos(yaw))
 
-    def _relevant(self, world: dict[str, Message]) -> list[Joist]:
-        """Joists of the latest message that are real (height, confidence) and cross the path."""
-        msg = world.get(Joists.TOPIC)
-        if not isinstance(msg, Joists):
-            return []
+    def _relevant(self, sightings: list[Joist]) -> list[Joist]:
+        """Joists of the map that are real (height, confidence) and cross the path."""
         c = self.config
         out = []
-        for j in msg.joists:
+        for j in sightings:
             if j.height < c.min_height or j.confidence < c.min_confidence:
                 continue
             ys = [p[1] for p in j.endpoints]
@@ -349,19 +350,19 @@ class JoistClimb(GaitPlugin):
             for j in self.impassable
         )
 
-    def _sighting(self, joist: TrackedJoist, world: dict[str, Message]) -> Joist | None:
+    def _sighting(self, joist: TrackedJoist, sightings: list[Joist]) -> Joist | None:
         """The detection of the latest message that is ``joist`` (within 10 cm and 10°)."""
         distance, yaw = self.ahead(joist)
-        for j in self._relevant(world):
+        for j in self._relevant(sightings):
             if abs(j.distance - distance) < 0.1 and abs(j.yaw - yaw) < math.radians(10.0):
                 return j
         return None
 
-    def _refresh(self, world: dict[str, Message]) -> None:
+    def _refresh(self, sightings: list[Joist]) -> None:
         """Replace the tracked joist by a fresh detection of the same joist, when there is one."""
         if self.target is None:
             return
-        seen = self._sighting(self.target, world)
+        seen = self._sighting(self.target, sightings)
         if seen is not None:
             self.target = self.track(seen)
 
@@ -413,18 +414,20 @@ class JoistClimb(GaitPlugin):
         world: dict[str, Message],
         command: MotionCommand | None,
     ) -> FootTargets:
-        """Foot targets (body frame) of this tick."""
+        """Foot targets (body frame) of this tick, deciding from the joist map."""
         c = self.config
+        joists = world.get(JoistMap.TOPIC)
+        sightings = joists_seen_from(joists, body) if isinstance(joists, JoistMap) else []
         if self.mode == Phase.WALK:
-            return self._step_walk(t, dt, body, world)
+            return self._step_walk(t, dt, body, sightings)
         if self.mode == Phase.SIDESTEP:
-            return self._step_sidestep(t, dt, body, world)
+            return self._step_sidestep(t, dt, body, sightings)
         if self.mode == Phase.CLEAR:
             return self._step_clear(t, dt, body)
         if self.mode == Phase.ALIGN:
             return self._step_align(t, dt, body)
         if self.mode == Phase.APPROACH:
-            self._refresh(world)
+            self._refresh(sightings)
             distance, _ = self.ahead(self.target)
             front = max(h[0] for h in self.tripod.home)
             # Where the walk would stop; an oblique joist may be under the feet once squared.
@@ -440,23 +443,23 @@ class JoistClimb(GaitPlugin):
             if self._settled():
                 # From here on the measured pose is the frame: the joist is tracked in it.
                 self._rebase(self._measured(body))
-                self._refresh(world)
+                self._refresh(sightings)
                 _, yaw = self.ahead(self.target)
                 if abs(yaw) > math.radians(c.square_tolerance_deg) and self._squarings < SQUARINGS:
                     self._squarings += 1
                     self._square(t, yaw)
                 else:
-                    self._begin_crossing(t, world, out)
+                    self._begin_crossing(t, sightings, out)
             return out
         if self.mode == Phase.SQUARE:
             return self._step_square(t, body)
         if self.mode == Phase.PLAN:
-            self._refresh(world)  # a fresh sighting may show the plan's joist has moved
+            self._refresh(sightings)  # a fresh sighting may show the plan's joist has moved
             self.row[0] = self.target
             self._take_crossing(t)
             return msgspec.structs.replace(self._holding, stamp=t)
         if self.mode == Phase.CROSS:
-            return self._step_cross(t, dt, body, world)
+            return self._step_cross(t, dt, body, sightings)
         return self._walk(t, dt, body, 0.0, 0.0, 0.0)
 
     def _turn_radius(self) -> float:
@@ -540,7 +543,7 @@ class JoistClimb(GaitPlugin):
     def _stopping_distance(self) -> float:
         return float(self.tripod.velocity[0]) * self._ramp()
 
-    def _step_walk(self, t, dt, body, world) -> FootTargets:
+    def _step_walk(self, t, dt, body, sightings) -> FootTargets:
         c = self.config
         if c.goal_distance is not None and self.travelled >= c.goal_distance:
             out = self._walk(t, dt, body, 0.0, 0.0, 0.0)
@@ -548,14 +551,14 @@ class JoistClimb(GaitPlugin):
                 self._switch(t, Phase.DONE, f"walked {self.travelled:.2f} m")
                 self.done = True
             return out
-        joists = self._relevant(world)
+        joists = self._relevant(sightings)
         near = [j for j in joists if _reach(j) < self._turn_radius()]
         if near or (joists and joists[0].distance < c.approach_distance):
             nearest = near[0] if near else joists[0]
             self.target = self.track(nearest)
             if self._blocks(nearest):
                 self._switch(t, Phase.SIDESTEP, f"joist {nearest.height:.3f} m high: too high")
-                return self._step_sidestep(t, dt, body, world)
+                return self._step_sidestep(t, dt, body, sightings)
             self._turn_left = nearest.yaw
             if abs(nearest.yaw) > math.radians(c.align_tolerance_deg):
                 what = f"joist {nearest.height:.3f} m, yaw {nearest.yaw:.3f}"
@@ -568,9 +571,9 @@ class JoistClimb(GaitPlugin):
             return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
         return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
 
-    def _step_sidestep(self, t, dt, body, world) -> FootTargets:
+    def _step_sidestep(self, t, dt, body, sightings) -> FootTargets:
         c = self.config
-        blocking = [j for j in self._relevant(world) if self._blocks(j)]
+        blocking = [j for j in self._relevant(sightings) if self._blocks(j)]
         if blocking:
             self._clear_since = None
         elif self._clear_since is None:
@@ -582,13 +585,13 @@ class JoistClimb(GaitPlugin):
             return self._walk(t, dt, body, c.walk_speed, 0.0, 0.0)
         return self._walk(t, dt, body, 0.0, c.side_direction * c.side_speed, 0.0)
 
-    def _grow_row(self, world: dict[str, Message]) -> bool:
+    def _grow_row(self, sightings: list[Joist]) -> bool:
         """Add to the row being crossed every newly seen climbable joist parallel to it (an
         attic's joists come in rows 16 in apart, closer than the robot is long)."""
         c = self.config
         _, yaw = self.ahead(self.target)
         grown = False
-        for j in self._relevant(world):
+        for j in self._relevant(sightings):
             if j.height >= c.climb_max_height:
                 continue
             seen = self.track(j)
@@ -644,12 +647,12 @@ class JoistClimb(GaitPlugin):
             for a, b in zip(now, bars, strict=True)
         )
 
-    def _begin_crossing(self, t: float, world: dict[str, Message], holding: FootTargets) -> None:
+    def _begin_crossing(self, t: float, sightings: list[Joist], holding: FootTargets) -> None:
         """Plan the crossing from here (the joist and its row square ahead, the feet at home),
         holding ``holding`` until the plan arrives."""
         self._squarings = 0
         self.row = [self.target]
-        self._grow_row(world)
+        self._grow_row(sightings)
         feet = np.column_stack([self.tripod.feet[:, :2], np.zeros(len(self.tripod.feet))])
         self._request_plan(feet, self.tripod.height)
         self._plan_from = self.pose.copy()
@@ -702,14 +705,14 @@ class JoistClimb(GaitPlugin):
             joist.normal = (turn @ np.array(joist.normal)).tolist()
         self.pose = pose
 
-    def _localised(self, body: BodyState, world: dict[str, Message]) -> np.ndarray:
+    def _localised(self, body: BodyState, sightings: list[Joist]) -> np.ndarray:
         """The measured pose, its heading and its distance across the row fixed by a joist of
         the row in view: dead reckoning drifts by centimetres and degrees over a crossing (feet
         slip, servos lag), the joist being crossed is a landmark that does not. Later odometry
         counts on from the fixed pose."""
         measured = self._measured(body)
         for joist in self.row:
-            seen = self._sighting(joist, world)
+            seen = self._sighting(joist, sightings)
             if seen is None:
                 continue
             n, point = np.array(joist.normal), np.array(joist.point)
@@ -722,11 +725,11 @@ class JoistClimb(GaitPlugin):
             return pose
         return measured
 
-    def _drifted(self, body: BodyState, world: dict[str, Message]) -> bool:
+    def _drifted(self, body: BodyState, sightings: list[Joist]) -> bool:
         """Whether the body has drifted from the planned pose (feet slip, servo lag): then the
         pose becomes the measured one and the rest of the crossing is replanned."""
         c = self.config
-        measured = self._localised(body, world)
+        measured = self._localised(body, sightings)
         turn = math.remainder(measured[2] - self.pose[2], math.tau)
         off = np.hypot(*(measured[:2] - self.pose[:2]))
         if off <= c.replan_drift and abs(turn) <= math.radians(c.replan_yaw_deg):
@@ -764,7 +767,7 @@ class JoistClimb(GaitPlugin):
         self._event(t, f"cross: replanned ({len(self.row)} joists in the row{backed})")
 
     def _step_cross(
-        self, t: float, dt: float, body: BodyState, world: dict[str, Message]
+        self, t: float, dt: float, body: BodyState, sightings: list[Joist]
     ) -> FootTargets:
         if self._held is not None:
             held = self._held[1]
@@ -783,7 +786,7 @@ class JoistClimb(GaitPlugin):
         phase = plan.phase(elapsed)
         if phase != self._phase:
             self._phase = phase
-            if stance.all() and (self._grow_row(world) or self._drifted(body, world)):
+            if stance.all() and (self._grow_row(sightings) or self._drifted(body, sightings)):
                 self._replan(t, out, b, feet)
         if elapsed >= plan.duration:
             self.travelled += float(b[0])

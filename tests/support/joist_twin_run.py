@@ -1,5 +1,6 @@
 """A joist scenario in the stepped MuJoCo twin: the joist_climb gait through IK, ruckig and the
-guard to the twin's servos, with the gait fed either the world's truth or joist perception.
+guard to the twin's servos, deciding from a joist map (the world model's JoistTracks) fed
+either the world's truth (the gait isolated) or joist perception on the twin's depth.
 
 ``run_scenario`` walks the WidowX until it has travelled ``goal`` m and reports what a user
 relies on: decisions, where the body ended, its tilt, which feet are down, and every contact
@@ -17,14 +18,16 @@ import math
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
+import msgspec
 import mujoco
 import numpy as np
 
+from climbd.daemon.algorithms.feature_maps import JoistTracks
 from climbd.daemon.algorithms.motion import MotionPipeline
 from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.geometry import yaw
-from climbd.daemon.contract.messages import BodyState, Joists, Mode
+from climbd.daemon.contract.messages import BodyState, JoistMap, Mode
 from climbd.daemon.contract.profile import stock_profiles
 from climbd.daemon.runtime.loader import Isolated
 from climbd.daemon.runtime.loop import SteppedClock
@@ -34,7 +37,7 @@ from climbd.drivers.sim.twin import Twin
 from climbd.drivers.sim.worlds import JoistRow, World
 from climbd.plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig
 from support.joist_scenes import JoistSpec
-from support.joist_world import perceive
+from support.joist_world import mapped, perceive
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 DT = 0.01
@@ -148,17 +151,21 @@ class _Scene:
         self.twin = twin
         self.truth = truth
         self.perception = perception
+        self.tracks = JoistTracks()
         self.geoms = _geoms(twin)
         self.hits: set[int] = set()
         self.base_hits = 0
 
-    def joists(self, t: float) -> Joists:
-        """The joists seen from the twin's true body pose now."""
-        pos, quat = self.twin.body_pose()
+    def joist_map(self, t: float, body: BodyState) -> JoistMap:
+        """The world model's joist map once the joists seen now are folded in, placed by the
+        pose ``body`` the gait is given: perceived on the twin's depth or, without perception,
+        the truth inside the crop box ahead of the twin's true pose."""
         if self.perception is not None:
-            body = BodyState(position=[float(v) for v in pos], orientation=[float(v) for v in quat])
-            return self.perception.process(self.twin.depth_frame("front"), body)
-        return perceive(self.truth, np.array([pos[0], pos[1], yaw(quat)]), t)
+            seen = self.perception.process(self.twin.depth_frame("front"), body)
+        else:
+            pos, quat = self.twin.body_pose()
+            seen = perceive(self.truth, np.array([pos[0], pos[1], yaw(quat)]), t)
+        return mapped(self.tracks, msgspec.structs.replace(seen, stamp=t, frame_stamp=t), body)
 
     def advance(self, t: float) -> None:
         """Simulate to ``t`` and note the contacts there."""
@@ -184,7 +191,7 @@ def _in_process(
         pos, quat = twin.body_pose()
         body = BodyState(position=[float(v) for v in pos], orientation=[float(v) for v in quat])
         if k % PERCEPTION_PERIOD == 0:
-            world = {Joists.TOPIC: scene.joists(t)}
+            world = {JoistMap.TOPIC: scene.joist_map(t, body)}
         targets = behaviour.step(t, DT, body, world, None)
         twin.command(np.array(pipeline.feet_step(targets).position))
         t += DT
@@ -218,11 +225,11 @@ def _through_driver(
         while safety.mode == Mode.STAND and clock.now() < 1.0 + 3 * WIDOWX.safety.stand_time:
             loop.run(max_ticks=loop.ticks + PERCEPTION_PERIOD)
         assert safety.mode == Mode.HOLD, safety.reason
-        controller.on_feature(scene.joists(clock.now()))
+        controller.on_feature(scene.joist_map(clock.now(), controller.body))
         assert safety.request(Mode.ACTIVE, clock.now(), reason="autonomy")
         end = clock.now() + seconds
         while clock.now() < end and safety.mode == Mode.ACTIVE and not behaviour.done:
-            controller.on_feature(scene.joists(clock.now()))
+            controller.on_feature(scene.joist_map(clock.now(), controller.body))
             loop.run(max_ticks=loop.ticks + PERCEPTION_PERIOD)
         held = "" if safety.mode == Mode.ACTIVE or behaviour.done else safety.reason
         return controller.motion.unreachable_ticks, held

@@ -2,17 +2,20 @@
 
 The robot's true pose is the behaviour's own dead reckoning (feet never slip here), and the
 oracle reports each joist as joist perception would: its near top edge clipped to the 1 m ×
-1.2 m crop box ahead of the body, distance along the heading, signed yaw, height.
+1.2 m crop box ahead of the body, distance along the heading, signed yaw, height. ``mapped``
+folds what it reports into the world model's joist map, which the behaviour reads.
 """
 
 from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 
+from climbd.daemon.algorithms.feature_maps import JoistTracks
 from climbd.daemon.algorithms.kinematics import Kinematics
-from climbd.daemon.contract.messages import BodyState, Joist, Joists
+from climbd.daemon.contract.messages import BodyState, Joist, JoistMap, Joists
 from support.joist_scenes import JoistSpec
 
 CROP = (0.1, 1.1, 0.6)
@@ -55,6 +58,23 @@ def perceive(joists: list[JoistSpec], pose: np.ndarray, stamp: float) -> Joists:
         )
     out.sort(key=lambda j: j.distance)
     return Joists(stamp=stamp, frame_stamp=stamp, joists=out)
+
+
+def mapped(tracks: JoistTracks, seen: Joists, body: BodyState) -> JoistMap:
+    """The world model's joist map once ``seen``, a frame's joists seen from ``body``, is
+    folded into ``tracks``: what the behaviour decides from."""
+    placed = msgspec.structs.replace(
+        seen, frame_position=body.position, frame_orientation=body.orientation
+    )
+    tracks.update(placed, None)
+    return tracks.message(seen.stamp, seen.frame_stamp)
+
+
+def oracle_map(
+    tracks: JoistTracks, joists: list[JoistSpec], pose: np.ndarray, stamp: float
+) -> JoistMap:
+    """The joist map once what a robot at ``pose`` (x, y, yaw) sees is folded into ``tracks``."""
+    return mapped(tracks, perceive(joists, pose, stamp), body_state(pose, stamp))
 
 
 def world_feet(pose: np.ndarray, body_height: float, feet_body: np.ndarray) -> np.ndarray:
