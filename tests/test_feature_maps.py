@@ -6,9 +6,14 @@ import math
 
 import numpy as np
 import pytest
-from support.joist_world import JoistSpec, perceive
+from support.joist_world import JoistSpec, body_state, mapped, perceive
 
-from climbd.daemon.algorithms.feature_maps import HoldTracks, JoistTracks, ViewCone
+from climbd.daemon.algorithms.feature_maps import (
+    HoldTracks,
+    JoistTracks,
+    ViewCone,
+    joists_seen_from,
+)
 from climbd.daemon.algorithms.tracks import TrackConfig, Tracker
 from climbd.daemon.contract.hardware import DepthFrame, Intrinsics
 from climbd.daemon.contract.messages import GraspablePoints, Joist, Joists
@@ -128,3 +133,20 @@ def test_a_joist_seen_from_its_far_side_is_the_same_joist():
     (track,) = tracks.tracker.tracks
     assert track.seen == 2 and track.estimate[0] == pytest.approx(1.01, abs=1e-9)
     assert track.estimate[1] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 30.0, -60.0])
+def test_a_mapped_joist_seen_from_another_pose_is_what_that_pose_would_detect(yaw_deg):
+    """The behaviours' query: a joist mapped from one pose, asked for from another (walked on
+    0.2 m and turned 5°), reads as the detector would report it from there: the same
+    distance along the path, yaw and height as the oracle's detection from that pose."""
+    spec = JoistSpec(0.9, math.radians(yaw_deg), 0.10)
+    tracks = JoistTracks()
+    first = np.array([0.0, 0.0, 0.0])
+    mapped(tracks, perceive([spec], first, 0.0), body_state(first))
+    later = np.array([0.2, 0.02, math.radians(5.0)])
+    (seen,) = joists_seen_from(tracks.message(0.0, 0.0), body_state(later))
+    (truth,) = perceive([spec], later, 0.0).joists
+    assert seen.distance == pytest.approx(truth.distance, abs=1e-9)
+    assert seen.yaw == pytest.approx(truth.yaw, abs=1e-9)
+    assert seen.height == pytest.approx(truth.height)
