@@ -11,12 +11,14 @@ from support.joist_world import JoistSpec, body_state, mapped, perceive
 from climbd.daemon.algorithms.feature_maps import (
     HoldTracks,
     JoistTracks,
+    StairTracks,
     ViewCone,
+    flight,
     joists_seen_from,
 )
 from climbd.daemon.algorithms.tracks import TrackConfig, Tracker
 from climbd.daemon.contract.hardware import DepthFrame, Intrinsics
-from climbd.daemon.contract.messages import GraspablePoints, Joist, Joists
+from climbd.daemon.contract.messages import GraspablePoints, Joist, Joists, Stair, Stairs
 
 HOLDS = np.array([[0.30, 0.10, 0.05], [0.35, -0.12, 0.08], [0.50, 0.00, 0.12]])
 
@@ -150,3 +152,41 @@ def test_a_mapped_joist_seen_from_another_pose_is_what_that_pose_would_detect(ya
     assert seen.distance == pytest.approx(truth.distance, abs=1e-9)
     assert seen.yaw == pytest.approx(truth.yaw, abs=1e-9)
     assert seen.height == pytest.approx(truth.height)
+
+
+def _flight(x0: float, yaw_deg: float, stamp: float) -> Stairs:
+    """Three 13 × 30 cm steps whose first edge is ``x0`` m ahead along ``yaw_deg``, 1 m wide,
+    edges left then right facing up the flight (as stairs perception reports them)."""
+    up = np.array([math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))])
+    left = np.array([-up[1], up[0]])
+    steps = []
+    for k in range(3):
+        middle = (x0 + 0.3 * k) * up
+        ends = [middle + 0.5 * left, middle - 0.5 * left]
+        top = 0.13 * (k + 1)
+        steps.append(
+            Stair(height=top, rise=0.13, depth=0.3, edge=[[*e.tolist(), top] for e in ends])
+        )
+    return Stairs(stamp=stamp, frame_stamp=stamp, steps=steps[::-1])
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 100.0, -170.0])
+def test_stair_steps_keep_their_identity_and_fuse_as_the_flight_is_seen_again(yaw_deg):
+    """Each step is one track across frames whatever the flight's heading; a frame 1 cm off
+    moves the step by a fraction of it; the map lists the flight bottom first, edges left then
+    right, as the stair gait's model reads them."""
+    tracks = StairTracks()
+    tracks.update(_flight(0.8, yaw_deg, 0.0), None)
+    first = tracks.message(0.0, 0.0)
+    tracks.update(_flight(0.81, yaw_deg, 0.1), None)
+    second = tracks.message(0.1, 0.1)
+    assert [s.id for s in first.steps] == [s.id for s in second.steps]
+    assert [s.height for s in second.steps] == pytest.approx([0.13, 0.26, 0.39])
+    assert all(s.seen == 2 and s.rise == pytest.approx(0.13) for s in second.steps)
+    (truth,) = [s for s in _flight(0.8, yaw_deg, 0.0).steps if s.height == pytest.approx(0.13)]
+    np.testing.assert_allclose(first.steps[0].edge, truth.edge, atol=1e-9)
+    up = np.array([math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))])
+    moved = np.mean(second.steps[0].edge, axis=0)[:2] @ up - 0.8
+    assert 0.0 < moved < 0.01
+    model_input = flight(second)
+    assert [s.height for s in model_input.steps] == [s.height for s in second.steps]

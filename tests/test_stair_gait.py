@@ -13,7 +13,14 @@ from conftest import ROOT
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract import profile as profiles
-from climbd.daemon.contract.messages import BodyState, MotionCommand, Stair, Stairs
+from climbd.daemon.contract.messages import (
+    BodyState,
+    MappedStair,
+    MotionCommand,
+    Stair,
+    StairMap,
+    Stairs,
+)
 from climbd.daemon.contract.plugins import PluginError
 from climbd.daemon.runtime.loader import load_class
 from climbd.plugins.gaits.stair_gait import StairGait, StairGaitConfig, swing_phases, swing_point
@@ -460,7 +467,10 @@ def test_each_half_cycle_reports_its_step_and_a_wall_the_wait() -> None:
     gait.start(BodyState(), Kinematics(profile).stand_feet(0.29))
     top = 0.6 - 0.29 - gait.geometry.foot_radius  # the floor under the feet, 0.6 m down
     edge = [[0.8, 0.6, top], [0.8, -0.6, top]]
-    world = {Stairs.TOPIC: Stairs(steps=[Stair(height=top, rise=0.6, depth=1.0, edge=edge)])}
+    riser = MappedStair(
+        id=1, confidence=1.0, seen=1, age=0.0, height=top, rise=0.6, depth=1.0, edge=edge
+    )
+    world = {StairMap.TOPIC: StairMap(steps=[riser])}
     reports, dt = [], 1e-3
     for k in range(int(14.0 / dt)):
         gait.step(k * dt, dt, BodyState(), world, MotionCommand(vx=0.1))

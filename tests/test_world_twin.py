@@ -52,7 +52,7 @@ def mapped():
             world.frame(frame, body)
     finally:
         twin.stop()
-    (terrain, _, _) = world.messages(2.0)
+    terrain = world.messages(2.0)[0]
     return TerrainView(terrain), row, tall
 
 

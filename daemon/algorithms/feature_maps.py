@@ -1,4 +1,5 @@
-"""The world model's feature maps: holds and joists tracked across frames in the odometry frame.
+"""The world model's feature maps: holds, joists and stair steps tracked across frames in the
+odometry frame.
 
 A perception plugin reports what one frame showed, in the body frame at the frame's time; the
 feature carries that pose (``frame_position``, ``frame_orientation``), so here it is placed in
@@ -25,6 +26,10 @@ from climbd.daemon.contract.messages import (
     Joists,
     MappedHold,
     MappedJoist,
+    MappedStair,
+    Stair,
+    StairMap,
+    Stairs,
 )
 
 JOIST_MEMORY = 4.0
@@ -138,8 +143,8 @@ def _estimates(tracks: list[Track]) -> np.ndarray:
     return np.array([t.estimate for t in tracks]).reshape(-1, 3)
 
 
-def _joist_distance(track: np.ndarray, seen: np.ndarray) -> float:
-    """Gate distance of two joists (offset, heading, height, edge z): either normal direction."""
+def _line_distance(track: np.ndarray, seen: np.ndarray) -> float:
+    """Gate distance of two edge lines (offset, heading, height, …): either normal direction."""
     same = abs(track[0] - seen[0]) + LEVER * abs(wrap(track[1] - seen[1]))
     flipped = abs(track[0] + seen[0]) + LEVER * abs(wrap(track[1] - seen[1] - math.pi))
     return min(same, flipped) + abs(track[2] - seen[2])
@@ -152,37 +157,37 @@ def _extent(heading: float, edge: np.ndarray) -> tuple[float, float]:
     return float(s.min()), float(s.max())
 
 
-def _joist_start(track: Track, edge: object) -> None:
+def _line_start(track: Track, edge: object) -> None:
     track.extra["extent"] = _extent(track.estimate[1], np.asarray(edge))
 
 
-def _joist_fuse(track: Track, seen: np.ndarray, gain: float, edge: object) -> None:
-    """Running mean of offset, heading (on the circle), height and edge z, in the track's own
-    normal direction; the edge's extent along the line grows to cover what was seen."""
-    offset, heading, height, z = seen
+def _line_fuse(track: Track, seen: np.ndarray, gain: float, edge: object) -> None:
+    """Running mean of offset, heading (on the circle) and the rest (height, edge z, …), in the
+    track's own normal direction; the edge's extent along the line grows to cover what was
+    seen."""
+    offset, heading = seen[:2]
     if abs(wrap(heading - track.estimate[1])) > math.pi / 2:
         offset, heading = -offset, wrap(heading + math.pi)
-    c, h, top, zz = track.estimate
-    track.estimate = np.array(
-        [
-            c + gain * (offset - c),
-            wrap(h + gain * wrap(heading - h)),
-            top + gain * (height - top),
-            zz + gain * (z - zz),
-        ]
-    )
+    c, h = track.estimate[:2]
+    rest = track.estimate[2:] + gain * (seen[2:] - track.estimate[2:])
+    track.estimate = np.array([c + gain * (offset - c), wrap(h + gain * wrap(heading - h)), *rest])
     lo, hi = track.extra["extent"]
     s0, s1 = _extent(track.estimate[1], np.asarray(edge))
     track.extra["extent"] = (min(lo, s0), max(hi, s1))
+
+
+def _line(edge: np.ndarray, heading: float) -> tuple[float, np.ndarray]:
+    """Offset of an edge's line of normal ``heading`` (n·p), and the edge's mean point."""
+    middle = edge.mean(axis=0)
+    return float(np.array([math.cos(heading), math.sin(heading)]) @ middle[:2]), middle
 
 
 class JoistTracks:
     """Joists tracked as lines in the odometry frame."""
 
     def __init__(self, config: TrackConfig | None = None) -> None:
-        self.tracker = Tracker(
-            config or TrackConfig(gate=0.08, memory=JOIST_MEMORY), _joist_distance, _joist_fuse, _joist_start
-        )
+        config = config or TrackConfig(gate=0.08, memory=JOIST_MEMORY)
+        self.tracker = Tracker(config, _line_distance, _line_fuse, _line_start)
 
     def update(self, seen: Joists, cone: ViewCone | None) -> None:
         """Fold one frame's joists in."""
@@ -191,12 +196,11 @@ class JoistTracks:
         for joist in seen.joists:
             edge = to_odometry(joist.endpoints, seen.frame_position, seen.frame_orientation)
             heading = wrap(joist.yaw + heading0)
-            normal = np.array([math.cos(heading), math.sin(heading)])
-            offset = float(normal @ edge[:, :2].mean(axis=0))
-            vectors.append(np.array([offset, heading, joist.height, edge[:, 2].mean()]))
+            offset, middle = _line(edge, heading)
+            vectors.append(np.array([offset, heading, joist.height, middle[2]]))
             confidences.append(joist.confidence)
             edges.append(edge)
-        in_view = None if cone is None else (lambda ts: cone.contains(_joist_middles(ts)))
+        in_view = None if cone is None else (lambda ts: cone.contains(_line_middles(ts)))
         self.tracker.update(vectors, confidences, seen.frame_stamp, in_view, edges)
 
     def message(self, stamp: float, now: float) -> JoistMap:
@@ -207,17 +211,67 @@ class JoistTracks:
         )
 
 
+class StairTracks:
+    """Stair steps (paper 004) tracked by their edges, as lines in the odometry frame; the
+    normal points up the flight, so a step seen again from anywhere is the same line."""
+
+    def __init__(self, config: TrackConfig | None = None) -> None:
+        config = config or TrackConfig(gate=0.05, memory=JOIST_MEMORY)
+        self.tracker = Tracker(config, _line_distance, _line_fuse, _line_start)
+
+    def update(self, seen: Stairs, cone: ViewCone | None) -> None:
+        """Fold one frame's steps in (already in the odometry frame, edges left then right)."""
+        vectors, edges = [], []
+        for step in seen.steps:
+            edge = np.asarray(step.edge, float).reshape(-1, 3)
+            if len(edge) < 2:
+                continue
+            right = edge[-1, :2] - edge[0, :2]  # left end to right end
+            heading = math.atan2(right[0], -right[1])  # turned a quarter left: up the flight
+            offset, middle = _line(edge, heading)
+            top = [step.height, middle[2], step.rise, step.depth]
+            vectors.append(np.array([offset, heading, *top]))
+            edges.append(edge)
+        in_view = None if cone is None else (lambda ts: cone.contains(_line_middles(ts)))
+        self.tracker.update(vectors, [1.0] * len(vectors), seen.frame_stamp, in_view, edges)
+
+    def message(self, stamp: float, now: float) -> StairMap:
+        tracks = sorted(self.tracker.tracks, key=lambda t: t.estimate[2])
+        return StairMap(stamp=stamp, frame_stamp=now, steps=[_mapped_stair(t, now) for t in tracks])
+
+
+def flight(stairs: StairMap) -> Stairs:
+    """The stair map as one flight, bottom step first, for a behaviour's stair model."""
+    steps = [Stair(height=s.height, rise=s.rise, depth=s.depth, edge=s.edge) for s in stairs.steps]
+    return Stairs(stamp=stairs.stamp, frame_stamp=stairs.frame_stamp, steps=steps)
+
+
 def _edge(track: Track) -> list[list[float]]:
-    """The tracked edge's two ends (x, y, z), odometry frame."""
-    offset, heading, _, z = track.estimate
+    """The tracked edge's two ends (x, y, z), odometry frame, in the tangent's direction (for a
+    stair, right end then left)."""
+    offset, heading, _, z = track.estimate[:4]
     normal = np.array([math.cos(heading), math.sin(heading)])
     tangent = np.array([-normal[1], normal[0]])
     lo, hi = track.extra["extent"]
     return [[*(offset * normal + s * tangent).tolist(), float(z)] for s in (lo, hi)]
 
 
-def _joist_middles(tracks: list[Track]) -> np.ndarray:
+def _line_middles(tracks: list[Track]) -> np.ndarray:
     return np.array([np.mean(_edge(t), axis=0) for t in tracks]).reshape(-1, 3)
+
+
+def _mapped_stair(track: Track, now: float) -> MappedStair:
+    _, _, height, _, rise, depth = track.estimate
+    return MappedStair(
+        id=track.id,
+        height=float(height),
+        rise=float(rise),
+        depth=float(depth),
+        edge=[[float(v) for v in e] for e in reversed(_edge(track))],
+        confidence=track.confidence,
+        seen=track.seen,
+        age=now - track.last_seen,
+    )
 
 
 def _mapped_joist(track: Track, now: float) -> MappedJoist:

@@ -19,7 +19,7 @@ import numpy as np
 
 from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.algorithms.elevation import ElevationConfig, ElevationMap, Window
-from climbd.daemon.algorithms.feature_maps import HoldTracks, JoistTracks, ViewCone
+from climbd.daemon.algorithms.feature_maps import HoldTracks, JoistTracks, StairTracks, ViewCone
 from climbd.daemon.algorithms.terrain import TerrainConfig, terrain_layers
 from climbd.daemon.contract.hardware import DepthFrame
 from climbd.daemon.contract.messages import (
@@ -28,6 +28,7 @@ from climbd.daemon.contract.messages import (
     Feature,
     GraspablePoints,
     Joists,
+    Stairs,
     TerrainMap,
 )
 from climbd.daemon.contract.units import Positive
@@ -208,6 +209,7 @@ class WorldModel:
         self.terrain = TerrainModel(self.config)
         self.holds = HoldTracks()
         self.joists = JoistTracks()
+        self.stairs = StairTracks()
         self._cone: ViewCone | None = None
         self._body: BodyState | None = None
 
@@ -224,6 +226,8 @@ class WorldModel:
             self.joists.update(feature, self._cone)
         elif isinstance(feature, GraspablePoints):
             self.holds.update(feature, self._cone)
+        elif isinstance(feature, Stairs):
+            self.stairs.update(feature, self._cone)
 
     def messages(self, stamp: float) -> list[Feature]:
         """The maps to publish (nothing before the first frame)."""
@@ -234,4 +238,5 @@ class WorldModel:
             self.terrain.message(stamp, body),
             self.holds.message(stamp, body.stamp),
             self.joists.message(stamp, body.stamp),
+            self.stairs.message(stamp, body.stamp),
         ]

@@ -526,6 +526,25 @@ class Stairs(AlignedFeature):
     steps: Annotated[list[Stair], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
+class MappedStair(Tracked, kw_only=True):
+    """A step of the stair map, odometry frame: as a Stair (tread top ``height``, ``rise``,
+    tread ``depth``, ``edge`` ends left then right facing up the flight), tracked."""
+
+    height: float
+    rise: float
+    depth: float
+    edge: Vectors
+
+
+class StairMap(Feature):
+    """The world model's stair steps (paper 004) tracked across frames, odometry frame, bottom
+    step first."""
+
+    TOPIC: ClassVar[str] = "features/stair_map"
+    RATE: ClassVar[str] = "2 Hz"
+    steps: Annotated[list[MappedStair], msgspec.Meta(max_length=MAX_FEATURES)] = []
+
+
 FEATURES: tuple[type[Feature], ...] = (
     ElevationGrid,
     TerrainMap,
@@ -535,6 +554,7 @@ FEATURES: tuple[type[Feature], ...] = (
     HoldMap,
     TrussMembers,
     Stairs,
+    StairMap,
 )
 """The features of the contract's own perception plugins and of the world model."""
 
@@ -597,6 +617,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     DepthImage,
     TrussMembers,
     Stairs,
+    StairMap,
 )
 
 

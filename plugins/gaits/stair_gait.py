@@ -5,7 +5,7 @@ Every half cycle one tripod (group A: MF, RB, LB; group B: MB, RF, LF, by the es
 rule) swings while the other stands; it opens with both down (``transfer``), marked ``unload``,
 while the controller passes the weight feed-forward to the tripod that landed. At the start of each
 half cycle the planner (plugins/gaits/stair_plan.py) computes this step's length and height and the
-next step's length from the latest ``Stairs`` (odometry frame) and the footholds; the body advances
+next step's length from the ``StairMap`` (odometry frame) and the footholds; the body advances
 half the step along its heading from this lift-off to the next (its half step lags the half cycle by
 the transfer, so a tripod lifts with the body where the plan put it), its height and pitch following
 the terrain under it, with its speed at each lift-off the mean of the two planned half steps (two
@@ -33,6 +33,7 @@ import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.estimation import tripod_groups
+from climbd.daemon.algorithms.feature_maps import flight
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import (
@@ -40,6 +41,7 @@ from climbd.daemon.contract.messages import (
     FootTargets,
     Message,
     MotionCommand,
+    StairMap,
     Stairs,
     StairStep,
 )
@@ -193,6 +195,7 @@ class StairGait(GaitPlugin):
         self.start_rot = rot
         self.start_z = float(pos[2])
         self.model: StairModel | None = None
+        self._map: StairMap | None = None
         self._stairs: Stairs | None = None
         self.body_s, self.t0 = 0.0, None
         self.half_steps: list[HalfStep] = []  # the last two
@@ -211,11 +214,14 @@ class StairGait(GaitPlugin):
     # --- the model ------------------------------------------------------------------------
 
     def _update_model(self, world: dict[str, Message]) -> None:
-        stairs = world.get(Stairs.TOPIC)
-        if self.model is not None and (stairs is None or stairs is self._stairs):
+        stairs = world.get(StairMap.TOPIC)
+        if not isinstance(stairs, StairMap):
+            stairs = None
+        if self.model is not None and (stairs is None or stairs is self._map):
             return
         if stairs is not None:
-            self._stairs = stairs
+            self._map = stairs
+            self._stairs = flight(stairs)
         left = np.array([-math.sin(self.yaw), math.cos(self.yaw), 0.0])
         lanes = (self.feet - self.origin) @ left
         ground = float(self.feet[:, 2].mean()) - self.geometry.foot_radius

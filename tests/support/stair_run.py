@@ -5,9 +5,10 @@ tests/support/qingzhui_twin.py, with collision, foothold and estimate checks fro
 The stair model is the world's own geometry as a ``Stairs`` message in the odometry frame (what
 perception reports, without its noise: the camera sees the stairs from the true pose and places
 them with the estimated one, so the estimate's drift moves them with the body; tests/test_stairs.py
-measures perception separately). With ``icp``, every ``CLOUD_PERIOD`` the front camera's cloud
-goes through the stairs perception plugin's ICP onto its stitched map, and the message carries
-that alignment to the estimator's filter 2, as the plugin's own does.
+measures perception separately), folded into the world model's stair map, which the gait reads:
+these runs isolate the gait from perception. With ``icp``, every ``CLOUD_PERIOD`` the front
+camera's cloud goes through the stairs perception plugin's ICP onto its stitched map, and the
+message carries that alignment to the estimator's filter 2, as the plugin's own does.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 
 from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, quaternion
+from climbd.daemon.algorithms.feature_maps import StairTracks
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import MotionCommand, Stair, Stairs
 from climbd.daemon.runtime.loader import Isolated
@@ -141,6 +143,7 @@ class StairRun:
         self.world = world
         self.perception = StairPerception(StairsConfig(voxel=CLOUD_VOXEL)) if icp else None
         self.stairs = world_stairs(world)
+        self.stair_map = StairTracks()
         rig = QingzhuiRig(world, start_x=start_x, feed_forward=feed_forward)
         cfg = StairGaitConfig(foot_radius=rig.twin.robot.foot_radius, **config)
         self.gait = StairGait(cfg, rig.profile)
@@ -216,7 +219,7 @@ class StairRun:
         self.rig.stand()
         est = self.rig.start_estimator()
         self.plain = StateEstimator(self.rig.profile, est.config, est.pos, quaternion(est.rot))
-        self.rig.controller.on_feature(self.stairs)
+        self._see(self.stairs)
 
     def walk(self, vx: float, seconds: float) -> None:
         """Walk with forward speed ``vx`` (m/s; negative walks backward) for ``seconds``."""
@@ -232,10 +235,19 @@ class StairRun:
             seen = odometry_stairs(
                 self.stairs, rig.twin.body_pose(), rig.controller.estimator.pose()
             )
-            rig.controller.on_feature(seen if self.perception is None else self._aligned(seen))
+            self._see(seen if self.perception is None else self._aligned(seen))
             rig.run(min(step, seconds - done))
             done += step
         self.log.seconds += seconds
+
+    def _see(self, seen: Stairs) -> None:
+        """What the perception role sends the controller of a frame's stairs: the frame's
+        Stairs (its alignment is the estimator's drift measurement) and the stair map the
+        world model folds it into (which the gait plans on)."""
+        controller = self.rig.controller
+        controller.on_feature(seen)
+        self.stair_map.update(seen, None)
+        controller.on_feature(self.stair_map.message(seen.stamp, seen.frame_stamp))
 
     def _aligned(self, seen: Stairs) -> Stairs:
         """``seen`` with the alignment of the front camera's cloud now, placed with the
