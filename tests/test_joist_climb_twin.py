@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from support.joist_twin_run import run_scenario
 
-from climbd.drivers.sim.worlds import INCH, JoistRow
+from climbd.drivers.sim.worlds import JoistRow
 from climbd.plugins.perception.joist_perception import JoistPerception
 
 TABLE_2 = [
@@ -64,6 +64,12 @@ def assert_went_round(outcome, row: JoistRow) -> None:
     assert outcome.link_hits == set() and outcome.base_hits == 0
 
 
+IN_TESTS = (1, 4, 6, 7)
+"""Table 2 cases the tests run on true joists (test 3 runs on perception): a straight climb, the
+45° and 75° obliques, the far high joist. Tests 2 (1.5 m) and 5 (60°) and the attic row of
+three joists 16 in apart are in bench/joist_climb.py with the rest, to keep the suite short."""
+
+
 def table_2_row(distance: float, yaw_deg: float, height: float) -> JoistRow:
     return JoistRow(height=height, distance=distance, width=0.04, length=1.8, yaw_deg=yaw_deg)
 
@@ -78,7 +84,7 @@ def assert_table_2(outcome, row: JoistRow) -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("test", "distance", "yaw_deg", "height"), [case for case in TABLE_2 if case[0] != 3]
+    ("test", "distance", "yaw_deg", "height"), [case for case in TABLE_2 if case[0] in IN_TESTS]
 )
 def test_table_2_isolating_the_gait_on_a_map_of_true_joists(test, distance, yaw_deg, height):
     row = table_2_row(distance, yaw_deg, height)
@@ -91,16 +97,6 @@ def test_table_2_test_3_on_a_map_of_the_joists_perceived_in_the_twins_depth():
     row = table_2_row(distance, yaw_deg, height)
     outcome = run_scenario([row], goal=distance + 0.5, seconds=300.0, perception=JoistPerception())
     assert_table_2(outcome, row)
-
-
-@pytest.mark.slow
-def test_a_row_of_three_joists_16_inches_apart_is_climbed_one_after_another_isolating_the_gait():
-    """The attic of paper 000's introduction: 10 cm joists 16 in (0.406 m) apart, closer than
-    the robot is long, so the crossing plan grows as each joist comes into view."""
-    row = JoistRow(height=0.10, distance=1.0, count=3, spacing=16 * INCH, width=0.04, length=1.8)
-    outcome = run_scenario([row], goal=2.6, seconds=420.0)
-    assert any("3 joists in the row" in e for e in outcome.events), outcome.events
-    assert_climbed(outcome, row, last=2)
 
 
 @pytest.mark.slow
