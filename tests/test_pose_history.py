@@ -27,10 +27,13 @@ RATE = 0.5
 """rad/s: the turn."""
 DELAY = 0.1
 """s: from a frame's exposure to perception."""
-TABLE_1_YAW = 1.1
+FRAME_YAW = 0.5
 """Degrees: the joist detector's yaw error on single frames of this scene, at up to 14° to the
-joist (Table 1 allows 2°). It, not the pairing, bounds the spread across the turn: 1.15°
-measured against the issue's 1°."""
+joist (Table 1 allows 2°; 0.28° measured since the near edge is refined on its sub-cell
+crossings, 1.05° before)."""
+SPREAD_YAW = 1.0
+"""Degrees: the issue's bound on the detections' heading spread across the turn (0.43°
+measured; 1.15° before the edge refinement)."""
 
 
 def turning(t: float, rate: float = RATE) -> BodyState:
@@ -182,7 +185,8 @@ def test_a_fixed_joist_stays_put_while_turning_with_the_pose_at_frame_time():
     face = row.distance - row.width / 2
     assert np.ptp(paired[:, 1]) <= 0.01
     assert np.all(np.abs(paired[:, 1] - face) <= 0.01)
-    assert np.all(np.abs(np.degrees(paired[:, 0])) <= TABLE_1_YAW)
+    assert np.all(np.abs(np.degrees(paired[:, 0])) <= FRAME_YAW)
+    assert math.degrees(np.ptp(paired[:, 0])) <= SPREAD_YAW
     assert abs(math.degrees(np.median(paired[:, 0]))) <= 0.3
     drift = math.degrees(np.median(latest[:, 0] - paired[:, 0]))
     assert drift == pytest.approx(math.degrees(RATE * DELAY), abs=0.2)

@@ -23,6 +23,11 @@ import numpy as np
 from climbd.daemon.algorithms.elevation import Grid
 from climbd.daemon.contract.messages import Joist
 
+REFINE_PIECE = 8.0
+"""Cells of the near edge each half-height crossing of the refinement is taken over."""
+REFINE_MIN_PIECES = 4
+"""Pieces with a crossing needed to refine the edge's line."""
+
 
 class JoistConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Detection thresholds (paper 000 defaults) and Edge Drawing parameters."""
@@ -281,6 +286,31 @@ class JoistDetector:
             groups.setdefault(find(i), []).append(item)
         return list(groups.values())
 
+    def _refine(
+        self, grid: Grid, n: np.ndarray, d: np.ndarray, c_near: float, along: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """The near edge's line (n · p = c, cells) fitted to its half-height crossings, piece
+        by piece along it: Edge Drawing's segments sit on whole cells, so their direction is
+        off by up to a degree; the crossings are sub-cell. Unchanged when too few pieces show
+        the step (an occluded or short edge)."""
+        cfg = self.config
+        at, offsets = [], []
+        for a in np.arange(along.min(), along.max() - REFINE_PIECE / 2, REFINE_PIECE):
+            piece = Segment(c_near * n + a * d, c_near * n + (a + REFINE_PIECE) * d)
+            step = edge_step(
+                grid.filled, grid.observed, piece, cfg.side_near, cfg.side_far, cfg.min_height
+            )
+            if step.support >= 0.5 and step.observed >= cfg.min_observed and step.crossing:
+                at.append(a + REFINE_PIECE / 2)
+                offsets.append(step.crossing * float(n @ piece.normal))
+        if len(at) < REFINE_MIN_PIECES:
+            return n, d, c_near
+        slope, intercept = np.polyfit(at, offsets, 1)
+        scale = math.hypot(1.0, slope)
+        refined_n = (n - slope * d) / scale
+        refined_d = (d + slope * n) / scale
+        return refined_n, refined_d, float(refined_n @ ((c_near + intercept) * n))
+
     def _joist(self, grid: Grid, group: list[tuple[Segment, EdgeStep]]) -> Joist | None:
         """One joist from a group of segments: near edge, ψ, height, extent, confidence.
 
@@ -307,9 +337,11 @@ class JoistDetector:
 
         rising = [it for it in group if it[1].rising == bool(n @ it[0].normal > 0)]
         near_seg, near_step = min(rising or group, key=offset)
-        c_cells = offset((near_seg, near_step)) + c.edge_bias
         ends = np.array([p for s, _ in group for p in (s.p0, s.p1)])
         along = ends @ d
+        n, d, c_near = self._refine(grid, n, d, offset((near_seg, near_step)), along)
+        along = ends @ d
+        c_cells = c_near + c.edge_bias
         # Cell coordinates (row, col) → body (x, y): centre of cell (r, c).
         origin = np.array([grid.origin_x, grid.origin_y]) / res + 0.5
         c_body = c_cells + float(n @ origin)
