@@ -7,8 +7,11 @@ Baseline, in the same run and on the same frames: ``PaperPipeline`` (the accumul
 the last 10 frames re-gridded from scratch every frame, 8-bit Telea, Edge Drawing, eq. 1
 strip means). Both for the 1 m box and the 3 m box of test 7. Goal: our median ≤ 10 ms.
 Also writes docs/img/joists_detection.png (one detection overlaid on the grid).
+``--accuracy``: Table 1's errors instead (the 10 and 18 cm joists at 30–75°, walked toward from
+1 m to 0.55 m, four frames each, as tests/test_joists_tables.py): our largest yaw, height and
+distance errors beside the paper's pipeline's yaw error on the same frames.
 
-    .venv/bin/python bench/joists.py [--repeats 5] [--frames 12]
+    .venv/bin/python bench/joists.py [--repeats 5] [--frames 12] [--accuracy]
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from support.joist_scenes import JoistSpec, body_state, render  # noqa: E402
 
 from climbd.daemon.algorithms.elevation import ElevationConfig  # noqa: E402
+from climbd.plugins.perception import joists  # noqa: E402
 from climbd.plugins.perception.joist_perception import (  # noqa: E402
     JoistPerception,
     JoistPerceptionConfig,
@@ -100,11 +104,64 @@ def overlay(plugin: JoistPerception, path: Path) -> None:
     cv2.imwrite(str(path), img, [cv2.IMWRITE_PNG_COMPRESSION, 9])
 
 
+def table_1_errors(joist: JoistSpec, seed: int) -> tuple[np.ndarray, list[float]]:
+    """Our (yaw °, height m, distance m) errors and the paper's pipeline's yaw errors (°) on
+    the four frames of a Table 1 walk."""
+    plugin, paper = JoistPerception(), PaperPipeline()
+    rng = np.random.default_rng(seed)
+    yaw_deg = math.degrees(joist.yaw)
+    errors, paper_yaw = [], []
+    for x in (0.0, 0.15, 0.3, 0.45):
+        points, body = render([joist], x=x, rng=rng), body_state(x)
+        (nearest, *_) = plugin.process_cloud(points, body, x).joists
+        errors.append(
+            (
+                abs(math.degrees(nearest.yaw) - yaw_deg),
+                abs(nearest.height - joist.height),
+                abs(nearest.distance - joist.distance_from(x, 0.0)),
+            )
+        )
+        theirs = paper.process(points, body)
+        if theirs:
+            paper_yaw.append(min(abs(math.degrees(j.yaw) - yaw_deg) for j in theirs))
+    return np.max(errors, axis=0), paper_yaw
+
+
+def accuracy() -> None:
+    """Table 1 errors of ours, of ours without the near edge's refinement (the ablation), and
+    of the paper's pipeline, on the same ray-cast frames."""
+    print(
+        "| height | yaw | ours: yaw error max | height error max | distance error max | "
+        "without edge refinement: yaw error max | paper's way: yaw error max |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for height in (0.10, 0.18):
+        for yaw_deg in (30.0, 45.0, 60.0, 70.0, 75.0):
+            joist = JoistSpec(distance=1.0, yaw=math.radians(yaw_deg), height=height)
+            seed = int(height * 100 + yaw_deg)
+            worst, paper_yaw = table_1_errors(joist, seed)
+            refine, joists.REFINE_MIN_PIECES = joists.REFINE_MIN_PIECES, sys.maxsize
+            try:
+                unrefined, _ = table_1_errors(joist, seed)
+            finally:
+                joists.REFINE_MIN_PIECES = refine
+            their = f"{max(paper_yaw):.2f}°" if paper_yaw else "none found"
+            print(
+                f"| {height * 100:.0f} cm | {yaw_deg:.0f}° | {worst[0]:.2f}° | "
+                f"{worst[1] * 1000:.1f} mm | {worst[2] * 1000:.1f} mm | {unrefined[0]:.2f}° | "
+                f"{their} |"
+            )
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--frames", type=int, default=12)
+    parser.add_argument("--accuracy", action="store_true", help="Table 1's errors, not times")
     args = parser.parse_args()
+    if args.accuracy:
+        accuracy()
+        return 0
     joist = JoistSpec(distance=1.0, yaw=math.radians(45.0), height=0.10)
     rows = []
     for label, length in (("1 m box", 1.0), ("3 m box", 3.0)):
