@@ -1,0 +1,107 @@
+"""Graspable holds seen by HubRobo's own camera in the twin, against the holds placed there.
+
+For each hold-map seed of ``slope_map`` (the free-climb bench's maps), HubRobo stands gripping
+its start holds; the twin ray-casts its D435 (640×480, 45° down) and graspable detection
+(paper 001, the perception plugin's defaults) runs on the body-frame cloud. Scored by the twin's
+truth: a detection is true when a placed hold's top centre lies within ``--tolerance`` (m, in
+the wall plane) of it; recall counts the placed holds in view (inside the image, on the board)
+that some detection found. The baseline, in the same run: a flat board with no holds (every
+detection there is false). Detection time is the median over the seeds.
+
+    .venv/bin/python bench/hold_recall.py [--seeds 8] [--tolerance 0.01]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from support.climb_run import SlopeClimb  # noqa: E402
+
+from climbd.daemon.contract.messages import BodyState  # noqa: E402
+from climbd.plugins.perception.graspable import GraspablePerception  # noqa: E402
+
+
+def in_view(climb: SlopeClimb, body_points: np.ndarray) -> np.ndarray:
+    """Which body-frame points the front camera's image covers within its range."""
+    frame = climb.twin.depth_frame("front")
+    k, to_body = frame.intrinsics, np.asarray(frame.extrinsics)
+    cam = (body_points - to_body[:3, 3]) @ to_body[:3, :3]
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = k.fx * cam[:, 0] / z + k.ppx
+        v = k.fy * cam[:, 1] / z + k.ppy
+    return (z > 0.05) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+
+
+def score(seed: int, tolerance: float, plugin: GraspablePerception) -> tuple[int, int, int, float]:
+    """(holds in view, of them found, false detections, detection seconds) for one map."""
+    climb = SlopeClimb(periodic=False, seed=seed)
+    try:
+        frame = climb.twin.depth_frame("front")
+        start = time.perf_counter()
+        found = np.asarray(plugin.process(frame, BodyState()).points).reshape(-1, 3)
+        seconds = time.perf_counter() - start
+        base = climb.runner.base
+        tops = climb.holds.copy()
+        tops[:, 2] -= climb.twin.robot.foot_radius  # the top face, not the foot on it
+        holds = tops - base
+        visible = holds[in_view(climb, holds)]
+        if not len(found):
+            return len(visible), 0, 0, seconds
+        near, _ = cKDTree(found[:, :2]).query(visible[:, :2])
+        hits = int(np.count_nonzero(near <= tolerance))
+        to_hold, _ = cKDTree(holds[:, :2]).query(found[:, :2])
+        false = int(np.count_nonzero(to_hold > tolerance))
+        return len(visible), hits, false, seconds
+    finally:
+        climb.close()
+
+
+def flat_board(plugin: GraspablePerception) -> int:
+    """Detections on a board without holds, seen from the same stance (all false)."""
+    climb = SlopeClimb(periodic=False, seed=0)
+    try:
+        twin = climb.twin
+        for g in twin.robot.graspable_geoms:
+            twin.model.geom_rgba[g, 3] = 0.0
+            twin.model.geom_size[g] = 1e-6
+        frame = climb.twin.depth_frame("front")
+        return len(plugin.process(frame, BodyState()).points)
+    finally:
+        climb.close()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=8)
+    parser.add_argument("--tolerance", type=float, default=0.01)
+    args = parser.parse_args()
+    plugin = GraspablePerception()
+    print("| seed | holds in view | found | recall | false detections | detection (s) |")
+    print("|---|---|---|---|---|---|")
+    times, seen, hit = [], 0, 0
+    for seed in range(args.seeds):
+        visible, found, false, seconds = score(seed, args.tolerance, plugin)
+        times.append(seconds)
+        seen, hit = seen + visible, hit + found
+        print(
+            f"| {seed} | {visible} | {found} | {found / max(visible, 1):.0%} | {false} "
+            f"| {seconds:.2f} |"
+        )
+    print(
+        f"all: recall {hit / max(seen, 1):.0%} ({hit}/{seen}), median detection "
+        f"{statistics.median(times):.2f} s per 640×480 frame"
+    )
+    print(f"baseline, the board without holds: {flat_board(plugin)} detections (all false)")
+
+
+if __name__ == "__main__":
+    main()
