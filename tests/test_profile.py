@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import re
 import subprocess
 import sys
@@ -9,9 +10,11 @@ from pathlib import Path
 
 import pytest
 
+from climbd.daemon.algorithms.world import WorldConfig
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import EstopPolicy
 from climbd.daemon.runtime.loader import check_driver
+from climbd.daemon.runtime.perception_role import PerceptionRole
 from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.torque.config import TorqueConfig, can_frame_bits
 
@@ -306,3 +309,41 @@ def test_profile_check_validates_the_bus_driver(tmp_path: Path, old, new, fragme
 )
 def test_profile_check_validates_plugins(tmp_path: Path, old: str, new: str, fragment: str) -> None:
     assert_check_refuses(tmp_path, old, new, fragment)
+
+
+@pytest.mark.parametrize(
+    "world,fragment",
+    [
+        ("[world.elevation]\nlength = -1.0\n", "$.world.elevation: elevation config: length"),
+        ("[world]\ndecimation = 0\n", "$.world: world config: decimation must be >= 1"),
+        ("[world.joists]\ngates = 0.1\n", "$.world.joists: Object contains unknown field `gates`"),
+    ],
+)
+def test_profile_check_validates_the_world_model(tmp_path: Path, world, fragment) -> None:
+    bad = write(tmp_path, base_text() + world)
+    res = subprocess.run(
+        [sys.executable, "-m", "climbd.daemon.cli", "profile", "check", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert res.returncode == 1 and str(bad) in res.stderr and fragment in res.stderr, res.stderr
+
+
+def test_world_section_configures_the_perception_roles_world_model(tmp_path: Path) -> None:
+    """The profile's ``[world]`` reaches the world model the perception role runs; what it does
+    not set keeps the defaults."""
+    (tmp_path / "widowx.toml").write_text(base_text())
+    path = write(
+        tmp_path,
+        'include = "widowx.toml"\n[world]\npublish_period = 0.25\n'
+        "[world.elevation]\nlength = 3.0\n[world.joists]\nmemory = 8.0\n",
+        "far.toml",
+    )
+    role = PerceptionRole(check(path), argparse.Namespace())
+    config = role.world.plugin.config
+    assert config.publish_period == 0.25 and config.elevation.length == 3.0
+    assert config.joists.memory == 8.0 and config.joists.gate == WorldConfig().joists.gate
+    assert config.elevation.resolution == WorldConfig().elevation.resolution
+    assert config.elevation.z_min == WorldConfig().elevation.z_min == -1.0  # not the grid's own
+    assert role.world.plugin.joists.tracker.config.memory == 8.0

@@ -109,11 +109,26 @@ class ViewCone:
         )
 
 
+def hold_tracking() -> TrackConfig:
+    """Holds: a 2 cm gate (a palm's radius is 1.6 cm: two holds are never closer)."""
+    return TrackConfig(gate=0.02)
+
+
+def joist_tracking() -> TrackConfig:
+    """Joists: an 8 cm gate (two joists are 40 cm apart) over ``JOIST_MEMORY`` sightings."""
+    return TrackConfig(gate=0.08, memory=JOIST_MEMORY)
+
+
+def stair_tracking() -> TrackConfig:
+    """Stair steps: a 5 cm gate (steps are ≥ 10 cm apart in rise) over ``JOIST_MEMORY``."""
+    return TrackConfig(gate=0.05, memory=JOIST_MEMORY)
+
+
 class HoldTracks:
     """Graspable points tracked in 3-D; each keeps its height."""
 
     def __init__(self, config: TrackConfig | None = None) -> None:
-        self.tracker = Tracker(config or TrackConfig(gate=0.02))
+        self.tracker = Tracker(config or hold_tracking())
 
     def update(self, seen: GraspablePoints, cone: ViewCone | None, confidence: float = 0.5) -> None:
         """Fold one frame's graspable points in (``confidence`` per sighting: the detector
@@ -186,7 +201,7 @@ class JoistTracks:
     """Joists tracked as lines in the odometry frame."""
 
     def __init__(self, config: TrackConfig | None = None) -> None:
-        config = config or TrackConfig(gate=0.08, memory=JOIST_MEMORY)
+        config = config or joist_tracking()
         self.tracker = Tracker(config, _line_distance, _line_fuse, _line_start)
 
     def update(self, seen: Joists, cone: ViewCone | None) -> None:
@@ -216,7 +231,7 @@ class StairTracks:
     normal points up the flight, so a step seen again from anywhere is the same line."""
 
     def __init__(self, config: TrackConfig | None = None) -> None:
-        config = config or TrackConfig(gate=0.05, memory=JOIST_MEMORY)
+        config = config or stair_tracking()
         self.tracker = Tracker(config, _line_distance, _line_fuse, _line_start)
 
     def update(self, seen: Stairs, cone: ViewCone | None) -> None:

@@ -19,8 +19,17 @@ import numpy as np
 
 from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.algorithms.elevation import ElevationConfig, ElevationMap, Window
-from climbd.daemon.algorithms.feature_maps import HoldTracks, JoistTracks, StairTracks, ViewCone
+from climbd.daemon.algorithms.feature_maps import (
+    HoldTracks,
+    JoistTracks,
+    StairTracks,
+    ViewCone,
+    hold_tracking,
+    joist_tracking,
+    stair_tracking,
+)
 from climbd.daemon.algorithms.terrain import TerrainConfig, terrain_layers
+from climbd.daemon.algorithms.tracks import TrackConfig
 from climbd.daemon.contract.hardware import DepthFrame
 from climbd.daemon.contract.messages import (
     TERRAIN_LAYERS,
@@ -31,6 +40,7 @@ from climbd.daemon.contract.messages import (
     Stairs,
     TerrainMap,
 )
+from climbd.daemon.contract.profile import Profile, ProfileError, merge_tables
 from climbd.daemon.contract.units import Positive
 
 ZLIB_LEVEL = 1
@@ -39,7 +49,8 @@ ZLIB_LEVEL = 1
 
 class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """The map's extent, cells and fusion (elevation), its terrain filter chain, the depth
-    decimation it fuses at, the camera range features are expected within, its publish rate."""
+    decimation it fuses at, the camera range features are expected within, its publish period
+    (s), and the tracking of each feature map. A profile's ``[world]`` table overrides them."""
 
     elevation: ElevationConfig = msgspec.field(
         default_factory=lambda: ElevationConfig(z_min=-1.0, z_max=0.6)
@@ -52,10 +63,26 @@ class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     view_range: Positive = 2.0
     """m: a feature farther than this from the camera is not expected in a frame (no miss)."""
     publish_period: Positive = 0.5
+    holds: TrackConfig = msgspec.field(default_factory=hold_tracking)
+    joists: TrackConfig = msgspec.field(default_factory=joist_tracking)
+    stairs: TrackConfig = msgspec.field(default_factory=stair_tracking)
 
     def __post_init__(self) -> None:
         if self.decimation < 1:
             raise ValueError(f"world config: decimation must be >= 1, got {self.decimation}")
+
+
+def world_config(profile: Profile) -> WorldConfig:
+    """The profile's ``[world]`` merged table by table over the defaults (a table it names keeps
+    the default's other keys); a ProfileError names the file and the field (``$.world.<field>``).
+    """
+    merged = merge_tables(msgspec.to_builtins(WorldConfig()), profile.world)
+    try:
+        return msgspec.convert(merged, WorldConfig, strict=False)
+    except (msgspec.ValidationError, ValueError) as e:
+        message, _, path = str(e).partition(" - at `$")
+        field = "$.world" + path.rstrip("`")
+        raise ProfileError(f"{profile.source or profile.name}: {field}: {message}") from None
 
 
 class TerrainModel:
@@ -207,9 +234,9 @@ class WorldModel:
     def __init__(self, config: WorldConfig | None = None) -> None:
         self.config = config or WorldConfig()
         self.terrain = TerrainModel(self.config)
-        self.holds = HoldTracks()
-        self.joists = JoistTracks()
-        self.stairs = StairTracks()
+        self.holds = HoldTracks(self.config.holds)
+        self.joists = JoistTracks(self.config.joists)
+        self.stairs = StairTracks(self.config.stairs)
         self._cone: ViewCone | None = None
         self._body: BodyState | None = None
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from climbd.daemon.algorithms.world import world_config
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.plugins import PluginError
 from climbd.daemon.runtime.loader import check_driver, load_class, make_config
@@ -37,6 +38,7 @@ def main(args: argparse.Namespace) -> int:
             p = profiles.load(path)
             check_driver(p)
             check_plugins(p)
+            world_config(p)
         except (profiles.ProfileError, PluginError) as e:
             print(f"error: {e}", file=sys.stderr)
             failed += 1

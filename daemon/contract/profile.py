@@ -281,6 +281,10 @@ class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     safety: SafetyConfig = msgspec.field(default_factory=SafetyConfig)
     plugins: PluginsConfig = msgspec.field(default_factory=PluginsConfig)
     network: NetworkConfig = msgspec.field(default_factory=NetworkConfig)
+    world: dict[str, Any] = {}
+    """The perception role's world model (``[world]``: map extent and cells, terrain filter
+    chain, feature tracking, publish period); validated by the role at start against
+    ``climbd.daemon.algorithms.world.WorldConfig``, the error naming ``$.world.<field>``."""
     stand: StandConfig
     include: str | None = None
     source: str = ""
@@ -295,12 +299,12 @@ class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
         return [j.name for j in self.joints]
 
 
-def _merge(base: dict, override: dict) -> dict:
+def merge_tables(base: dict, override: dict) -> dict:
     """Deep-merge ``override`` into ``base``: tables merge key by key, anything else replaces."""
     out = dict(base)
     for k, v in override.items():
         if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _merge(out[k], v)
+            out[k] = merge_tables(out[k], v)
         else:
             out[k] = v
     return out
@@ -332,7 +336,7 @@ def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
             f"{path}: $.include: expected a file path string, found {type(include).__name__}"
         )
     base = _read_toml(path.parent / include, (*chain, path))
-    return _merge(base, data)
+    return merge_tables(base, data)
 
 
 def _check(cond: bool, source: str, field: str, message: str) -> None:

@@ -29,7 +29,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from climbd.daemon.algorithms.pose_history import PoseHistory, PoseRefused, Refusal
-from climbd.daemon.algorithms.world import WorldModel
+from climbd.daemon.algorithms.world import WorldModel, world_config
 from climbd.daemon.contract import messages as m
 from climbd.daemon.contract.hardware import Camera, DepthFrame, DriverError
 from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
@@ -121,7 +121,8 @@ class PerceptionRole:
         self.undeclared = 0
         self.failure = ""
         """Why the role must end: a plugin given up ("" while all are kept going)."""
-        self.world = Restarting("world", WorldModel, self.plugin_failed, policy)
+        config = world_config(profile)
+        self.world = Restarting("world", lambda: WorldModel(config), self.plugin_failed, policy)
         self._next_map = -math.inf
         self._stop = threading.Event()
 
