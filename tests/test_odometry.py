@@ -5,9 +5,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from climbd.daemon.algorithms.kinematics import Kinematics
-from climbd.daemon.algorithms.odometry import LegOdometry
+from climbd.daemon.algorithms.odometry import HEADING_DRIFT, POSITION_DRIFT, LegOdometry
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.geometry import rotation
 
@@ -26,6 +27,7 @@ def test_tripod_walk_is_reconstructed(robots) -> None:
     tripod = np.array([0, 1, 0, 1, 0, 1], bool)  # rf, rm, rr, lf, lm, lr alternate
     world = stand.copy()
     dt, period = 0.01, 1.0
+    path, last = 0.0, np.zeros(3)
     for k in range(601):
         t = k * dt
         pos = np.array([0.03 * t, 0.005 * math.sin(t), 0.002 * math.sin(4 * t)])
@@ -43,6 +45,13 @@ def test_tripod_walk_is_reconstructed(robots) -> None:
             assert np.allclose(body.position, pos, atol=1e-6), (t, body.position, pos)
             est = rotation(np.array(body.orientation))
             assert np.allclose(est, rot, atol=1e-6)
+        path += float(np.linalg.norm(pos - last))
+        last = pos
+    # the covariance grows with the path walked: 2 % and 0.4° per metre (one sigma)
+    var = np.array(body.pose_variance)
+    assert np.sqrt(var[:3]) == pytest.approx([POSITION_DRIFT * path] * 3, rel=1e-3)
+    assert math.sqrt(var[5]) == pytest.approx(HEADING_DRIFT * path, rel=1e-3)
+    assert var[3] == var[4] > 0.0
 
 
 def test_too_few_stance_feet_keep_the_last_pose(robots) -> None:

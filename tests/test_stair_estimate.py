@@ -36,8 +36,11 @@ def run() -> dict[str, np.ndarray]:
     return data
 
 
-def replay(run: dict, imu: bool, icp: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Position error (m, world axes) and rotation error (deg) of every replayed tick."""
+def replay(
+    run: dict, imu: bool, icp: bool, sigma: list | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position error (m, world axes) and rotation error (deg) of every replayed tick; the
+    published standard deviations (x, y, z m, roll, pitch, yaw rad) go into ``sigma``."""
     est = StateEstimator(run["profile"], run["config"], run["pos"][0], run["quat"][0])
     stairs = StairPerception(StairsConfig(voxel=CLOUD_VOXEL))
     dt = float(np.median(np.diff(run["t"])))
@@ -57,6 +60,8 @@ def replay(run: dict, imu: bool, icp: bool) -> tuple[np.ndarray, np.ndarray]:
             if stairs.last_correction is not None:
                 est.icp_correction(*stairs.last_correction)
         rot, pos = est.pose()
+        if sigma is not None:
+            sigma.append(np.sqrt(est.body().pose_variance))
         pos_err[k] = pos - run["pos"][k]
         rot_err[k] = np.degrees(np.linalg.norm(log_so3(rot @ rotation(run["quat"][k]).T)))
     return pos_err, rot_err
@@ -66,11 +71,16 @@ def _rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(a))))
 
 
+IMU_SIGMA: list = []
+"""The fused estimate's published standard deviations, tick by tick (filled by ``errors``)."""
+
+
 @pytest.fixture(scope="module")
 def errors(run) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    IMU_SIGMA.clear()
     return {
         "legs": replay(run, imu=False, icp=False),
-        "imu": replay(run, imu=True, icp=False),
+        "imu": replay(run, imu=True, icp=False, sigma=IMU_SIGMA),
         "imu+icp": replay(run, imu=True, icp=True),
     }
 
@@ -132,3 +142,15 @@ def test_fused_position_within_2_cm_over_the_run(errors) -> None:
     """Measured 15.5 mm (before the estimator dropped sliding feet from the fit: 30.6 mm)."""
     pos, _ = errors["imu+icp"]
     assert np.linalg.norm(pos, axis=1).max() < 0.02, np.linalg.norm(pos, axis=1).max()
+
+
+def test_published_covariance_covers_the_error(errors) -> None:
+    """BodyState's pose variance is what a user can weigh the estimate by: at every tick of
+    the run the fused position error lies within 3 sigma on each axis and the rotation error
+    within 3 sigma of the combined tilt and heading."""
+    pos, rot = errors["imu"]
+    sigma = np.array(IMU_SIGMA)
+    assert len(sigma) == len(pos) and (sigma > 0.0).all()
+    assert (np.abs(pos) <= 3.0 * sigma[:, :3]).all()
+    angle = np.degrees(3.0 * np.linalg.norm(sigma[:, 3:], axis=1))
+    assert (rot <= angle).all(), float(np.max(rot - angle))

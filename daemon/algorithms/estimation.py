@@ -551,4 +551,13 @@ class StateEstimator:
             linear_velocity=self.vel.tolist(),
             angular_velocity=self.omega.tolist(),
             stance=stance,
+            pose_variance=self.variance(),
         )
+
+    def variance(self) -> list[float]:
+        """The pose's variances (x, y, z m²; roll, pitch, yaw rad²): filter 1's position and
+        heading with filter 2's drift correction; the tilt, a gyro random walk pulled toward
+        gravity with time constant τ, holds gyro_noise² · τ / 2."""
+        position = [self.p_pv[k][0] + float(self.p_drift[k, k]) for k in range(3)]
+        tilt = self.config.gyro_noise**2 * self.config.tilt_time / 2.0
+        return [*position, tilt, tilt, self.p_heading]

@@ -18,6 +18,8 @@ Pure: arrays in, BodyState out.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from climbd.daemon.algorithms.estimation import (
@@ -58,6 +60,14 @@ REST_HEADING_TIME = 1.0
 """Seconds: the heading's pull toward the stance feet's at rest, where no foot slips."""
 STILL_RATE = 0.005
 """rad/s: the stance feet's rotation rate under which a body on all its feet is at rest."""
+POSITION_DRIFT = 0.02
+"""m per m walked (one standard deviation): the position error of leg odometry grows with the
+path, not with time (bench/odometry.py: 1.7 % for the WidowX over 5 m)."""
+HEADING_DRIFT = math.radians(0.4)
+"""rad per m walked (one standard deviation) of heading: 2° over 5 m, the bound the odometry
+bench holds the robots to (0.04-0.10° measured)."""
+TILT_SIGMA = math.radians(1.0)
+"""rad: roll and pitch (one standard deviation), pulled toward the accelerometer's gravity."""
 
 
 class LegOdometry:
@@ -73,6 +83,8 @@ class LegOdometry:
         n = len(kinematics.leg_names)
         self.rot = np.eye(3)
         self.origin = np.zeros(3)
+        self.walked = 0.0
+        """Path length (m) of the body in the odometry frame since the start."""
         self.anchor = np.full((n, 3), np.nan)
         self._seen = np.full((n, 3), np.nan)
         self._still_since = np.full(n, np.nan)
@@ -145,6 +157,13 @@ class LegOdometry:
         yaw = np.arctan2(turn[1, 0], turn[0, 0]) * min(1.0, dt / tau)
         self.attitude = exp_so3(np.array([0.0, 0.0, yaw])) @ self.attitude
 
+    def variance(self) -> list[float]:
+        """The pose's variances (x, y, z m²; roll, pitch, yaw rad²) after ``walked`` metres:
+        position and heading drift per metre walked, the tilt held by gravity."""
+        position = (POSITION_DRIFT * self.walked) ** 2
+        heading = (HEADING_DRIFT * self.walked) ** 2
+        return [position, position, position, TILT_SIGMA**2, TILT_SIGMA**2, heading]
+
     def update(
         self,
         q: np.ndarray,
@@ -190,6 +209,8 @@ class LegOdometry:
             rest = bool(stance.all() and not np.isnan(self.anchor[:, 0]).any())
             self._steer(gyro, legs_rot, rest, dt)
         self._seen = seen
+        if self._last is not None:
+            self.walked += float(np.linalg.norm(self.origin - self._last[1]))
         velocity = (self.origin - self._last[1]) / dt if dt > 0.0 else np.zeros(3)
         self._last = (t, self.origin.copy())
         return BodyState(
@@ -198,4 +219,5 @@ class LegOdometry:
             orientation=[float(x) for x in quaternion(self.rot)],
             linear_velocity=velocity.tolist(),
             stance=stance.tolist(),
+            pose_variance=self.variance(),
         )

@@ -204,6 +204,9 @@ class BodyState(Message):
     linear_velocity: Vector = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
     angular_velocity: Vector = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0])
     stance: LegFlags = []
+    pose_variance: Vector = msgspec.field(default_factory=lambda: [0.0] * 6)
+    """The diagonal of the pose's covariance: x, y, z (m²), roll, pitch, yaw (rad²); all zero
+    when the pose comes with none (a twin's truth, a test)."""
 
 
 class FootTargets(Message):

@@ -46,6 +46,10 @@ class Walk:
     estimated_end: np.ndarray
     estimated_yaw: float
     commanded: float
+    sigma_xy: float
+    """m: the standard deviation of the horizontal position the odometry published at the end
+    of the walk (from its covariance's diagonal)."""
+    sigma_yaw_deg: float
 
     @property
     def distance(self) -> float:
@@ -66,6 +70,12 @@ class Walk:
         return float(np.linalg.norm(self.true_end[:2] - [self.commanded, 0.0]))
 
 
+EARTH = 9.80665
+GRAVITY = {"hubrobo": EARTH / 6}
+"""m/s²: where a robot walks. HubRobo is built for the Moon (paper 001's experiments are at
+G/6); at 1 g its X-series servos sag 0.11 rad off the stand pose, past the 0.05 rad tolerance."""
+
+
 def _relative(twin: Twin, start: tuple[np.ndarray, float]) -> tuple[np.ndarray, float]:
     """The twin's pose in the start pose's frame (the odometry frame's origin)."""
     pos, quat = twin.body_pose()
@@ -78,7 +88,8 @@ def _relative(twin: Twin, start: tuple[np.ndarray, float]) -> tuple[np.ndarray, 
 def dynamixel_walk(robot: str, gait: str, vx: float, seconds: float) -> Walk:
     """``robot`` walks ``gait`` at ``vx`` for ``seconds`` through DynamixelBus on the twin."""
     profile = profiles.load(ROOT / "robots" / f"{robot}.toml")
-    twin = Twin(profile, World(name="flat", floor=Floor(size=12.0)), stepped=True, bus=True)
+    world = World(name="flat", floor=Floor(size=12.0), gravity=GRAVITY.get(robot, EARTH))
+    twin = Twin(profile, world, stepped=True, bus=True)
     twin.start()
     bus = DynamixelBus.from_profile(
         profile, port=twin.port, timeout_margin_ms=STEPPED_TIMEOUT_MARGIN_MS
@@ -146,6 +157,7 @@ def _walk(
     c, s = math.cos(-est0[1]), math.sin(-est0[1])
     d = np.asarray(body.position[:2], float) - est0[0]
     est_xy = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+    var = body.pose_variance
     return Walk(
         robot=robot,
         seconds=seconds,
@@ -155,4 +167,6 @@ def _walk(
         estimated_end=est_xy,
         estimated_yaw=yaw(body.orientation) - est0[1],
         commanded=vx * seconds,
+        sigma_xy=math.sqrt(var[0] + var[1]),
+        sigma_yaw_deg=math.degrees(math.sqrt(var[5])),
     )
