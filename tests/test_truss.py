@@ -26,6 +26,7 @@ from climbd.plugins.perception.truss.completion import (
 )
 from climbd.plugins.perception.truss.cylinders import Cylinder, Segment, hypotheses, refine
 from climbd.plugins.perception.truss.evaluate import evaluate
+from climbd.plugins.perception.truss.nodes import connectors, end_distance
 
 CAMERA = ts.DepthCamera().scaled(0.5)
 
@@ -297,3 +298,41 @@ def test_climbd_perceive_truss_prints_members_as_json(tmp_path):
     truth = [(t.p0, t.p1, t.radius) for t in scene.members]
     detected = [(np.array(m["p0"]), np.array(m["p1"])) for m in members]
     assert evaluate(detected, truth).all_found
+
+
+def test_members_keep_their_ids_across_model_updates():
+    """The truss is re-modelled from the accumulated cloud at every update; a member that comes
+    back (both ends within the gate, either way round) keeps its id, and ids stay unique."""
+    scene = ts.render(ts.seven_member(), camera=CAMERA, seed=4)
+    plugin = TrussPerception(TrussConfig(model_every=1, seed=4))
+    messages = [plugin.process_cloud(v.points, v.body, v.body.stamp) for v in scene.views]
+    before, after = messages[-2], messages[-1]
+    assert len({m.id for m in after.members}) == len(after.members)
+    kept = 0
+    for member in after.members:
+        ends = np.concatenate([member.p0, member.p1])
+        for old in before.members:
+            if end_distance(ends, np.concatenate([old.p0, old.p1])) <= plugin.config.track_gate:
+                assert member.id == old.id
+                kept += 1
+    assert kept >= len(scene.members) - 1
+
+
+def test_connectors_join_member_ends_that_meet():
+    """Three members of a triangle and one free: the three corners are nodes of two members
+    each, the free member's ends none."""
+    corners = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    pairs = [(0, 1), (1, 2), (2, 0)]
+    ends = [(corners[a] + [0.01, 0.0, 0.0], corners[b]) for a, b in pairs]
+    ends.append((np.array([3.0, 3.0, 0.0]), np.array([3.0, 4.0, 0.0])))
+    members = []
+    for p0, p1 in ends:
+        axis = (p1 - p0) / np.linalg.norm(p1 - p0)
+        length = float(np.linalg.norm(p1 - p0))
+        members.append(Member(Cylinder(p0, axis, 0.02), 0.0, length, np.zeros(0, int)))
+    nodes = connectors(members, [11, 12, 13, 14], radius=0.05)
+    assert len(nodes) == 3
+    found = {tuple(n.members): np.array(n.position) for n in nodes}
+    assert set(found) == {(11, 13), (11, 12), (12, 13)}
+    np.testing.assert_allclose(found[(11, 13)], [0.005, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(found[(12, 13)], corners[2] + [0.005, 0.0, 0.0], atol=1e-12)

@@ -168,3 +168,22 @@ def test_without_the_linker_size_ends_overshoot_the_nodes(published):
     assert errors[0.0].mean("length_error") > errors[truss.linker].mean("length_error") + 0.5 * (
         truss.linker
     )
+
+
+def test_connectors_are_the_world_nodes_where_member_ends_meet(published):
+    """Every world node where two or more modelled members end (collinear pairs through a node
+    are one member, so they do not end there) is a published connector within 3 cm, joining
+    that many members; no connector lies away from a world node."""
+    messages, twin, _ = published
+    message = decode(encode(messages[-1]), TrussMembers)
+    nodes = np.asarray(twin.world.truss.nodes, float)
+    ends = [node for chain in _world_members(twin) for node in chain]
+    expected = {n: ends.count(n) for n in set(ends) if ends.count(n) >= 2}
+    published_at = np.array([c.position for c in message.nodes]).reshape(-1, 3)
+    assert expected and len(message.nodes) == len(expected)
+    for node, count in expected.items():
+        gap = np.linalg.norm(published_at - nodes[node], axis=1)
+        assert gap.min() <= 0.03, (node, gap.min())
+        assert len(message.nodes[int(gap.argmin())].members) == count
+    ids = {m.id for m in message.members}
+    assert all(set(c.members) <= ids for c in message.nodes)

@@ -160,7 +160,9 @@ class Health(Message):
     ``plugin_slowest_call`` naming the plugin and method of the slowest of all; ``plugin_errors``
     counts each plugin's calls that raised (their results dropped; ``plugins`` says whether it
     is failing, restarting or failed); ``refused_frames`` counts depth frames perception gave
-    no body pose, by reason (no_pose, too_old, too_new, out_of_order, not_finite).
+    no body pose, by reason (no_pose, too_old, too_new, out_of_order, not_finite), and frames
+    its world model did not fuse (no_depth, malformed_depth, ground_not_level: the ground near
+    the body is not level in the body frame, the camera's mount in the profile is likely wrong).
     ``decode_errors_by`` breaks ``decode_errors`` down by topic ("cmd/motion"), or topic and
     peer ("cmd/motion from <zid>") when the sample names its source; ``refused_by`` breaks
     ``refused_commands`` down by topic. Both hold at most 64 keys, later ones summed under
@@ -484,21 +486,33 @@ class Stability(Message):
 
 class TrussMember(msgspec.Struct, kw_only=True):
     """A cylindrical truss member (paper 003): end points (m), radius (m), unit axis p0 -> p1;
-    confidence is the fraction of its length covered by points."""
+    confidence is the fraction of its length covered by points; ``id`` stays the member's
+    across model updates (0: not tracked)."""
 
     p0: Vector
     p1: Vector
     radius: float
     axis: Vector
     confidence: float = 1.0
+    id: int = 0
+
+
+class TrussNode(msgspec.Struct, kw_only=True):
+    """A connector of the truss: where the ends of two or more members meet (m, odometry
+    frame), and the ids of those members."""
+
+    position: Vector
+    members: Annotated[list[int], msgspec.Meta(max_length=MAX_ENTRIES)]
 
 
 class TrussMembers(Feature):
-    """Members of the truss model, in the odometry frame (frames accumulated with BodyState)."""
+    """The truss model, odometry frame (frames accumulated with BodyState): its members and the
+    connectors their ends meet at."""
 
     TOPIC: ClassVar[str] = "features/truss"
     RATE: ClassVar[str] = "on model update"
     members: Annotated[list[TrussMember], msgspec.Meta(max_length=MAX_FEATURES)] = []
+    nodes: Annotated[list[TrussNode], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
 class Stair(msgspec.Struct, kw_only=True):

@@ -36,7 +36,9 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Truss modelling parameters (m, deg). ``slide_lambda`` is the paper's λ ≈ 2.5 (eq. 2);
     ``gap`` is the gap-rule threshold of step 7; the rest are ours, for a Kinect-2-like cloud.
     ``linker`` is the size of the linkers members end in, for a space frame (its members end
-    at the nodes); 0 for tubes that end free and run through their couplers (scaffolds)."""
+    at the nodes); 0 for tubes that end free and run through their couplers (scaffolds).
+    ``track_gate``: a member re-modelled with both ends within this of one of the last model
+    keeps its id; ``node_radius``: member ends this close meet at one connector."""
 
     voxel: float = 0.01
     max_range: float = 4.5
@@ -74,6 +76,8 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     completion_passes: int = 2
     seed: int = 0
     model_every: int = 1
+    track_gate: float = 0.1
+    node_radius: float = 0.05
 
     def __post_init__(self) -> None:
         if not 0 < self.radius_min < self.radius_max:
@@ -87,7 +91,8 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
             )
         if self.linker < 0:
             raise ValueError(f"truss: linker must be >= 0 (0: members end free), got {self.linker}")
-        for name in ("voxel", "gap", "cylinder_distance", "plane_distance", "segment_gap"):
+        names = ("voxel", "gap", "cylinder_distance", "plane_distance", "segment_gap")
+        for name in (*names, "track_gate", "node_radius"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"truss: {name} must be > 0, got {getattr(self, name)}")
 

@@ -11,9 +11,10 @@ from climbd.daemon.contract.messages import BodyState, TrussMember, TrussMembers
 from climbd.plugins.perception.truss.cloud import VoxelMap, body_to_odometry
 from climbd.plugins.perception.truss.completion import Member
 from climbd.plugins.perception.truss.model import TrussConfig, TrussModeller, coverage
+from climbd.plugins.perception.truss.nodes import MemberTracks, connectors
 
 
-def to_message(member: Member, points: np.ndarray, bin_size: float) -> TrussMember:
+def to_message(member: Member, points: np.ndarray, bin_size: float, ident: int) -> TrussMember:
     """A modelled member as the wire TrussMember (odometry frame, axis from p0 to p1)."""
     return TrussMember(
         p0=member.p0.tolist(),
@@ -21,12 +22,14 @@ def to_message(member: Member, points: np.ndarray, bin_size: float) -> TrussMemb
         radius=float(member.cylinder.radius),
         axis=member.cylinder.axis.tolist(),
         confidence=round(coverage(member, points, bin_size), 3),
+        id=ident,
     )
 
 
 class TrussPerception(CloudPerception):
     """Builds the truss model from every frame so far (the paper's dense SLAM cloud, here our
-    odometry poses) and publishes its members every ``model_every`` frames."""
+    odometry poses) and publishes its members, with ids kept across updates, and its nodes
+    every ``model_every`` frames."""
 
     name: ClassVar[str] = "truss"
     publishes = (TrussMembers,)
@@ -35,12 +38,13 @@ class TrussPerception(CloudPerception):
     def __init__(self, config: TrussConfig | None = None, profile: Any = None) -> None:
         super().__init__(config, profile)
         self.modeller = TrussModeller(self.config)
-        self.map = VoxelMap(self.config.voxel)
-        self.frames = 0
+        self.reset()
 
     def reset(self) -> None:
-        """Forget the accumulated cloud (e.g. after the odometry frame was reset)."""
+        """Forget the accumulated cloud and the members' ids (e.g. after the odometry frame
+        was reset)."""
         self.map = VoxelMap(self.config.voxel)
+        self.tracks = MemberTracks(self.config.track_gate)
         self.frames = 0
 
     def process_cloud(
@@ -62,8 +66,10 @@ class TrussPerception(CloudPerception):
             return None
         model = self.modeller.model(self.map.points)
         bin_size = 2 * self.config.voxel
-        return TrussMembers(
-            stamp=stamp,
-            frame_stamp=stamp,
-            members=[to_message(m, model.points, bin_size) for m in model.members],
-        )
+        ids = self.tracks.update(model.members, stamp)
+        members = [
+            to_message(m, model.points, bin_size, i)
+            for m, i in zip(model.members, ids, strict=True)
+        ]
+        nodes = connectors(model.members, ids, self.config.node_radius)
+        return TrussMembers(stamp=stamp, frame_stamp=stamp, members=members, nodes=nodes)
