@@ -43,6 +43,9 @@ def test_our_own_long_estop_reason_is_clipped_not_refused() -> None:
         (m.DepthImage, {"depth": b"\0" * (m.MAX_DEPTH_BYTES + 1)}, "$.depth"),
         (m.TerrainMap, {"layers": {str(i): b"" for i in range(m.MAX_ENTRIES + 1)}}, "$.layers"),
         (m.SessionClaim, {"client": "c" * (m.MAX_NAME + 1)}, "$.client"),
+        (m.Heartbeat, {"session": "s" * (m.MAX_NAME + 1)}, "$.session"),
+        (m.Health, {"features": {str(i): 0.0 for i in range(m.MAX_ENTRIES + 1)}}, "$.features"),
+        (m.Health, {"messages": ["x" * (m.MAX_TEXT + 1)]}, "$.messages[0]"),
     ],
     ids=lambda v: v.__name__ if isinstance(v, type) else "",
 )
@@ -55,6 +58,16 @@ def test_an_oversized_field_is_refused_at_decode(message, fields, path) -> None:
 def test_a_long_mode_reason_is_clipped_to_what_a_peer_decodes() -> None:
     state = m.ModeState(reason="control tick failed: " + "x" * 10_000)
     assert len(m.decode(m.encode(state), m.ModeState).reason) == m.MAX_TEXT
+
+
+def test_a_health_with_long_error_texts_is_clipped_to_what_a_peer_decodes() -> None:
+    """A plugin failing with a 10,000-character exception, and 100 messages: the robot's Health
+    still decodes at the operator's tool, each text cut to MAX_TEXT, the newest messages kept."""
+    failed = "failed: ValueError: " + "x" * 10_000
+    health = m.Health(plugins={"graspable": failed}, messages=[f"m{i}" for i in range(100)])
+    got = m.decode(m.encode(health), m.Health)
+    assert len(got.plugins["graspable"]) == m.MAX_TEXT and got.plugins["graspable"][-1] == "…"
+    assert got.messages == [f"m{i}" for i in range(100 - m.MAX_ENTRIES, 100)]
 
 
 def widowx_with(tmp_path: Path, old: str, new: str) -> Path:

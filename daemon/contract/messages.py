@@ -52,6 +52,11 @@ Vector = Annotated[list[float], msgspec.Meta(max_length=MAX_VECTOR)]
 Vectors = Annotated[list[Vector], msgspec.Meta(max_length=MAX_VECTOR)]
 
 
+def _clipped(text: str, limit: int = MAX_TEXT) -> str:
+    """``text`` cut to ``limit`` characters, an ellipsis saying so."""
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
 class Message(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """Base of every wire message: schema version and a timestamp (s, sender's clock).
 
@@ -171,26 +176,32 @@ class Health(Message):
 
     TOPIC: ClassVar[str] = "state/health"
     RATE: ClassVar[str] = "2 Hz"
-    role: str = "control"
+    role: Name = "control"
     mode: Mode = Mode.OFF
-    joints: list[JointHealth] = []
+    joints: Annotated[list[JointHealth], msgspec.Meta(max_length=MAX_ENTRIES)] = []
     loop: LoopStats = msgspec.field(default_factory=LoopStats)
     motion: MotionStats = msgspec.field(default_factory=MotionStats)
-    plugins: dict[str, str] = {}
-    plugin_slowest: dict[str, float] = {}
-    plugin_slowest_call: str = ""
-    plugin_errors: dict[str, int] = {}
+    plugins: Annotated[dict[Name, Text], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
+    plugin_slowest: Annotated[dict[Name, float], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
+    plugin_slowest_call: Name = ""
+    plugin_errors: Annotated[dict[Name, int], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
     decode_errors: int = 0
-    decode_errors_by: dict[str, int] = {}
+    decode_errors_by: Annotated[dict[Name, int], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
     refused_commands: int = 0
-    refused_by: dict[str, int] = {}
+    refused_by: Annotated[dict[Name, int], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
     refused_heartbeats: int = 0
     unauthorised_commands: int = 0
     dropped_frames: int = 0
-    refused_frames: dict[str, int] = {}
-    features: dict[str, float] = {}
-    session: str = ""
-    messages: list[str] = []
+    refused_frames: Annotated[dict[Name, int], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
+    features: Annotated[dict[Name, float], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
+    session: Name = ""
+    messages: Annotated[list[Text], msgspec.Meta(max_length=MAX_ENTRIES)] = []
+
+    def __post_init__(self) -> None:
+        """Clip what the robot composes from errors (plugin statuses, messages) to what a peer
+        decodes: a long exception text must not make the whole Health unreadable."""
+        self.plugins = {k: _clipped(v) for k, v in self.plugins.items()}
+        self.messages = [_clipped(m) for m in self.messages[-MAX_ENTRIES:]]
 
 
 # --- body and motion --------------------------------------------------------------------
@@ -252,8 +263,7 @@ class ModeState(Message):
 
     def __post_init__(self) -> None:
         """Clip a reason the robot composed (it may quote an error) to what a peer decodes."""
-        if len(self.reason) > MAX_TEXT:
-            self.reason = self.reason[: MAX_TEXT - 1] + "…"
+        self.reason = _clipped(self.reason)
 
 
 class ModeRequest(Message):
@@ -277,8 +287,7 @@ class EStop(Message):
 
     def __post_init__(self) -> None:
         """Clip an operator's long reason, so the robot never refuses an e-stop for its words."""
-        if len(self.reason) > MAX_NAME:
-            self.reason = self.reason[: MAX_NAME - 1] + "…"
+        self.reason = _clipped(self.reason, MAX_NAME)
 
 
 class SessionClaim(Message):
@@ -304,7 +313,7 @@ class Heartbeat(Message):
 
     TOPIC: ClassVar[str] = "cmd/heartbeat"
     RATE: ClassVar[str] = "10 Hz or more"
-    session: str = ""
+    session: Name = ""
     seq: int = 0
 
 
