@@ -270,7 +270,11 @@ def test_profile_check_command(tmp_path: Path) -> None:
 def assert_check_refuses(tmp_path: Path, old: str, new: str, fragment: str) -> None:
     """``climbd profile check`` on the stock profile with ``old`` replaced by ``new`` exits 1
     naming the file and ``fragment``."""
-    bad = write(tmp_path, replace_once(base_text(), old, new))
+    check_refuses(write(tmp_path, replace_once(base_text(), old, new)), fragment)
+
+
+def check_refuses(bad: Path, fragment: str) -> None:
+    """``climbd profile check`` on ``bad`` exits 1 naming the file and ``fragment``."""
     res = subprocess.run(
         [sys.executable, "-m", "climbd.daemon.cli", "profile", "check", str(bad)],
         capture_output=True,
@@ -320,14 +324,7 @@ def test_profile_check_validates_plugins(tmp_path: Path, old: str, new: str, fra
     ],
 )
 def test_profile_check_validates_the_world_model(tmp_path: Path, world, fragment) -> None:
-    bad = write(tmp_path, base_text() + world)
-    res = subprocess.run(
-        [sys.executable, "-m", "climbd.daemon.cli", "profile", "check", str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert res.returncode == 1 and str(bad) in res.stderr and fragment in res.stderr, res.stderr
+    check_refuses(write(tmp_path, base_text() + world), fragment)
 
 
 def test_world_section_configures_the_perception_roles_world_model(tmp_path: Path) -> None:
