@@ -9,6 +9,10 @@ each stays below its critical value, and is 0 where any reaches it. Window sums 
 box correlations, so the chain costs a few passes over the grid whatever the radius.
 
 Cell (row, col) lies at x = row·resolution, y = col·resolution (rows along x); NaN is unknown.
+
+``ground_tilt`` reads one frame's ground near the body with the same plane fit: a camera whose
+mount in the profile is wrong by a large rotation shows the ground the robot stands on tilted in
+the body frame, where a right mount shows it level (on a slope too: the body leans with it).
 """
 
 from __future__ import annotations
@@ -46,6 +50,63 @@ class TerrainConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
             raise ValueError(f"terrain config: the three weights must sum to 1, found {total:g}")
         if self.min_cells < 3:
             raise ValueError(f"terrain config: min_cells must be >= 3, found {self.min_cells}")
+
+
+GROUND_POINTS = 8000
+"""Points of the footprint a ground reading bins at most (evenly spread in pixel order): a few
+per 2 cm cell, at a fraction of the cost of a 640×480 frame's 40 000."""
+
+
+class GroundConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The check that a frame shows the ground near the body level in the body frame (the
+    camera's mount in the profile is right), before the frame is fused."""
+
+    max_tilt: Positive = math.radians(10.0)
+    """rad: a frame whose ground leans more than this from the body's xy plane is not fused. A
+    walking body rolls and pitches a few degrees over level ground; a mount wrong by 20° shows
+    the ground 20° off."""
+    radius: Positive = 0.6
+    """m: the footprint, a disc about the body's origin (body frame): the ground the camera
+    sees nearest the feet (a forward camera tilted 30–45° down sees it from 0.1–0.5 m)."""
+    cell: Positive = 0.02
+    """m: the footprint's cells (one mean height each, so near, dense pixels do not outweigh
+    far ones)."""
+    window: Positive = 0.05
+    """m: half-width of the window each cell's plane is fitted over."""
+    min_cells: int = 100
+    """Seen cells the footprint needs for a reading (fewer: no reading, the frame is fused)."""
+    frames: int = 3
+    """Consecutive tilted frames after which the perception role warns that the camera's
+    mount looks wrong (a stumble or a pose glitch tilts one or two)."""
+
+    def __post_init__(self) -> None:
+        if self.min_cells < 3:
+            raise ValueError(f"ground config: min_cells must be >= 3, found {self.min_cells}")
+        if self.frames < 1:
+            raise ValueError(f"ground config: frames must be >= 1, found {self.frames}")
+
+
+@dataclass(frozen=True)
+class GroundTilt:
+    """How a frame's ground near the body leans from the body's xy plane, two readings.
+
+    ``surface``: the median of the cells' own planes, the dominant surface (a joist, a step or
+    a hold in the footprint does not move it; π/2 when no cell has a plane). ``plane``: one
+    plane through every cell (a stair flight the body pitches with reads level, its treads do
+    not). The ground is as level as the more level of the two: ``tilt``, with the ground's rise
+    along body x and y (rad) in that reading.
+    """
+
+    surface: float
+    plane: float
+    rise_x: float
+    rise_y: float
+    cells: int
+
+    @property
+    def tilt(self) -> float:
+        """rad from the body's xy plane: the smaller reading."""
+        return min(self.surface, self.plane)
 
 
 @dataclass
@@ -138,3 +199,44 @@ def terrain_layers(
         traversability = np.where(blocked, 0.0, traversability)
     traversability[np.isnan(slope) | np.isnan(step)] = np.nan
     return TerrainLayers(normals, slope, roughness, step, traversability)
+
+
+def ground_tilt(
+    points: np.ndarray, band: tuple[float, float], config: GroundConfig | None = None
+) -> GroundTilt | None:
+    """The tilt of the ground in one frame's body-frame points (N×3, m) over the footprint
+    disc, of the points whose z lies in ``band`` (m, the map's); None when the disc holds fewer
+    than ``min_cells`` seen cells (the camera does not see the ground near the body)."""
+    c = config or GroundConfig()
+    side = 2 * int(math.ceil(c.radius / c.cell))
+    # One OpenCV pass crops the box around the disc (and drops NaN) before any arithmetic.
+    cloud = np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 1, 3)
+    box = cv2.inRange(cloud, (-c.radius, -c.radius, band[0]), (c.radius, c.radius, band[1]))
+    near = cloud[box.reshape(-1) > 0].reshape(-1, 3)
+    near = near[:: max(1, len(near) // GROUND_POINTS)].astype(np.float64)
+    near = near[np.einsum("ij,ij->i", near[:, :2], near[:, :2]) <= c.radius**2]
+    index = np.minimum(((near[:, :2] + c.radius) / c.cell).astype(np.int64), side - 1)
+    flat = index[:, 0] * side + index[:, 1]
+    count = np.bincount(flat, minlength=side * side)
+    seen = count > 0
+    if seen.sum() < c.min_cells:
+        return None
+    total = np.bincount(flat, weights=near[:, 2], minlength=side * side)
+    heights = np.full(side * side, np.nan)
+    heights[seen] = total[seen] / count[seen]
+    heights = heights.reshape(side, side)
+    a, b, _ = _plane_fit(heights, c.cell, c.window, 6)
+    fitted = np.isfinite(a)
+    sa, sb = (np.median(a[fitted]), np.median(b[fitted])) if fitted.any() else (math.inf, 0.0)
+    rows, cols = np.nonzero(np.isfinite(heights))
+    design = np.column_stack([rows * c.cell, cols * c.cell, np.ones(len(rows))])
+    (pa, pb, _), *_ = np.linalg.lstsq(design, heights[rows, cols], rcond=None)
+    surface, plane = math.atan(math.hypot(sa, sb)), math.atan(math.hypot(pa, pb))
+    rise = (sa, sb) if surface < plane else (pa, pb)
+    return GroundTilt(
+        surface=surface,
+        plane=plane,
+        rise_x=math.atan(rise[0]),
+        rise_y=math.atan(rise[1]),
+        cells=int(seen.sum()),
+    )

@@ -7,12 +7,19 @@ frame's footprint only, widened by the filters' reach so that every cell whose w
 recomputed, so a frame costs its footprint, not the window. The map goes on the wire as a
 TerrainMap; ``TerrainView`` answers a behaviour's queries on one (height, traversability and age
 at a point) in a few microseconds.
+
+A frame that would spoil the maps is not fused and says why (``Unfused``): no valid depth, a
+depth image that is not one, or ground near the body that is not level in the body frame (the
+camera's mount in the profile is wrong: ``terrain.ground_tilt``). The maps then keep their last
+good state, and the frame's features are not folded in either.
 """
 
 from __future__ import annotations
 
+import enum
 import math
 import zlib
+from dataclasses import dataclass
 
 import msgspec
 import numpy as np
@@ -28,7 +35,13 @@ from climbd.daemon.algorithms.feature_maps import (
     joist_tracking,
     stair_tracking,
 )
-from climbd.daemon.algorithms.terrain import TerrainConfig, terrain_layers
+from climbd.daemon.algorithms.terrain import (
+    GroundConfig,
+    GroundTilt,
+    TerrainConfig,
+    ground_tilt,
+    terrain_layers,
+)
 from climbd.daemon.algorithms.tracks import TrackConfig
 from climbd.daemon.contract.hardware import DepthFrame
 from climbd.daemon.contract.messages import (
@@ -49,8 +62,9 @@ ZLIB_LEVEL = 1
 
 class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """The map's extent, cells and fusion (elevation), its terrain filter chain, the depth
-    decimation it fuses at, the camera range features are expected within, its publish period
-    (s), and the tracking of each feature map. A profile's ``[world]`` table overrides them."""
+    decimation it fuses at, the level-ground check of each frame, the camera range features are
+    expected within, its publish period (s), and the tracking of each feature map. A profile's
+    ``[world]`` table overrides them."""
 
     elevation: ElevationConfig = msgspec.field(
         default_factory=lambda: ElevationConfig(z_min=-1.0, z_max=0.6)
@@ -60,6 +74,9 @@ class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     terrain: TerrainConfig = msgspec.field(default_factory=TerrainConfig)
     decimation: int = 2
     """Every n-th depth row and column: 2 keeps 1 cm cells dense to 1.5 m at 640×480."""
+    ground: GroundConfig = msgspec.field(default_factory=GroundConfig)
+    """The check that a frame shows the ground near the body level in the body frame (the
+    camera's mount is right) before it is fused; ``ground.max_tilt`` in rad."""
     view_range: Positive = 2.0
     """m: a feature farther than this from the camera is not expected in a frame (no miss)."""
     publish_period: Positive = 0.5
@@ -83,6 +100,31 @@ def world_config(profile: Profile) -> WorldConfig:
         message, _, path = str(e).partition(" - at `$")
         field = "$.world" + path.rstrip("`")
         raise ProfileError(f"{profile.source or profile.name}: {field}: {message}") from None
+
+
+class Unfusable(enum.Enum):
+    """Why the world model did not fuse a frame; the names are the reasons counted in health
+    (``Health.refused_frames``, beside the pose history's)."""
+
+    NO_DEPTH = "no_depth"
+    """No pixel gave a finite point: a covered or blank lens, a NaN depth scale or mount."""
+    MALFORMED_DEPTH = "malformed_depth"
+    """The depth image is not raw uint16 depth of the intrinsics' size (a driver's bug)."""
+    GROUND_NOT_LEVEL = "ground_not_level"
+    """The ground near the body leans more than ``ground.max_tilt`` from the body's xy plane:
+    the camera's mount in the profile is likely wrong."""
+
+
+@dataclass(frozen=True)
+class Unfused:
+    """A frame the world model did not fuse: why, what it measured, and ``streak``, how many
+    frames in a row (this one included) were refused for the same reason."""
+
+    reason: Unfusable
+    detail: str
+    streak: int
+    tilt: GroundTilt | None = None
+    """The ground's tilt, for GROUND_NOT_LEVEL."""
 
 
 class TerrainModel:
@@ -239,13 +281,42 @@ class WorldModel:
         self.stairs = StairTracks(self.config.stairs)
         self._cone: ViewCone | None = None
         self._body: BodyState | None = None
+        self._last: Unfusable | None = None
+        self._streak = 0
 
-    def frame(self, frame: DepthFrame, body: BodyState) -> None:
-        """Fuse one depth frame taken at ``body`` (the pose at its stamp)."""
-        points = frame_to_points(frame, decimation=self.config.decimation)
+    def frame(self, frame: DepthFrame, body: BodyState) -> Unfused | None:
+        """Fuse one depth frame taken at ``body`` (the pose at its stamp); or, when it would
+        spoil the maps, leave them as they are and say why."""
+        try:
+            with np.errstate(invalid="ignore", over="ignore"):  # a NaN or infinite scale
+                points = frame_to_points(frame, decimation=self.config.decimation)
+        except ValueError as e:
+            return self._refuse(Unfusable.MALFORMED_DEPTH, str(e))
+        if not np.isfinite(points).all():
+            points = points[np.isfinite(points).all(axis=1)]
+        if not len(points):
+            return self._refuse(Unfusable.NO_DEPTH, f"no finite point in {frame.depth.size} pixels")
+        band = (self.config.elevation.z_min, self.config.elevation.z_max)
+        tilt = ground_tilt(points, band, self.config.ground)
+        if tilt is not None and tilt.tilt > self.config.ground.max_tilt:
+            detail = (
+                f"the ground near the body leans {math.degrees(tilt.tilt):.1f}° from the body's "
+                f"xy plane (rises {math.degrees(tilt.rise_x):.1f}° along x, "
+                f"{math.degrees(tilt.rise_y):.1f}° along y; limit "
+                f"{math.degrees(self.config.ground.max_tilt):.1f}°)"
+            )
+            return self._refuse(Unfusable.GROUND_NOT_LEVEL, detail, tilt)
+        self._last, self._streak = None, 0
         self.terrain.update(points, body)
         self._cone = ViewCone(frame, body.position, body.orientation, self.config.view_range)
         self._body = body
+        return None
+
+    def _refuse(self, reason: Unfusable, detail: str, tilt: GroundTilt | None = None) -> Unfused:
+        """The frame is left out: count the streak of this reason."""
+        self._streak = self._streak + 1 if reason is self._last else 1
+        self._last = reason
+        return Unfused(reason, detail, self._streak, tilt)
 
     def feature(self, feature: Feature) -> None:
         """Fold a plugin's feature (of the last frame) into its map; other kinds pass by."""

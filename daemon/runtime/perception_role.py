@@ -4,13 +4,14 @@ A capture thread keeps only the newest depth frame (newest wins, drops counted);
 pairs it with the body pose at the frame's stamp (from the history of the control role's
 BodyState; a frame outside it is refused with a counted reason), runs the profile's perception
 plugins on it and publishes their features, then folds the frame and the features into the world
-model (``algorithms.world``: terrain, holds, joists in the odometry frame) and publishes its maps
-every ``publish_period``. Each plugin, and the world model, is kept going by loader.Restarting:
-an error loses that frame's result for it (counted), one failing frame after frame is restarted
-with back-off, and one that cannot be kept going ends the role with exit status 1 so that its
-supervisor (or systemd) restarts it. The asyncio main thread owns the bus: BodyState into the
-pose history, Health (plugin status and errors, dropped and refused frames) at 2 Hz, the
-``perception`` liveliness token, signals.
+model (``algorithms.world``: terrain, holds, joists in the odometry frame; a frame it does not
+fuse, such as one whose ground is not level, is counted by reason beside the pose refusals) and
+publishes its maps every ``publish_period``, refused frames or not. Each plugin, and the world
+model, is kept going by loader.Restarting: an error loses that frame's result for it (counted),
+one failing frame after frame is restarted with back-off, and one that cannot be kept going
+ends the role with exit status 1 so that its supervisor (or systemd) restarts it. The asyncio
+main thread owns the bus: BodyState into the pose history, Health (plugin status and errors,
+dropped and refused frames) at 2 Hz, the ``perception`` liveliness token, signals.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from climbd.daemon.algorithms.pose_history import PoseHistory, PoseRefused, Refusal
-from climbd.daemon.algorithms.world import WorldModel, world_config
+from climbd.daemon.algorithms.world import Unfusable, Unfused, WorldModel, world_config
 from climbd.daemon.contract import messages as m
 from climbd.daemon.contract.hardware import Camera, DepthFrame, DriverError
 from climbd.daemon.contract.plugins import PerceptionPlugin, PluginError
@@ -116,7 +117,8 @@ class PerceptionRole:
         self.poses = PoseHistory()
         self._poses_lock = threading.Lock()
         self.refused: dict[str, int] = {}
-        """Frames given no pose, by reason (``Refusal`` values)."""
+        """Frames given no pose (``Refusal`` values) or not fused into the world model
+        (``Unfusable`` values), by reason."""
         self.published = 0
         self.undeclared = 0
         self.failure = ""
@@ -151,6 +153,7 @@ class PerceptionRole:
         the same on a recording)."""
         body = self._pose_at(frame.timestamp)
         if body is None:
+            self._publish_maps(frame.timestamp, publish)
             return
         features = []
         for iso in plugins:
@@ -182,15 +185,63 @@ class PerceptionRole:
         publish: Callable[[m.Message], None],
     ) -> None:
         """Fold a frame and its features into the world model (after they are published, so a
-        lock-stepped twin never waits for the maps) and publish the maps when due."""
+        lock-stepped twin never waits for the maps) and publish the maps when due. The features
+        of a frame the world model did not fuse stay out of its maps too."""
         world = self.world
-        world.call(world.plugin.frame, frame, body)
-        for feature in features:
-            world.call(world.plugin.feature, feature)
-        if frame.timestamp >= self._next_map:
-            self._next_map = frame.timestamp + world.plugin.config.publish_period
-            for message in world.call(world.plugin.messages, time.monotonic()) or ():
-                publish(message)
+        unfused = world.call(world.plugin.frame, frame, body)
+        if unfused is None:
+            for feature in features:
+                world.call(world.plugin.feature, feature)
+        else:
+            self._unfused(unfused)
+        self._publish_maps(frame.timestamp, publish)
+
+    def _publish_maps(self, stamp: float, publish: Callable[[m.Message], None]) -> None:
+        """Publish the maps if a publish period has passed since the last time, on frame
+        stamps; a stamp more than two periods before it (after a stamp from the future, or a
+        restarted clock) publishes too and restarts the count; a NaN stamp never does."""
+        world = self.world
+        period = world.plugin.config.publish_period
+        if not (stamp >= self._next_map or stamp < self._next_map - 2 * period):
+            return
+        self._next_map = stamp + period
+        for message in world.call(world.plugin.messages, time.monotonic()) or ():
+            publish(message)
+
+    def _unfused(self, unfused: Unfused) -> None:
+        """Count a frame the world model left out by its reason; warn of a tilted ground once
+        it has lasted ``ground.frames`` frames in a row and every hundredth frame after, of
+        the other reasons on the first and every hundredth."""
+        reason = unfused.reason.value
+        count = self.refused.get(reason, 0) + 1
+        self.refused[reason] = count
+        if unfused.reason is Unfusable.GROUND_NOT_LEVEL:
+            streak, first = unfused.streak, self.world.plugin.config.ground.frames
+            if streak == first or (streak > first and streak % 100 == 0):
+                log.warning(
+                    "camera %s: %s, %d frames in a row: is its mount in the profile right? "
+                    "Frames not fused, the maps keep their last good state (%s: %d so far)",
+                    self.camera_name,
+                    unfused.detail,
+                    streak,
+                    reason,
+                    count,
+                )
+        elif count == 1 or count % 100 == 0:
+            log.warning(
+                "camera %s: frame not fused (%s, %d so far): %s",
+                self.camera_name,
+                reason,
+                count,
+                unfused.detail,
+            )
+
+    @property
+    def camera_name(self) -> str:
+        """The camera the role reads, or the profile's cameras (``climbd rebuild`` has none)."""
+        if self.camera is not None:
+            return self.camera.config.name
+        return ", ".join(c.name for c in self.profile.cameras) or "?"
 
     def plugin_failed(self, name: str, error: BaseException) -> None:
         """A plugin was given up (Restarting's ``on_failure``, on the worker thread): the role
