@@ -73,10 +73,10 @@ KNOWN_POSTURES = 4096
 
 class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Paper 001 §4.1 conditions (swing height/period, base height, grip force, slope, gravity,
-        mass) and the foothold rule's limits: ``max_stride`` is ClimbLab's allowable maximum stride
-        for discrete footholds, ``min_stride`` its same-point distance, ``hold_spacing`` the least
-        distance (m) between two grippers' holds (one palm's width). ``horizon`` (swings) and
-        ``beam`` (postures kept per swing) bound the non-periodic gait's look-ahead. The holds are
+    mass) and the foothold rule's limits: ``max_stride`` is ClimbLab's allowable maximum stride
+    for discrete footholds, ``min_stride`` its same-point distance, ``hold_spacing`` the least
+    distance (m) between two grippers' holds (one palm's width). ``horizon`` (swings) and
+    ``beam`` (postures kept per swing) bound the non-periodic gait's look-ahead. The holds are
     the world model's hold map: those at least ``min_confidence`` sure, each a foot target
     ``foot_radius`` (m, the gripper's contact sphere) above the top perception saw."""
 
