@@ -18,7 +18,7 @@ import logging
 import os
 import select
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import dynamixel_sdk as sdk
@@ -39,6 +39,8 @@ STATUS_RETURN_ALL = 2
 MISPARSE = (IndexError, KeyError, ValueError)
 BRING_UP_MARGIN_MS = 50.0  # bring-up is not time-critical: wait long, never misread a late reply
 BRING_UP_ATTEMPTS = 8  # a servo just powered up (or a loaded host) may miss the first packets
+USB_SERIAL_SYSFS = Path("/sys/bus/usb-serial/devices")
+"""Where Linux exposes each USB serial adapter's settings, one directory per tty (ttyUSB0…)."""
 
 
 class LatencyPort(sdk.PortHandler):
@@ -104,10 +106,15 @@ class LatencyPort(sdk.PortHandler):
             pass
 
 
+def latency_timer_path(port: str, sysfs: Path | None = None) -> Path:
+    """The latency timer file of the adapter behind ``port`` under ``sysfs`` (default
+    ``USB_SERIAL_SYSFS``), named after the tty the port resolves to; only an adapter has one."""
+    return (sysfs or USB_SERIAL_SYSFS) / Path(os.path.realpath(port)).name / "latency_timer"
+
+
 def set_latency_timer(port: str, latency_ms: int) -> None:
     """Set a USB serial adapter's latency timer (sysfs); a pty or native UART is skipped."""
-    tty = Path(os.path.realpath(port)).name
-    path = Path("/sys/bus/usb-serial/devices") / tty / "latency_timer"
+    path = latency_timer_path(port)
     if not path.exists():
         log.debug("%s: not a USB serial device, no latency timer to set", port)
         return
@@ -124,6 +131,41 @@ def set_latency_timer(port: str, latency_ms: int) -> None:
             latency_ms,
             path,
         )
+
+
+def check_latency_timer(
+    port: str,
+    reads_per_cycle: int,
+    measure: Callable[[], float | None] = lambda: None,
+    sysfs: Path | None = None,
+) -> int | None:
+    """Warn, with the cost and the fix, when the adapter behind ``port`` holds replies over 1 ms.
+
+    An FTDI adapter returns a status packet only when its latency timer expires, so every read
+    waits for it: a cycle of ``reads_per_cycle`` reads costs that many timers, and a loop that
+    should run at 100 Hz crawls instead. ``measure`` times one read on the port (ms; None if
+    unanswered); it is called only when there is something to warn about. Returns the timer
+    (ms), or None for a port without one (a pty, a native UART)."""
+    path = latency_timer_path(port, sysfs)
+    try:
+        timer = int(path.read_text().strip())
+    except (OSError, ValueError):
+        return None
+    if timer > 1:
+        round_trip = measure()
+        cost = f"{round_trip:.1f} ms measured" if round_trip is not None else f"≥ {timer} ms"
+        log.warning(
+            "%s: USB serial adapter latency timer is %d ms: a read takes %s, %d read(s) a cycle "
+            "≥ %.0f ms. Fix: echo 1 | sudo tee %s (or install the udev rule "
+            "systemd/99-climbd.rules with climbd install)",
+            port,
+            timer,
+            cost,
+            reads_per_cycle,
+            reads_per_cycle * max(timer, round_trip or 0.0),
+            path,
+        )
+    return timer
 
 
 class DynamixelBus:
@@ -231,9 +273,17 @@ class DynamixelBus:
                 self._sync_write(self.model.speed_limit, self.speed_caps)
                 self._choose_read_mode()
                 self._read_blocks(True)
+                reads = len(self.ids) if self.model.protocol == 1 else 1
+                check_latency_timer(self.port_name, reads, self._read_round_trip)
         except DriverError:
             self.close()
             raise
+
+    def _read_round_trip(self) -> float | None:
+        """One state read of the first servo, timed (ms); None if it went unanswered."""
+        start = time.monotonic()
+        _, result, _ = self._read_one(self.ids[0], self.model.state)
+        return (time.monotonic() - start) * 1e3 if result == sdk.COMM_SUCCESS else None
 
     def _patient(self, call, *args) -> tuple:
         """A bring-up SDK call; a late reply the SDK misparses is a corrupt packet (flushed,

@@ -27,6 +27,11 @@ Wire timing: every reply reaches the pty when its last byte would arrive on a re
 bytes × 10 / baud for the instruction and the reply plus the servo's return delay
 (2 µs × Return Delay Time; factory default 250 = 500 µs until the host sets it).
 
+USB serial adapter: ``DynamixelEmulator(chain, latency_ms=16)`` (``--latency-ms 16``) puts an
+FTDI-style adapter (U2D2) between the pty and the bus: instructions reach the bus on the next
+1 ms USB frame, replies are held until the latency timer has run since their last byte or 62
+bytes have gathered (adapter.py). Without it (the default) the pty is wired to the bus.
+
 Command line: ``python -m climbd.drivers.sim.dynamixel --profile robots/widowx.toml`` prints the
 port path and serves until interrupted.
 """

@@ -21,6 +21,13 @@ def main(argv: list[str] | None = None) -> int:
         "--spin-us", type=float, default=0.0, help="busy-wait this long before each reply (µs)"
     )
     parser.add_argument("--return-delay-us", type=int, default=None, help="initial return delay")
+    parser.add_argument(
+        "--latency-ms",
+        type=float,
+        default=0.0,
+        help="put a USB serial adapter with this latency timer (ms, e.g. 1 or 16) before the bus "
+        "(default 0: no adapter)",
+    )
     args = parser.parse_args(argv)
     try:
         chain = ServoChain.from_profile(load(args.profile), baud=args.baud)
@@ -33,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     signal.signal(signal.SIGINT, lambda *_: done.set())
-    with DynamixelEmulator(chain, spin=args.spin_us * 1e-6) as emu:
+    with DynamixelEmulator(chain, spin=args.spin_us * 1e-6, latency_ms=args.latency_ms) as emu:
         print(emu.port, flush=True)
         done.wait()
     return 0

@@ -5,7 +5,9 @@ n × 10 / baud later and is acted on then (as a servo acts on a packet once it i
 emulator stays free meanwhile to note when the next one arrives); each reply follows after
 its servo's return delay and its own bytes × 10 / baud, and is written to the pty when its
 last byte would have arrived. The host opens ``.port`` with dynamixel_sdk exactly as it opens
-/dev/ttyUSB0.
+/dev/ttyUSB0. With a latency timer set, a USB serial adapter sits between the pty and the bus
+(adapter.py): instructions reach the bus on the next USB frame, replies wait in the adapter
+until its timer expires or its buffer fills.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import time
 import tty
 from collections import deque
 
+from climbd.drivers.sim.dynamixel.adapter import UsbSerialAdapter
 from climbd.drivers.sim.dynamixel.chain import ServoChain
 from climbd.drivers.sim.dynamixel.wire import Framer, Instruction
 
@@ -44,7 +47,8 @@ class DynamixelEmulator:
     ``realtime_motor`` steps the built-in motor model of each servo an instruction addresses
     up to wall-clock time (turn it off when a physics twin drives them). ``spin`` (s) busy-waits
     the last stretch before a reply (and before acting on an instruction) instead of sleeping,
-    for benchmark-grade timing.
+    for benchmark-grade timing. ``latency_ms`` puts an FTDI-style USB serial adapter with that
+    latency timer between the host and the bus (0 or None: the pty is wired to the bus).
     ``vanish()`` makes the port disappear under the host, as an unplugged USB adapter does.
 
     In the host's process, a client that busy-polls the port (dynamixel_sdk's stock
@@ -60,11 +64,13 @@ class DynamixelEmulator:
         realtime_motor: bool = True,
         spin: float = 0.0,
         inter_byte_timeout: float = 0.01,
+        latency_ms: float | None = None,
     ) -> None:
         self.chain = chain
         self.realtime_motor = realtime_motor
         self.spin = spin
         self.inter_byte_timeout = inter_byte_timeout
+        self.latency_ms = latency_ms
         self.port = ""
         self.bytes_handled = 0
         """Bytes read from the bus and acted on (replies queued, goals applied)."""
@@ -116,6 +122,7 @@ class DynamixelEmulator:
         if self.realtime_motor:
             chain.clock = time.monotonic
         framer = Framer(chain.protocol)
+        adapter = UsbSerialAdapter(self.latency_ms * 1e-3) if self.latency_ms else None
         inbox: deque[tuple[float, Instruction]] = deque()  # (arrival, instruction)
         pending: deque[tuple[float, bytes]] = deque()
         bus_free = last_rx = time.monotonic()
@@ -131,6 +138,8 @@ class DynamixelEmulator:
             now = time.monotonic()
             due = [pending[0][0] - self.spin] if pending else []
             due += [acted_on() - self.spin] if inbox else []
+            if adapter is not None and (released := adapter.due()) is not None:
+                due.append(released - self.spin)
             timeout = max(0.0, min(due) - now) if due else 0.1
             try:
                 ready, _, _ = select.select([master, wake], [], [], timeout)
@@ -150,7 +159,8 @@ class DynamixelEmulator:
                 if framer.buffer and now - last_rx > self.inter_byte_timeout:
                     framer.reset()
                 last_rx = now
-                inbox.extend((now, instr) for instr in framer.feed(data))
+                arrival = now if adapter is None else adapter.to_bus(now)
+                inbox.extend((arrival, instr) for instr in framer.feed(data))
                 received += len(data)
             while inbox and (t := acted_on()) - time.monotonic() <= self.spin:
                 while time.monotonic() < t:
@@ -158,7 +168,10 @@ class DynamixelEmulator:
                 instr = inbox.popleft()[1]
                 for reply in chain.handle(instr):
                     t += reply.delay + chain.wire_time(len(reply.data))
-                    pending.append((t, reply.data))
+                    if adapter is None:
+                        pending.append((t, reply.data))
+                    else:
+                        adapter.from_bus(reply.data, t, chain.wire_time(1))
                 bus_free = t
             if not inbox:
                 self.bytes_handled = received
@@ -174,3 +187,12 @@ class DynamixelEmulator:
                     os.write(master, data)
                 except OSError:
                     return
+            if adapter is not None:
+                released = adapter.due()
+                if released is not None and released - time.monotonic() <= self.spin:
+                    while time.monotonic() < released:
+                        pass
+                    try:
+                        os.write(master, adapter.release(time.monotonic()))
+                    except OSError:
+                        return
