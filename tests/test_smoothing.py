@@ -50,6 +50,11 @@ def assert_within_limits(samples: np.ndarray, dt: float, profile, scale: float =
 )
 def test_random_retargeting_respects_velocity_acceleration_jerk(robot, data) -> None:
     """Targets that jump anywhere, any time: every commanded sample stays within the limits."""
+    retarget(robot, data)
+
+
+def retarget(robot: str, data: list[tuple[int, list[float]]]) -> Smoother:
+    """Each target of ``data`` for its number of ticks from rest at zero, asserting the limits."""
     profile = PROFILES[robot]
     dt = 1.0 / profile.rate_hz
     smoother = Smoother(profile, dt)
@@ -60,6 +65,33 @@ def test_random_retargeting_respects_velocity_acceleration_jerk(robot, data) -> 
         for _ in range(ticks):
             samples.append(smoother.step(np.array(target)).copy())
     assert_within_limits(np.array(samples), dt, profile)
+    return smoother
+
+
+def offsets(**joints: float) -> list[float]:
+    """18 joint targets, zero but for ``q<index>=value``."""
+    target = [0.0] * 18
+    for name, value in joints.items():
+        target[int(name.removeprefix("q"))] = value
+    return target
+
+
+def test_a_failed_plan_does_not_leave_a_stale_trajectory_for_the_retry() -> None:
+    """Hypothesis found it: at tick 91 ruckig fails for lb_abduction (q6) braking into 0 when
+    its target moves to 0.04, and again at tick 92; the nudged retry plans. Ruckig's failed
+    plan at tick 92 had already rewritten the lower joints' trajectories from the new state,
+    and the retry, equal to tick 91's cached input, sampled them one tick late: lf_thigh (q4,
+    near its velocity limit) jumped a tick ahead, 11691 rad/s^2 against 200."""
+    data = [
+        (1, offsets(q6=1.0)),
+        (2, offsets()),
+        (12, offsets(q6=1.0)),
+        (33, offsets(q4=1.0, q6=-1.0)),
+        (12, offsets()),
+        (30, offsets(q4=1.0)),
+        (2, offsets(q6=0.04)),
+    ]
+    assert retarget("qingzhui", data).fallbacks >= 2
 
 
 def test_reaches_a_static_target_and_stays() -> None:

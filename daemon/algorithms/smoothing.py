@@ -190,10 +190,22 @@ class Smoother:
         return self._q, self._qd
 
     def _update(self) -> tuple[ruckig.Result | None, Exception | None]:
+        """One ruckig step; after a failure ruckig is reset so that the next call plans afresh.
+
+        Ruckig replans only when the input differs from the last one it planned (which it
+        advances to each new state), and a failed plan has already rewritten the trajectory of
+        the joints solved before the failing one, without updating that input. A retry (or the
+        next tick) whose input equals it, such as the same nudged target as the tick before,
+        would then sample that half-rewritten trajectory one period late: a joint moving fast
+        jumps a tick ahead, far beyond the acceleration limit.
+        """
         try:
-            return self._otg.update(self._inp, self._out), None
+            result, error = self._otg.update(self._inp, self._out), None
         except ruckig.RuckigError as e:
-            return None, e
+            result, error = None, e
+        if result not in _OK:
+            self._otg.reset()
+        return result, error
 
     def _retry_from_rest(self) -> tuple[ruckig.Result | None, Exception | None]:
         """Replan with rounding-level motion zeroed: |v| < SNAP a_max dt and |a| < SNAP j_max dt.
