@@ -182,6 +182,35 @@ class Kinematics:
         """Feet in the body frame (n_legs, 3) from a joint vector (n_joints,)."""
         return self.to_body(self.fk_leg(self.to_theta(q)))
 
+    def link_frames(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each leg's chain of link frames from a joint vector (n_joints,): translations
+        (n_legs, 4, 3) and unit quaternions (w, x, y, z), shape (n_legs, 4, 4), each frame
+        relative to the one before it (the first relative to the body).
+
+        Frame k (k = 0, 1, 2) sits on joint k's axis with x along the link it moves (length
+        ``links[k]``); frame 3 is the foot, ``links[2]`` along x of frame 2, with frame 2's
+        orientation. ``coxa_femur_tibia``: Rz(yaw + gamma), then Ry(-alpha), Ry(-beta).
+        ``abduction_thigh_shank``: Rz(yaw) Rx(theta_a), then Ry(theta_t), Ry(theta_s -
+        theta_t). Chaining them puts frame 3 at ``fk(q)``; a NaN joint gives NaN frames.
+        """
+        theta = self.to_theta(q)
+        cft = self.cft
+        yaw_angle = self.yaw + np.where(cft, theta[:, 0], 0.0)
+        roll_angle = np.where(cft, 0.0, theta[:, 0])
+        pitch_1 = np.where(cft, -theta[:, 1], theta[:, 1])
+        pitch_2 = np.where(cft, -theta[:, 2], theta[:, 2] - theta[:, 1])
+        cz, sz = np.cos(yaw_angle / 2), np.sin(yaw_angle / 2)
+        cx, sx = np.cos(roll_angle / 2), np.sin(roll_angle / 2)
+        quat = np.zeros((self.n_legs, 4, 4))
+        quat[:, 0] = np.stack([cz * cx, cz * sx, sz * sx, sz * cx], 1)
+        quat[:, 1, 0], quat[:, 1, 2] = np.cos(pitch_1 / 2), np.sin(pitch_1 / 2)
+        quat[:, 2, 0], quat[:, 2, 2] = np.cos(pitch_2 / 2), np.sin(pitch_2 / 2)
+        quat[:, 3, 0] = 1.0
+        trans = np.zeros((self.n_legs, 4, 3))
+        trans[:, 0] = self.mount
+        trans[:, 1, 0], trans[:, 2, 0], trans[:, 3, 0] = self.l1, self.l2, self.l3
+        return trans, quat
+
     # --- inverse kinematics -----------------------------------------------------------
 
     def ik_leg(self, feet_leg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -48,6 +48,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "republish an MCAP recording on the bus at real or chosen speed",
     ),
     "top": ("climbd.daemon.cli.top", "live terminal view of a robot or the fleet"),
+    "view": (
+        "climbd.daemon.cli.view",
+        "serve a robot live to Foxglove (WebSocket): its frames, links and maps in 3-D",
+    ),
 }
 
 

@@ -1,0 +1,307 @@
+"""``climbd view``: a robot's topics served live to Foxglove over its WebSocket protocol.
+
+A process of its own (never in a role's interpreter): it subscribes to what the robot already
+publishes over Zenoh (read-only, with the operator tools' credential options) and serves it
+with the Foxglove SDK in Foxglove's well-known schemas (daemon/runtime/scene.py), so that the
+3-D panel of Foxglove, connected to ``ws://HOST:PORT``, draws the robot without configuration:
+
+    /tf          foxglove.FrameTransforms  odom → body → each leg's links → feet; body → cameras
+    /robot       foxglove.SceneUpdate      links, feet, body and cameras, locked to their frames
+    /joists /holds /stairs /truss          foxglove.SceneUpdate, the world model's maps (odom)
+    /elevation   foxglove.Grid             perception's height map, placed in odom
+    /mode /health                          the robot's ModeState and Health as JSON
+
+Zenoh callbacks only keep the latest message of each kind; a publisher thread translates at
+``--rate`` (transforms) or on arrival (maps, mode, health), so a 1 kHz joint stream costs the
+view one translation per period. A slow WebSocket client loses its oldest messages past
+``--backlog`` (the SDK drops them) rather than queueing without bound. The view says on
+stderr, and to connected clients as a Foxglove status, when no robot is heard, when the robot
+goes silent and when it is heard again; Zenoh reconnects to ``--connect`` by itself.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+
+import foxglove
+from foxglove import channels as ch
+
+from climbd.daemon.cli.client import add_credential_arguments, open_client
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.contract.messages import (
+    BodyState,
+    ElevationGrid,
+    Health,
+    HoldMap,
+    JointState,
+    JoistMap,
+    Message,
+    ModeState,
+    StairMap,
+    TrussMembers,
+)
+from climbd.daemon.runtime import scene
+
+SUBSCRIBED: tuple[type[Message], ...] = (
+    BodyState,
+    JointState,
+    ModeState,
+    Health,
+    JoistMap,
+    HoldMap,
+    StairMap,
+    TrussMembers,
+    ElevationGrid,
+)
+"""What the view takes from the robot; all of it the robot publishes whether or not anyone
+watches."""
+
+GEOMETRY_PERIOD = 1.0
+"""Seconds between repeats of the robot's geometry, for clients that join later."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--robot", required=True, help="robot name (profile name)")
+    parser.add_argument(
+        "--connect", action="append", default=[], help="Zenoh endpoint of the robot (repeatable)"
+    )
+    parser.add_argument(
+        "--profile",
+        help="the robot's profile (default: the stock profile robots/<robot>.toml), for its "
+        "kinematics and camera mounts",
+    )
+    parser.add_argument("--host", default="127.0.0.1", help="WebSocket address to serve on")
+    parser.add_argument(
+        "--port", type=int, default=8765, help="WebSocket port (0: any free port, printed)"
+    )
+    parser.add_argument("--rate", type=float, default=30.0, help="transforms per second sent")
+    parser.add_argument(
+        "--backlog",
+        type=int,
+        default=64,
+        help="messages queued per WebSocket client; a slow client loses the oldest past it",
+    )
+    parser.add_argument(
+        "--silent-after",
+        type=float,
+        default=3.0,
+        help="seconds without a message after which the robot is reported silent",
+    )
+    add_credential_arguments(parser)
+
+
+def find_profile(robot: str, path: str | None) -> profiles.Profile:
+    """``path``'s profile, or the stock profile named ``robot``; ProfileError when neither."""
+    if path is not None:
+        return profiles.load(path)
+    stock = profiles.stock_profiles()
+    if robot in stock:
+        return profiles.load(stock[robot])
+    raise profiles.ProfileError(
+        f"no stock profile for robot {robot!r} (stock: {', '.join(sorted(stock))}): "
+        "pass --profile with the robot's profile"
+    )
+
+
+class Latest:
+    """The latest message of each kind (Health: of each role), filled on Zenoh's threads.
+
+    ``put`` only stores under a lock: it never blocks on the viewer and never calls Zenoh."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._fresh: dict[object, Message] = {}
+        self.heard = -float("inf")
+        """time.monotonic() of the last message."""
+
+    def put(self, msg: Message) -> None:
+        kind = (Health, msg.role) if isinstance(msg, Health) else type(msg)
+        now = time.monotonic()
+        with self._lock:
+            self._fresh[kind] = msg
+            self.heard = now
+
+    def take(self) -> dict[object, Message]:
+        """What arrived since the last take, the latest of each kind."""
+        with self._lock:
+            fresh, self._fresh = self._fresh, {}
+        return fresh
+
+
+class Presence:
+    """Whether the robot is heard: the lines the view says when that changes."""
+
+    def __init__(self, robot: str, where: str, silent_after: float, started: float) -> None:
+        self.robot = robot
+        self.where = where
+        self.silent_after = silent_after
+        self.started = started
+        self.state = "waiting"  # waiting → (heard ⇄ silent); "unheard" once waiting is reported
+
+    def update(self, heard: float, now: float) -> str | None:
+        """The message to report at ``now`` given the last message at ``heard``, or None."""
+        recent = now - heard <= self.silent_after
+        if recent and self.state != "heard":
+            before, self.state = self.state, "heard"
+            if before == "silent":
+                return f"robot {self.robot!r} heard again"
+            return f"robot {self.robot!r} heard"
+        if recent:
+            return None
+        if self.state == "waiting" and now - self.started > self.silent_after:
+            self.state = "unheard"
+            return (
+                f"no robot {self.robot!r} heard on {self.where} after {self.silent_after:g} s; "
+                "still listening"
+            )
+        if self.state == "heard":
+            self.state = "silent"
+            return (
+                f"robot {self.robot!r} silent for {self.silent_after:g} s; "
+                "still listening, it will show again when it comes back"
+            )
+        return None
+
+
+class Viewer:
+    """The Foxglove channels of one robot in a foxglove Context, and what goes on each."""
+
+    def __init__(self, robot_scene: scene.RobotScene, context: foxglove.Context) -> None:
+        self.scene = robot_scene
+        self.tf = ch.FrameTransformsChannel("/tf", context=context)
+        self.robot = ch.SceneUpdateChannel("/robot", context=context)
+        self.maps = {
+            JoistMap: (ch.SceneUpdateChannel("/joists", context=context), scene.joists),
+            HoldMap: (ch.SceneUpdateChannel("/holds", context=context), scene.holds),
+            StairMap: (ch.SceneUpdateChannel("/stairs", context=context), scene.stairs),
+            TrussMembers: (ch.SceneUpdateChannel("/truss", context=context), scene.truss),
+            ElevationGrid: (ch.GridChannel("/elevation", context=context), scene.elevation),
+        }
+        self.json = {}
+        for topic, message in (("/mode", ModeState), ("/health", Health)):
+            schema = foxglove.Schema(
+                name=f"climbd.{message.__name__}",
+                encoding="jsonschema",
+                data=json.dumps(scene.json_schema(message)).encode(),
+            )
+            self.json[message] = foxglove.Channel(
+                topic, schema=schema, message_encoding="json", context=context
+            )
+        self.body: BodyState | None = None
+        self.joints: JointState | None = None
+        self._geometry_at = -float("inf")
+        self._refused: set[str] = set()
+
+    def publish(self, fresh: dict[object, Message], now_ns: int, now: float) -> None:
+        """Translate and log what arrived; transforms whenever the body or joints moved, and
+        the robot's geometry every GEOMETRY_PERIOD."""
+        moved = False
+        for kind, msg in fresh.items():
+            if kind is BodyState:
+                self.body, moved = msg, True
+            elif kind is JointState:
+                self.joints, moved = msg, True
+            elif type(msg) in self.maps:
+                channel, translate = self.maps[type(msg)]
+                out = self._draw(msg.TOPIC, translate, msg, now_ns)
+                if out is not None:
+                    channel.log(out, log_time=now_ns)
+            elif type(msg) in self.json:
+                self.json[type(msg)].log(scene.json_payload(msg), log_time=now_ns)
+        if now - self._geometry_at >= GEOMETRY_PERIOD:
+            self._geometry_at = now
+            self.robot.log(self.scene.geometry(now_ns), log_time=now_ns)
+            moved = True  # the cameras' static transforms go out with it
+        if moved:
+            tf = self._draw(
+                f"{BodyState.TOPIC} and {JointState.TOPIC}",
+                self.scene.transforms,
+                self.body,
+                self.joints,
+                now_ns,
+            )
+            if tf is not None:
+                self.tf.log(tf, log_time=now_ns)
+
+    def _draw(self, what: str, translate, *args):
+        """``translate(*args)``, or None once it said on stderr (first time per topic) why a
+        message of ``what`` cannot be drawn: one odd message never stops the view."""
+        try:
+            return translate(*args)
+        except Exception as e:
+            if what not in self._refused:
+                self._refused.add(what)
+                print(
+                    f"cannot draw {what}: {type(e).__name__}: {e} (further ones dropped quietly)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            return None
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        robot_scene = scene.RobotScene(find_profile(args.robot, args.profile))
+    except (profiles.ProfileError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if args.rate <= 0 or args.backlog < 1:
+        print("error: --rate must be positive and --backlog at least 1", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):  # explicit: an inherited SIG_IGN would hang us
+        signal.signal(sig, lambda *_: stop.set())
+
+    context = foxglove.Context()
+    viewer = Viewer(robot_scene, context)
+    try:
+        server = foxglove.start_server(
+            name=f"climbd {args.robot}",
+            host=args.host,
+            port=args.port,
+            context=context,
+            message_backlog_size=args.backlog,
+        )
+    except Exception as e:  # the SDK raises its own error types for a taken port
+        print(f"error: cannot serve on {args.host}:{args.port}: {e}", file=sys.stderr)
+        return 2
+    where = ", ".join(args.connect) or "no endpoint (give the robot's with --connect)"
+    print(
+        f"serving robot {args.robot!r} to Foxglove on ws://{args.host}:{server.port} "
+        f"(listening for it on {where})",
+        file=sys.stderr,
+        flush=True,
+    )
+    net = None
+    try:
+        net = open_client(args, args.robot, "view")
+        if net is None:
+            return 2
+        latest = Latest()
+        for message in SUBSCRIBED:
+            net.subscribe(message, latest.put)
+        presence = Presence(args.robot, where, args.silent_after, time.monotonic())
+        period = 1.0 / args.rate
+        while not stop.is_set():
+            now = time.monotonic()
+            viewer.publish(latest.take(), time.time_ns(), now)
+            said = presence.update(latest.heard, now)
+            if said is not None:
+                print(said, file=sys.stderr, flush=True)
+                level = (
+                    foxglove.StatusLevel.Info
+                    if presence.state == "heard"
+                    else foxglove.StatusLevel.Warning
+                )
+                server.publish_status(said, level, id="robot")
+            stop.wait(max(0.0, period - (time.monotonic() - now)))
+        return 0
+    finally:
+        if net is not None:
+            net.close()
+        server.stop()

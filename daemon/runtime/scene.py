@@ -1,0 +1,443 @@
+"""climbd's messages as Foxglove's well-known schemas, for ``climbd view`` (and recordings).
+
+Pure translation, no I/O and no clock: every function takes the time to stamp with (``now``,
+integer nanoseconds) and returns foxglove-sdk message objects, which the caller logs on its
+channels. Foxglove's 3-D panel draws them without configuration.
+
+Frames (``FrameTransforms``), one tree rooted at the odometry frame:
+
+- ``odom`` → ``body``: the estimated body pose (``BodyState``);
+- ``body`` → ``<joint 1>`` → ``<joint 2>`` → ``<joint 3>`` → ``<leg>_foot``: each leg's link
+  frames from its joints' positions (``JointState``) and the profile's kinematics, named after
+  the profile's joints (``rf_coxa`` → ``rf_femur`` → ``rf_tibia`` → ``rf_foot``); frame k sits
+  on joint k's axis with x along the link it moves (``Kinematics.link_frames``);
+- ``body`` → ``camera_<name>``: each profile camera's optical frame (x right, y down, z forward)
+  at its mount (``mount_extrinsics``).
+
+Scenes (``SceneUpdate``, each replacing the whole of its topic's previous scene): the robot's
+links as primitives locked to their frames, and the world model's maps in ``odom``: joists as
+boxes, holds as spheres, stair treads as boxes, truss members as cylinders with their nodes as
+spheres, all coloured by confidence (red 0 → yellow → green 1).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import foxglove.messages as fg
+import msgspec
+import numpy as np
+
+from climbd.daemon.algorithms.estimation import quaternion
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.geometry import rotation
+from climbd.daemon.contract.hardware import mount_extrinsics
+from climbd.daemon.contract.messages import (
+    BodyState,
+    ElevationGrid,
+    HoldMap,
+    JointState,
+    JoistMap,
+    Message,
+    StairMap,
+    TrussMembers,
+)
+from climbd.daemon.contract.profile import Profile
+
+ODOM = "odom"
+"""The odometry frame: the root of the tree, where the world model's maps live."""
+BODY = "body"
+
+JOIST_WIDTH = 0.038
+"""Width (m) a joist is drawn with (a 2× joist's 1.5 in): the map keeps its top edge only."""
+HOLD_DIAMETER = 0.04
+"""Diameter (m) of a hold's sphere."""
+NODE_SCALE = 2.5
+"""A truss node's sphere, in diameters of its thickest member."""
+MIN_THICKNESS = 0.005
+"""Smallest extent (m) of a drawn box: a zero rise or height still shows as a slab."""
+
+ROBOT_COLOR = (0.55, 0.6, 0.7, 1.0)
+BODY_COLOR = (0.3, 0.35, 0.45, 0.9)
+CAMERA_COLOR = (0.1, 0.5, 0.9, 1.0)
+
+
+# --- small pieces ---------------------------------------------------------------------------
+
+
+def stamp(now: int) -> fg.Timestamp:
+    """A Foxglove timestamp from integer nanoseconds."""
+    sec, nsec = divmod(int(now), 1_000_000_000)
+    return fg.Timestamp(sec=sec, nsec=nsec)
+
+
+def vector(v: Sequence[float]) -> fg.Vector3:
+    return fg.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def quat(q: Sequence[float]) -> fg.Quaternion:
+    """A Foxglove quaternion (x, y, z, w fields) from climbd's (w, x, y, z)."""
+    return fg.Quaternion(w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3]))
+
+
+def pose(position: Sequence[float], orientation: Sequence[float] = (1.0, 0.0, 0.0, 0.0)):
+    return fg.Pose(position=vector(position), orientation=quat(orientation))
+
+
+def color(rgba: Sequence[float]) -> fg.Color:
+    return fg.Color(r=float(rgba[0]), g=float(rgba[1]), b=float(rgba[2]), a=float(rgba[3]))
+
+
+def confidence_rgba(confidence: float, alpha: float = 0.9) -> tuple[float, float, float, float]:
+    """Red at 0, yellow at 0.5, green at 1 (NaN counts as 0)."""
+    c = min(max(confidence, 0.0), 1.0) if math.isfinite(confidence) else 0.0
+    return (min(1.0, 2.0 * (1.0 - c)), min(1.0, 2.0 * c), 0.0, alpha)
+
+
+def yaw_quaternion(yaw: float) -> list[float]:
+    """(w, x, y, z) of a rotation by ``yaw`` about z."""
+    return [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+
+
+def z_to(direction: Sequence[float]) -> list[float]:
+    """(w, x, y, z) of the shortest rotation taking +z onto ``direction`` (a cylinder's axis)."""
+    a = np.asarray(direction, float)
+    a = a / np.linalg.norm(a)
+    if a[2] < -1.0 + 1e-12:
+        return [0.0, 1.0, 0.0, 0.0]
+    q = np.array([1.0 + a[2], -a[1], a[0], 0.0])
+    return (q / np.linalg.norm(q)).tolist()
+
+
+def _finite(*values) -> bool:
+    return all(np.isfinite(np.asarray(v, float)).all() for v in values)
+
+
+def _points(points: Sequence[Sequence[float]], n: int = 2) -> bool:
+    """At least ``n`` finite (x, y, z) points."""
+    return len(points) >= n and all(len(p) >= 3 for p in points[:n]) and _finite(*points[:n])
+
+
+def _replace_all(entities: list[fg.SceneEntity], now: int) -> fg.SceneUpdate:
+    """A scene that replaces everything its topic showed before (maps drop what they forgot)."""
+    deletion = fg.SceneEntityDeletion(timestamp=stamp(now), type=fg.SceneEntityDeletionType.All)
+    return fg.SceneUpdate(deletions=[deletion], entities=entities)
+
+
+# --- the robot ------------------------------------------------------------------------------
+
+
+class RobotScene:
+    """The frame tree and link geometry of one profile's robot."""
+
+    def __init__(self, profile: Profile) -> None:
+        self.profile = profile
+        self.kinematics = Kinematics(profile)
+        self.joint_names = [j.name for j in profile.joints]
+        self.leg_frames = [
+            [*(j.name for j in leg.joints), f"{leg.name}_foot"] for leg in profile.legs
+        ]
+        self.cameras: list[tuple[str, list[float], list[float]]] = []
+        for camera in profile.cameras:
+            t = mount_extrinsics(camera)
+            self.cameras.append((f"camera_{camera.name}", t[:3, 3].tolist(), quaternion(t[:3, :3])))
+
+    @property
+    def frames(self) -> list[str]:
+        """Every frame of the tree, root first."""
+        names = [ODOM, BODY]
+        for chain in self.leg_frames:
+            names += chain
+        return names + [name for name, _, _ in self.cameras]
+
+    def joint_vector(self, joints: JointState) -> np.ndarray:
+        """The profile-ordered joint vector of ``joints`` (NaN for a joint it does not name)."""
+        by_name = dict(zip(joints.names, joints.position, strict=False))
+        return np.array([by_name.get(n, math.nan) for n in self.joint_names], float)
+
+    def transforms(
+        self, body: BodyState | None, joints: JointState | None, now: int
+    ) -> fg.FrameTransforms:
+        """The tree's transforms at ``now``: odom → body when the body pose is known, each leg's
+        links when all its joints are (a leg with a lost or missing joint is left out, so a
+        viewer keeps its last pose), and the cameras always."""
+        ts = stamp(now)
+        out: list[fg.FrameTransform] = []
+
+        def add(parent: str, child: str, t: Sequence[float], q: Sequence[float]) -> None:
+            out.append(
+                fg.FrameTransform(
+                    timestamp=ts,
+                    parent_frame_id=parent,
+                    child_frame_id=child,
+                    translation=vector(t),
+                    rotation=quat(q),
+                )
+            )
+
+        if body is not None and _finite(body.position, body.orientation):
+            q = np.asarray(body.orientation, float)
+            norm = float(np.linalg.norm(q))
+            if len(body.position) == 3 and len(q) == 4 and norm > 0:
+                add(ODOM, BODY, body.position, q / norm)
+        if joints is not None:
+            trans, quats = self.kinematics.link_frames(self.joint_vector(joints))
+            for leg, chain in enumerate(self.leg_frames):
+                if not _finite(quats[leg]):
+                    continue
+                parent = BODY
+                for k, child in enumerate(chain):
+                    add(parent, child, trans[leg, k], quats[leg, k])
+                    parent = child
+        for name, t, q in self.cameras:
+            add(BODY, name, t, q)
+        return fg.FrameTransforms(transforms=out)
+
+    def geometry(self, now: int) -> fg.SceneUpdate:
+        """The robot drawn as primitives locked to its frames: the body as a slab over its leg
+        mounts, each link as a cylinder, each foot as a sphere, each camera as a small box."""
+        ts = stamp(now)
+        kin = self.kinematics
+        links = np.stack([kin.l1, kin.l2, kin.l3], 1)
+        thickness = max(0.01, 0.15 * float(np.median(links[links > 0])) if links.any() else 0.02)
+        entities = []
+        lo, hi = kin.mount.min(0), kin.mount.max(0)
+        size = np.maximum(hi - lo, thickness) + [thickness, thickness, 0.0]
+        size[2] = max(size[2], 2 * thickness)
+        entities.append(
+            fg.SceneEntity(
+                timestamp=ts,
+                frame_id=BODY,
+                id="body",
+                frame_locked=True,
+                cubes=[
+                    fg.CubePrimitive(
+                        pose=pose((lo + hi) / 2), size=vector(size), color=color(BODY_COLOR)
+                    )
+                ],
+            )
+        )
+        along_x = [math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0]  # Ry(90°): z → x
+        for leg, chain in enumerate(self.leg_frames):
+            for k in range(3):
+                length = float(links[leg, k])
+                if length <= 0:
+                    continue
+                cylinder = fg.CylinderPrimitive(
+                    pose=pose([length / 2, 0.0, 0.0], along_x),
+                    size=vector([thickness, thickness, length]),
+                    bottom_scale=1.0,
+                    top_scale=1.0,
+                    color=color(ROBOT_COLOR),
+                )
+                entities.append(
+                    fg.SceneEntity(
+                        timestamp=ts,
+                        frame_id=chain[k],
+                        id=f"link/{chain[k]}",
+                        frame_locked=True,
+                        cylinders=[cylinder],
+                    )
+                )
+            foot = fg.SpherePrimitive(
+                pose=pose([0.0, 0.0, 0.0]),
+                size=vector([1.5 * thickness] * 3),
+                color=color(ROBOT_COLOR),
+            )
+            entities.append(
+                fg.SceneEntity(
+                    timestamp=ts, frame_id=chain[3], id=chain[3], frame_locked=True, spheres=[foot]
+                )
+            )
+        for name, _, _ in self.cameras:
+            box = fg.CubePrimitive(  # optical frame: wide along x, shallow along z (forward)
+                pose=pose([0.0, 0.0, -0.0125]),
+                size=vector([0.09, 0.025, 0.025]),
+                color=color(CAMERA_COLOR),
+            )
+            entities.append(
+                fg.SceneEntity(timestamp=ts, frame_id=name, id=name, frame_locked=True, cubes=[box])
+            )
+        return _replace_all(entities, now)
+
+
+# --- the world model's maps -----------------------------------------------------------------
+
+
+def joists(msg: JoistMap, now: int) -> fg.SceneUpdate:
+    """Each mapped joist as a box: its top along the edge seen so far, ``height`` deep,
+    JOIST_WIDTH wide on the side its normal points to (away from where it was first seen)."""
+    ts = stamp(now)
+    entities = []
+    for j in msg.joists:
+        if not _points(j.endpoints) or not _finite(j.heading, j.height):
+            continue
+        p0, p1 = np.asarray(j.endpoints[0][:3], float), np.asarray(j.endpoints[1][:3], float)
+        normal = np.array([math.cos(j.heading), math.sin(j.heading), 0.0])
+        along = np.array([-normal[1], normal[0], 0.0])
+        length = max(abs(float((p1 - p0) @ along)), MIN_THICKNESS)
+        height = max(float(j.height), MIN_THICKNESS)
+        centre = (p0 + p1) / 2 + normal * (JOIST_WIDTH / 2)
+        centre[2] = (p0[2] + p1[2]) / 2 - height / 2
+        box = fg.CubePrimitive(
+            pose=pose(centre, yaw_quaternion(j.heading)),
+            size=vector([JOIST_WIDTH, length, height]),
+            color=color(confidence_rgba(j.confidence)),
+        )
+        entities.append(_entity(ts, f"joist/{j.id}", j, cubes=[box]))
+    return _replace_all(entities, now)
+
+
+def holds(msg: HoldMap, now: int) -> fg.SceneUpdate:
+    """Each mapped hold as a sphere of HOLD_DIAMETER at its position."""
+    ts = stamp(now)
+    entities = []
+    for h in msg.holds:
+        if len(h.position) < 3 or not _finite(h.position):
+            continue
+        sphere = fg.SpherePrimitive(
+            pose=pose(h.position[:3]),
+            size=vector([HOLD_DIAMETER] * 3),
+            color=color(confidence_rgba(h.confidence)),
+        )
+        entities.append(_entity(ts, f"hold/{h.id}", h, spheres=[sphere]))
+    return _replace_all(entities, now)
+
+
+def stairs(msg: StairMap, now: int) -> fg.SceneUpdate:
+    """Each mapped step as a block: its tread ``depth`` deep from the edge up the flight, its
+    top at ``height``, ``rise`` tall. The edge runs left to right facing up the flight, so up
+    the flight is the edge direction turned a quarter left."""
+    ts = stamp(now)
+    entities = []
+    for s in msg.steps:
+        if not _points(s.edge) or not _finite(s.height, s.rise, s.depth):
+            continue
+        left, right = np.asarray(s.edge[0][:3], float), np.asarray(s.edge[1][:3], float)
+        edge = right - left
+        width = float(np.hypot(edge[0], edge[1]))
+        if width <= 0:
+            continue
+        up = np.array([-edge[1], edge[0], 0.0]) / width
+        rise = max(float(s.rise), MIN_THICKNESS)
+        depth = max(float(s.depth), MIN_THICKNESS)
+        centre = (left + right) / 2 + up * (depth / 2)
+        centre[2] = s.height - rise / 2
+        box = fg.CubePrimitive(
+            pose=pose(centre, yaw_quaternion(math.atan2(up[1], up[0]))),
+            size=vector([depth, width, rise]),
+            color=color(confidence_rgba(s.confidence)),
+        )
+        entities.append(_entity(ts, f"stair/{s.id}", s, cubes=[box]))
+    return _replace_all(entities, now)
+
+
+def truss(msg: TrussMembers, now: int) -> fg.SceneUpdate:
+    """Each member as a cylinder between its ends, each node as a sphere NODE_SCALE times the
+    diameter of its thickest member."""
+    ts = stamp(now)
+    entities = []
+    radius: dict[int, float] = {}
+    for i, m in enumerate(msg.members):
+        if len(m.p0) < 3 or len(m.p1) < 3 or not _finite(m.p0, m.p1, m.radius):
+            continue
+        p0, p1 = np.asarray(m.p0[:3], float), np.asarray(m.p1[:3], float)
+        length = float(np.linalg.norm(p1 - p0))
+        if length <= 0:
+            continue
+        radius[m.id] = max(radius.get(m.id, 0.0), float(m.radius))
+        cylinder = fg.CylinderPrimitive(
+            pose=pose((p0 + p1) / 2, z_to(p1 - p0)),
+            size=vector([2 * m.radius, 2 * m.radius, length]),
+            bottom_scale=1.0,
+            top_scale=1.0,
+            color=color(confidence_rgba(m.confidence)),
+        )
+        name = f"member/{m.id}" if m.id else f"member/#{i}"
+        entities.append(_entity(ts, name, m, cylinders=[cylinder]))
+    for i, n in enumerate(msg.nodes):
+        if len(n.position) < 3 or not _finite(n.position):
+            continue
+        r = max((radius.get(k, 0.0) for k in n.members), default=0.0) or 0.02
+        sphere = fg.SpherePrimitive(
+            pose=pose(n.position[:3]),
+            size=vector([2 * NODE_SCALE * r] * 3),
+            color=color((0.6, 0.6, 0.6, 1.0)),
+        )
+        entities.append(
+            fg.SceneEntity(timestamp=ts, frame_id=ODOM, id=f"node/{i}", spheres=[sphere])
+        )
+    return _replace_all(entities, now)
+
+
+def _entity(ts: fg.Timestamp, name: str, item, **primitives) -> fg.SceneEntity:
+    """An odometry-frame entity with a tracked item's confidence (and sightings) as metadata."""
+    meta = [fg.KeyValuePair(key="confidence", value=f"{item.confidence:.3f}")]
+    if hasattr(item, "seen"):
+        meta.append(fg.KeyValuePair(key="seen", value=str(item.seen)))
+    return fg.SceneEntity(timestamp=ts, frame_id=ODOM, id=name, metadata=meta, **primitives)
+
+
+# --- grids ----------------------------------------------------------------------------------
+
+
+def elevation(msg: ElevationGrid, now: int) -> fg.Grid | None:
+    """A body-frame height map as a Foxglove grid in ``odom``, placed with the body pose it was
+    computed at (``frame_position``, ``frame_orientation``); one float32 field ``height``,
+    NaN unknown. None for a grid whose bytes do not match its size."""
+    n = msg.rows * msg.cols
+    if n == 0 or len(msg.heights) != 4 * n or msg.resolution <= 0:
+        return None
+    if not _finite(msg.frame_position, msg.frame_orientation):
+        return None
+    # climbd's rows run along x and its columns along y; Foxglove's columns run along the
+    # grid's x, so the cells go over transposed.
+    heights = np.frombuffer(msg.heights, "<f4").reshape(msg.rows, msg.cols)
+    data = np.ascontiguousarray(heights.T).tobytes()
+    r = rotation(msg.frame_orientation, zero_norm_ok=True)
+    origin = np.asarray(msg.frame_position, float) + r @ [msg.origin_x, msg.origin_y, 0.0]
+    return fg.Grid(
+        timestamp=stamp(now),
+        frame_id=ODOM,
+        pose=pose(origin, quaternion(r)),
+        column_count=msg.rows,
+        cell_size=fg.Vector2(x=msg.resolution, y=msg.resolution),
+        row_stride=4 * msg.rows,
+        cell_stride=4,
+        fields=[
+            fg.PackedElementField(
+                name="height", offset=0, type=fg.PackedElementFieldNumericType.Float32
+            )
+        ],
+        data=data,
+    )
+
+
+# --- JSON channels --------------------------------------------------------------------------
+
+
+def json_schema(message: type[Message]) -> dict:
+    """The JSON Schema a JSON channel of ``message`` advertises: the message's own schema at
+    the top (Foxglove reads its fields there), its parts under ``$defs``; every number may be
+    null, which is how JSON carries a NaN (a lost joint's temperature)."""
+    top = msgspec.json.schema(message)
+    defs = top.get("$defs", {})
+    schema = {**defs.get(message.__name__, top), "$defs": defs}
+    return _nullable_numbers(schema)
+
+
+def _nullable_numbers(node):
+    if isinstance(node, dict):
+        out = {k: _nullable_numbers(v) for k, v in node.items()}
+        if out.get("type") == "number":
+            out["type"] = ["number", "null"]
+        return out
+    if isinstance(node, list):
+        return [_nullable_numbers(v) for v in node]
+    return node
+
+
+def json_payload(msg: Message) -> bytes:
+    """``msg`` as JSON (NaN and infinities as null)."""
+    return msgspec.json.encode(msg)
