@@ -9,10 +9,12 @@ import threading
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
 from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.messages import Health
 from climbd.daemon.contract.profile import load
 from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
@@ -21,15 +23,23 @@ ROOT = Path(__file__).resolve().parent.parent
 RESOLUTION = {1: np.radians(300) / 1023, 2: 2 * np.pi / 4096}
 
 
-@pytest.mark.parametrize("robot", ["widowx", "hubrobo"])
-def test_climbd_run_stands_up_on_the_emulated_bus(robot: str, endpoint: str, tmp_path) -> None:
+@pytest.mark.parametrize(
+    "robot,latency_ms",
+    [("widowx", None), ("widowx", 1), ("widowx", 16), ("hubrobo", None), ("hubrobo", 16)],
+)
+def test_climbd_run_stands_up_on_the_emulated_bus(
+    robot: str, latency_ms: int | None, endpoint: str, tmp_path
+) -> None:
     """The bare chain carries no load, so sag compensation is off here (the goals would reach
-    past the stand pose by the sag a load would cause); tests/test_sim_hil.py tests it loaded."""
+    past the stand pose by the sag a load would cause); tests/test_sim_hil.py tests it loaded.
+    Behind an emulated USB adapter (1 or 16 ms latency timer): holding, every servo receives
+    every goal at the loop's rate and ``climbd status`` shows every joint's state within the
+    profile's bound."""
     stiff = tmp_path / f"{robot}.toml"
     stiff.write_text(f'include = "{ROOT / "robots" / f"{robot}.toml"}"\n[bus]\nstiffness = 0.0\n')
     profile = load(stiff)
     chain = ServoChain.from_profile(profile)
-    with DynamixelEmulator(chain) as emu:
+    with DynamixelEmulator(chain, latency_ms=latency_ms) as emu:
         proc = subprocess.Popen(
             [sys.executable, "-m", "climbd.daemon.cli", "run", "--profile", str(profile.source)]
             + ["--driver", "dynamixel", "--port", emu.port, "--listen", endpoint, "--quiet"],
@@ -47,6 +57,16 @@ def test_climbd_run_stands_up_on_the_emulated_bus(robot: str, endpoint: str, tmp
                 assert proc.poll() is None and time.monotonic() < end, "".join(log)
                 time.sleep(0.05)
             time.sleep(0.5)  # HOLD: the servos settle on the last goal
+            before = [s.goals for s in chain.servos.values()]
+            status = subprocess.run(
+                [sys.executable, "-m", "climbd.daemon.cli", "status", "--robot", profile.name]
+                + ["--connect", endpoint, "--json"],
+                cwd=ROOT,
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
+            received = [s.goals - b for s, b in zip(chain.servos.values(), before, strict=True)]
             goals = chain.joint_goals()
             present = chain.joint_positions()
             torque = [s.torque_enabled for s in chain.servos.values()]
@@ -60,4 +80,10 @@ def test_climbd_run_stands_up_on_the_emulated_bus(robot: str, endpoint: str, tmp
     assert np.max(np.abs(present - goals)) <= resolution
     assert np.max(np.abs(goals - stand)) < 0.01 + resolution
     assert proc.returncode == 0, "".join(log)
+    assert status.returncode == 0, status.stderr
+    bus = msgspec.json.decode(status.stdout, type=Health).bus
+    assert bus is not None and bus.oldest_age_max <= profile.bus.max_state_age, bus
+    assert bus.writes_per_s >= 0.9 * profile.rate_hz, bus
+    assert max(received) - min(received) <= 1, received  # one sync write may be on its way
+    assert ("adapter holds" in bus.plan) == (latency_ms is not None), bus.plan
     assert "Traceback" not in "".join(log)

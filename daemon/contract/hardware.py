@@ -14,7 +14,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
+from climbd.daemon.contract.messages import BusSchedule, JointCommand, JointHealth, JointState
 from climbd.daemon.contract.profile import CameraConfig
 
 
@@ -150,6 +150,13 @@ class ServedBetweenTicks(Protocol):
     """A joint bus that takes its replies between ticks, until ``deadline`` (monotonic s)."""
 
     def serve_until(self, deadline: float) -> None: ...
+
+
+@runtime_checkable
+class ReportsSchedule(Protocol):
+    """A joint bus that reads its joints on a schedule (not all every tick) and reports it."""
+
+    def schedule(self) -> BusSchedule: ...
 
 
 @runtime_checkable

@@ -93,7 +93,12 @@ class EstopPolicy(str, enum.Enum):
 
 
 class JointState(Message):
-    """Measured joint state, one entry per joint in profile order (rad, rad/s, N·m)."""
+    """Measured joint state, one entry per joint in profile order (rad, rad/s, N·m).
+
+    ``age`` (s, per joint) says how old each joint's reading is when the tick gets it, for a
+    bus that cannot read every joint every tick (Dynamixel Protocol 1.0 behind a USB adapter);
+    NaN for a joint the bus has lost (not read; its health says so); empty when every joint
+    was read this tick."""
 
     TOPIC: ClassVar[str] = "state/joints"
     RATE: ClassVar[str] = "control rate (100 Hz WidowX/HubRobo, 1 kHz Qingzhui)"
@@ -101,6 +106,7 @@ class JointState(Message):
     position: JointValues = []
     velocity: JointValues = []
     effort: JointValues = []
+    age: JointValues = []
 
 
 class JointCommand(Message):
@@ -141,6 +147,23 @@ class LoopStats(msgspec.Struct, kw_only=True):
     compute_p99: float = 0.0
 
 
+class BusSchedule(msgspec.Struct, kw_only=True):
+    """How a joint bus that reads between ticks keeps up, over the last window: reads per tick
+    and per second, goal writes per second, the age (s) of the oldest joint state each tick
+    took (p50, p99, max) against the profile's bound, replies missed, and what the driver
+    says of its plan (the adapter's latency, a lowered read rate)."""
+
+    reads_per_tick: float = 0.0
+    reads_per_s: float = 0.0
+    writes_per_s: float = 0.0
+    oldest_age_p50: float = 0.0
+    oldest_age_p99: float = 0.0
+    oldest_age_max: float = 0.0
+    age_bound: float = 0.0
+    missed: int = 0
+    plan: Text = ""
+
+
 class MotionStats(msgspec.Struct, kw_only=True):
     """What the motion pipeline did since the current mode was entered."""
 
@@ -160,6 +183,7 @@ class Health(Message):
     did not advance (replayed or stale); ``unauthorised_commands`` counts puts on the read-only
     telemetry endpoint (``network.auth.telemetry_listen``) on command, feature and sim keys,
     from any peer; ``features`` gives the age (s) of each feature topic the role last received;
+    ``bus`` is the joint bus's read schedule, for a bus that reads between ticks (else None);
     ``session`` names the client holding the control
     session ("" when none); ``plugin_slowest`` gives each plugin's slowest call so far (s), with
     ``plugin_slowest_call`` naming the plugin and method of the slowest of all; ``plugin_errors``
@@ -180,6 +204,7 @@ class Health(Message):
     mode: Mode = Mode.OFF
     joints: Annotated[list[JointHealth], msgspec.Meta(max_length=MAX_ENTRIES)] = []
     loop: LoopStats = msgspec.field(default_factory=LoopStats)
+    bus: BusSchedule | None = None
     motion: MotionStats = msgspec.field(default_factory=MotionStats)
     plugins: Annotated[dict[Name, Text], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
     plugin_slowest: Annotated[dict[Name, float], msgspec.Meta(max_length=MAX_ENTRIES)] = {}

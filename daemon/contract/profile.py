@@ -46,6 +46,9 @@ STAND_TIME = (0.1, 60.0)
 STAND_TOLERANCE = (0.001, 0.5)
 """Radians the joints may sit off the stand command when it counts as complete."""
 
+STATE_AGE = (0.001, 1.0)
+"""Seconds a joint's state may age before it is a fault: beyond a second a leg moves blind."""
+
 CAMERA_FPS = (1, 300)
 """Frames per second of a depth camera's stream."""
 
@@ -106,6 +109,10 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     ``health_rate_hz``. Position servos (Dynamixel) sag under load by torque / ``stiffness``
     (N·m/rad, the firmware gain's); above 0, each stance leg's goal is offset by its share of
     the weight's torque over it, so loaded legs hold their height (0: no sag compensation).
+    A joint whose state is older than ``max_state_age`` (s) when a tick takes it (a bus that
+    reads joints in turn, not all every tick) is a fault: the e-stop policy applies. The
+    default, 0.2 s, is over 4× the oldest state WidowX's schedule gives behind a 16 ms
+    adapter (~45 ms): a loaded host's hiccup is not a fault, a stalled schedule is.
     ``options`` holds every other key of the profile's flat ``[bus]`` table: the driver's own
     settings, which its ``Config`` (a ``DriverConfig``) decodes and checks.
     """
@@ -114,6 +121,7 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     health_rate_hz: float = 10.0
     lost_after: int = 5
     stiffness: float = 0.0
+    max_state_age: float = 0.2
     options: dict[str, Any] = {}
 
 
@@ -443,6 +451,7 @@ def validate(profile: Profile) -> Profile:
             f"$.cameras[{i}].mount.tilt_deg",
             f"expected 0..90 degrees, found {tilt}",
         )
+    _check_range(profile.bus.max_state_age, STATE_AGE, src, "$.bus.max_state_age", "s")
     _check(
         profile.bus.health_rate_hz > 0,
         src,

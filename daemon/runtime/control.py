@@ -28,6 +28,7 @@ from climbd.daemon.contract.hardware import (
     Imu,
     ImuSample,
     JointBus,
+    ReportsSchedule,
 )
 from climbd.daemon.contract.messages import (
     AlignedFeature,
@@ -133,6 +134,7 @@ class Controller:
     ) -> None:
         self.profile = profile
         self.bus = bus
+        self._schedule = bus.schedule if isinstance(bus, ReportsSchedule) else None
         self.safety = safety
         self.now = now
         self.gait = gait
@@ -307,6 +309,7 @@ class Controller:
                 self._enter(self.safety.mode, np.asarray(self.measured.position), t)
             return
         self.measured = state
+        self.safety.check_state_age(state, t)
         q = np.asarray(state.position)
         if self.estimator is not None:
             self._estimate(t, dt, q, state)
@@ -599,6 +602,7 @@ class Controller:
             mode=self.safety.mode,
             joints=joints,
             loop=self.loop_stats() if self.loop_stats is not None else Health().loop,
+            bus=self._schedule() if self._schedule is not None else None,
             motion=self.motion_stats(),
             plugins={p.name: p.status for p in isolated},
             **slowest(isolated),

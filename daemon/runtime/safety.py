@@ -15,7 +15,7 @@ import logging
 import threading
 from dataclasses import dataclass, field
 
-from climbd.daemon.contract.messages import EstopPolicy, JointHealth, Mode, ModeState
+from climbd.daemon.contract.messages import EstopPolicy, JointHealth, JointState, Mode, ModeState
 from climbd.daemon.contract.profile import Profile
 
 log = logging.getLogger("climbd.safety")
@@ -276,6 +276,18 @@ class Safety:
             self.hold(now, f"heartbeat of {held.client} lost")
 
     # --- health -----------------------------------------------------------------------
+
+    def check_state_age(self, state: JointState, now: float) -> None:
+        """A joint whose state is older than the profile's bound is a fault (the e-stop
+        policy applies): the legs would move on where a joint was, not where it is. Lost
+        joints (age NaN) are the health policy's; a robot not on its legs has nothing to fault."""
+        if self.mode not in (Mode.STAND, Mode.ACTIVE, Mode.HOLD) or not state.age:
+            return
+        bound = self.profile.bus.max_state_age
+        stale = [(n, a) for n, a in zip(state.names, state.age, strict=False) if a > bound]
+        if stale:
+            old = ", ".join(f"{n} {a * 1e3:.0f} ms" for n, a in stale)
+            self.fault(now, f"joint state older than {bound * 1e3:.0f} ms: {old}")
 
     def judge(self, joints: list[JointHealth], now: float) -> None:
         """Apply the profile's health policy: lost/voltage → HOLD, derate, overheat → FAULT."""

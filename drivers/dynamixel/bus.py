@@ -15,9 +15,11 @@ from __future__ import annotations
 import contextlib
 import errno
 import logging
+import math
 import os
 import select
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -25,11 +27,13 @@ import dynamixel_sdk as sdk
 import numpy as np
 
 from climbd.daemon.contract.hardware import DriverError
-from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
+from climbd.daemon.contract.messages import BusSchedule, JointCommand, JointHealth, JointState
 from climbd.daemon.contract.profile import Profile
 from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
 from climbd.drivers.dynamixel.packet import packet_handler
+from climbd.drivers.dynamixel.pipeline import Parsed, PipelinedPort, Request
+from climbd.drivers.dynamixel.schedule import ReadSchedule
 from climbd.drivers.dynamixel.units import TickScale, little_endian, little_endian_bytes
 
 log = logging.getLogger(__name__)
@@ -41,6 +45,17 @@ BRING_UP_MARGIN_MS = 50.0  # bring-up is not time-critical: wait long, never mis
 BRING_UP_ATTEMPTS = 8  # a servo just powered up (or a loaded host) may miss the first packets
 USB_SERIAL_SYSFS = Path("/sys/bus/usb-serial/devices")
 """Where Linux exposes each USB serial adapter's settings, one directory per tty (ttyUSB0…)."""
+USB_FRAME = 1e-3
+"""Full-speed USB frame (s): behind an adapter, what the host writes reaches the bus on the
+next one, so requests are spaced by a frame more than their wire time."""
+BUS_GAP = 50e-6
+"""Seconds left between a reply's end on the wire and the next instruction (turnarounds)."""
+IDLE_MARGIN = 3e-4
+"""Seconds before the next tick by which the last request between ticks must be off the bus."""
+MAX_HOLD = 0.032
+"""The longest (s) an adapter is taken to hold a reply: twice FTDI's default latency timer."""
+ROUND_TRIP_SAMPLES = 5
+"""Reads timed at open to learn the port's round trip."""
 
 
 class LatencyPort(sdk.PortHandler):
@@ -77,6 +92,13 @@ class LatencyPort(sdk.PortHandler):
             return os.read(self.ser.fd, length)
         except BlockingIOError:
             return b""
+
+    def receive(self) -> bytes:
+        """Every byte that has arrived, without waiting."""
+        data = bytearray()
+        while chunk := self._read(4096):
+            data += chunk
+        return bytes(data)
 
     def readPort(self, length: int) -> bytes:  # noqa: N802 - SDK override
         """Bytes already there at once; else wait in select() for them until the deadline."""
@@ -224,6 +246,31 @@ class DynamixelBus:
         self._groups: dict[int, sdk.GroupSyncRead] = {}
         self._group_ids: tuple[int, ...] = ()
         self._error_group: sdk.GroupSyncRead | None = None
+        self.read_schedule = ReadSchedule(
+            n, profile.rate_hz, profile.bus.max_state_age, 1.0 / profile.bus.health_rate_hz
+        )
+        self._failure: DriverError | None = None
+        """What failed between ticks, raised by the next read."""
+        self._served = False
+        """Whether the control loop gives the bus its idle time (``serve_until``): reads are
+        then sent between ticks and ``read`` takes what has come, never waiting."""
+        self._pipe: PipelinedPort | None = None
+        self._requests: deque[Request] = deque()
+        self._alone = np.zeros(n, bool)
+        """Servos read on their own after a sync read that did not come back whole."""
+        self._tick = 0.0
+        self._bus_free = 0.0
+        self._written_wire = 0.0
+        """Wire time (s) of the last sync write: a request sent behind it waits for it."""
+        self._frame = 0.0
+        self._hold = 0.0
+        """How long (s) the adapter holds a reply: measured at open, followed as replies come."""
+        self._told = 0.0
+        """The hold last logged."""
+        self._sync_reads = 0
+        self._errors_due = False
+        """2.0: a health block came by sync read; their error status is read next."""
+        self._pipe_groups: dict[tuple[Item, tuple[int, ...]], sdk.GroupSyncRead] = {}
 
     @classmethod
     def from_profile(cls, profile: Profile, **options) -> DynamixelBus:
@@ -264,6 +311,7 @@ class DynamixelBus:
                 port.closePort()
             raise DriverError(f"{self._where()}: cannot set {self.baud} baud on this port")
         self.port = port
+        self._pipe = PipelinedPort(port, port.receive)
         set_latency_timer(self.port_name, bus.latency_timer_ms)
         try:
             with self._device("bring-up"), self._patience():
@@ -274,7 +322,8 @@ class DynamixelBus:
                 self._choose_read_mode()
                 self._read_blocks(True)
                 reads = len(self.ids) if self.model.protocol == 1 else 1
-                check_latency_timer(self.port_name, reads, self._read_round_trip)
+                timer = check_latency_timer(self.port_name, reads, self._read_round_trip)
+                self._plan(timer)
         except DriverError:
             self.close()
             raise
@@ -284,6 +333,63 @@ class DynamixelBus:
         start = time.monotonic()
         _, result, _ = self._read_one(self.ids[0], self.model.state)
         return (time.monotonic() - start) * 1e3 if result == sdk.COMM_SUCCESS else None
+
+    def _read_wire(self, size: int) -> float:
+        """Seconds a READ of ``size`` bytes and its status take on the wire."""
+        frame = (8 + 6) if self.model.protocol == 1 else (14 + 11)
+        return (frame + size) * 10.0 / self.baud + self.config.return_delay_us * 1e-6
+
+    def _sync_read_wire(self, size: int, n: int) -> float:
+        """Seconds a (fast) sync read of ``size`` bytes from ``n`` servos takes on the wire."""
+        status = 8 + n * (size + 4) if self.fast_sync_read else n * (11 + size)
+        return (14 + n + status) * 10.0 / self.baud + n * self.config.return_delay_us * 1e-6
+
+    def _plan(self, timer: int | None) -> None:
+        """Learn the port's round trip and plan the reads between ticks; say what it gives.
+
+        Behind a USB adapter (a latency timer in sysfs, or round trips a frame longer than
+        the wire) requests wait for the next USB frame and replies for the adapter's timer:
+        the plan spaces requests by a frame and waits that long for replies."""
+        trips = [t for _ in range(ROUND_TRIP_SAMPLES) if (t := self._read_round_trip())]
+        trip = float(np.median(trips)) / 1e3 if trips else 0.0
+        m = self.model
+        wire = self._read_wire(m.health.size)
+        adapter = timer is not None or trip > wire + USB_FRAME / 2
+        self._frame = USB_FRAME if adapter else 0.0
+        self._hold = max(trip - wire - self._frame / 2, (timer or 0) / 1e3) if adapter else 0.0
+        self._told = self._hold
+        self.port.latency_ms = max(self.port.latency_ms, self._hold * 1e3)
+        period, n = 1.0 / self.profile.rate_hz, len(self.ids)
+        bound = self.read_schedule.bound
+        where = f"adapter holds replies ~{self._hold * 1e3:.0f} ms" if adapter else "no adapter"
+        if m.protocol == 1:
+            frames = math.ceil(wire / self._frame) * self._frame if adapter else wire
+            spacing = frames + BUS_GAP
+            per_tick = max(1, int(0.7 * period / spacing))
+            oldest = -(-n // per_tick) * period + self._frame + self._hold
+            plan = (
+                f"a READ every {spacing * 1e3:.2f} ms between ticks ({where}, round trip "
+                f"{trip * 1e3:.1f} ms): ~{min(per_tick, n)} of {n} servos a tick, oldest state "
+                f"~{oldest * 1e3:.0f} ms"
+            )
+        else:
+            trip_sync = self._frame + self._sync_read_wire(m.state.size, n) + self._hold
+            oldest = max(period, -(-trip_sync // period) * period) + trip_sync
+            plan = (
+                f"a sync read of {n} servos every {max(period, trip_sync) * 1e3:.0f} ms ({where}, "
+                f"round trip {trip * 1e3:.1f} ms), oldest state ~{oldest * 1e3:.0f} ms"
+            )
+        self.read_schedule.plan = plan
+        if oldest > bound:
+            log.warning(
+                "%s: read schedule: %s, over the %.0f ms bound: reads are too slow for this "
+                "loop; the e-stop policy applies when a joint's state is older",
+                self._where(),
+                plan,
+                bound * 1e3,
+            )
+        else:
+            log.info("%s: read schedule: %s (bound %.0f ms)", self._where(), plan, bound * 1e3)
 
     def _patient(self, call, *args) -> tuple:
         """A bring-up SDK call; a late reply the SDK misparses is a corrupt packet (flushed,
@@ -351,7 +457,9 @@ class DynamixelBus:
     # --- per-cycle I/O ----------------------------------------------------------------------
 
     def _sync_write(self, item: Item, values: np.ndarray, only: np.ndarray | None = None) -> None:
-        group = sdk.GroupSyncWrite(self.port, self.ph, item.address, item.size)
+        """One SYNC WRITE (no reply); between ticks' reads it goes out without a flush."""
+        port = self._pipe if self._served else self.port
+        group = sdk.GroupSyncWrite(port, self.ph, item.address, item.size)
         raw = little_endian_bytes(values, item.size)
         chosen = [True] * len(self.ids) if only is None else only.tolist()
         if not any(chosen):  # every servo lost: nothing to send (an empty sync write is refused)
@@ -360,6 +468,7 @@ class DynamixelBus:
             if chosen[k]:
                 group.addParam(ident, list(raw[k * item.size : (k + 1) * item.size]))
         result = group.txPacket()
+        self._written_wire = (8 + len(group.param)) * 10.0 / self.baud
         if result != sdk.COMM_SUCCESS:
             raise DriverError(
                 f"{self._where()}: sync write of address {item.address} failed: "
@@ -367,29 +476,313 @@ class DynamixelBus:
             )
 
     def read(self) -> JointState:
-        """Present position, velocity, effort of every joint; lost joints keep their last value."""
+        """Present position, velocity, effort of every joint; lost joints keep their last value.
+
+        Once the loop serves the bus between ticks, this takes the replies that have come,
+        never waiting, and every joint's state carries its age; else it reads every servo."""
         self.reads += 1
-        health = self.reads % self.health_every == 0
-        with self._device("read"):
-            self._read_blocks(health)
+        now = self._tick = time.monotonic()
+        if self._failure is not None:
+            failure, self._failure = self._failure, None
+            raise failure
+        if self._served:
+            with self._device("read"):
+                self._collect(now, prompt=False)
+            self.read_schedule.tick(now, self.lost)
+            age = self.read_schedule.ages(now, self.lost)
+        else:
+            with self._device("read"):
+                self._read_blocks(self.reads % self.health_every == 0)
+            age = []
         return JointState(
             names=self.names,
             position=self.position.tolist(),
             velocity=self.velocity.tolist(),
             effort=self.effort.tolist(),
+            age=age,
         )
+
+    # --- reads between ticks ---------------------------------------------------------------
+
+    def serve_until(self, deadline: float) -> None:
+        """The loop's idle time before ``deadline`` (monotonic s): send READs (sync reads on
+        2.0) as the bus frees, oldest state first, each finished on the wire before the
+        deadline, and take the replies as they come."""
+        if self.port is None:
+            return
+        end = deadline - IDLE_MARGIN
+        try:
+            if not self._served:  # the first: every servo at once, so no state starts old
+                with self._device("read"):
+                    self._read_blocks(False)
+                self._served = True
+            self._serve(end)
+        except DriverError as e:  # the loop's idle must not raise: the next read does
+            self._failure = self._failure or e
+
+    def _serve(self, end: float) -> None:
+        with self._device("read between ticks"):
+            while True:
+                now = time.monotonic()
+                self._collect(now)
+                if now >= end:
+                    return
+                if self._bus_free > now:
+                    wait = self._bus_free - now
+                elif self._send_next(now, end):
+                    continue
+                elif self._requests:
+                    wait = min(end, self._expires(self._requests[0])) - now
+                else:
+                    return
+                if wait > 0:
+                    select.select([self.port.ser.fd], [], [], wait)
+
+    def _send_next(self, now: float, end: float, behind: float = 0.0) -> bool:
+        """Send the next request if its reply is off the bus by ``end``; whether one went.
+        ``behind``: seconds of an instruction without reply just written, that it follows.
+        Without an adapter a reply is back within a wire time: one request at a time.
+
+        2.0: a sync read of the servos not lost (the health block at the health rate, then
+        their error status), once a tick; those a sync read missed, and 1.0's servos, get
+        READs of their own, the oldest first. Lost servos are probed at the health rate."""
+        if not self._frame and self._requests:  # no adapter: the reply is due at once
+            return False
+        m, lost = self.model, self.lost
+        if m.protocol == 2:
+            joints = tuple(np.flatnonzero(~lost & ~self._alone).tolist())
+            stale = bool(joints) and self.read_schedule.sampled[list(joints)].min() < self._tick
+            free = bool(joints) and not self.read_schedule.pending[list(joints)].any()
+            if free and (self._errors_due or stale):
+                if self._errors_due:
+                    item = m.hardware_error_status
+                else:
+                    health = (self._sync_reads + 1) % self.health_every == 0
+                    item = m.health if health else m.state
+                wire = behind + self._sync_read_wire(item.size, len(joints))
+                if now + self._frame + wire > end:
+                    return False
+                self._sync_reads += item != m.hardware_error_status
+                self._errors_due = item == m.health
+                self._send_sync(joints, item, now, wire)
+                return True
+        single = ~lost & self._alone if m.protocol == 2 else ~lost
+        k = self.read_schedule.probe(now, lost)
+        if k is None:
+            k = self.read_schedule.next(self._tick, ~single)
+        if k is None:
+            return False
+        item = m.health if m.protocol == 1 else m.state
+        wire = behind + self._read_wire(item.size)
+        if now + self._frame + wire > end:
+            return False
+        self.ph.readTx(self._pipe, self.ids[k], item.address, item.size)
+        self._expect((k,), item, now, wire, self._parser(k, item))
+        return True
+
+    def _send_sync(self, joints: tuple[int, ...], item: Item, now: float, wire: float) -> None:
+        key = (item, tuple(self.ids[k] for k in joints))
+        group = self._pipe_groups.get(key)
+        if group is None:
+            if len(self._pipe_groups) > 8:
+                self._pipe_groups.clear()
+            group = self._pipe_groups[key] = sdk.GroupSyncRead(
+                self._pipe, self.ph, item.address, item.size
+            )
+            for ident in key[1]:
+                group.addParam(ident)
+        if self.fast_sync_read:
+            group.fastSyncReadTxPacket()
+            self._expect(joints, item, now, wire, lambda: self._parse_fast(group, joints))
+        else:
+            group.txPacket()
+            for k in joints:
+                self._expect((k,), item, now, wire, self._parser(k, item))
+
+    def _expect(self, joints: tuple[int, ...], item: Item, now: float, wire: float, parse) -> None:
+        """Note a request sent at ``now`` that keeps the bus ``wire`` s (its instruction, any
+        instruction just before it without a reply, its replies). Behind an adapter every
+        write leaves on the next USB frame boundary, so a write ``k`` frames later (``k``
+        frames ≥ ``wire``) cannot meet it on the bus."""
+        if self._frame:  # it leaves on a frame boundary; a write a frame later leaves after it
+            self._bus_free = now + math.ceil(wire / self._frame) * self._frame + BUS_GAP
+        else:
+            self._bus_free = now + wire + BUS_GAP
+        self._requests.append(Request(joints, item, now, wire, parse))
+        self.read_schedule.pending[list(joints)] = True
+
+    def _expires(self, request: Request) -> float:
+        """When a reply is given up: off the wire, released by the adapter (twice the hold
+        it is seen to have now), plus the timeout margin."""
+        late = self._frame + request.wire + 2.0 * self._hold + self.timeout_margin_ms / 1e3
+        return request.sent + late
+
+    def _seen_hold(self, request: Request, now: float, answered: bool) -> None:
+        """Follow the adapter's hold: a reply shows it (it decays slowly to what replies
+        show), a reply given up doubles it (a latency timer raised under load), up to
+        ``MAX_HOLD``; a change of over 2× is said, with what it does to the schedule."""
+        if answered:
+            shown = now - request.sent - self._frame - request.wire
+            self._hold = max(0.99 * self._hold, min(shown, MAX_HOLD))
+        else:
+            self._hold = min(max(2.0 * self._hold, USB_FRAME), MAX_HOLD)
+        if self._hold > 2.0 * self._told or self._hold < 0.5 * self._told:
+            before, self._told = self._told, self._hold
+            log.warning(
+                "%s: replies now held ~%.0f ms (was ~%.0f ms): the oldest joint state ages "
+                "by as much",
+                self._where(),
+                self._hold * 1e3,
+                before * 1e3,
+            )
+
+    def _parser(self, k: int, item: Item) -> Callable[[], Parsed]:
+        """What parses the status of one servo's READ of ``item``."""
+
+        def parse() -> Parsed:
+            data, result, error = self.ph.readRx(self._pipe, self.ids[k], item.size)
+            ok = result == sdk.COMM_SUCCESS and len(data) == item.size
+            code = result if ok else sdk.COMM_RX_CORRUPT
+            return code, ({k: bytes(data)} if ok else {}), error
+
+        return parse
+
+    def _parse_fast(self, group: sdk.GroupSyncRead, joints: tuple[int, ...]) -> Parsed:
+        result = group.fastSyncReadRxPacket()
+        if result != sdk.COMM_SUCCESS:
+            return result, {}, 0
+        return result, {k: bytes(group.data_dict[self.ids[k]]) for k in joints}, 0
+
+    def _collect(self, now: float, prompt: bool = True) -> None:
+        """Take every reply that has come and file it: state, health, error status, and
+        which servos answered or missed (lost after ``lost_after`` misses in a row).
+        ``prompt``: called as bytes arrive (not at a tick), so replies show the hold."""
+        answered, got, missed = self._gather(now, prompt)
+        for item, data in answered.items():
+            self._apply(item, data)
+        if got.any() or missed.any():
+            back = self._account(got, got | missed)
+            if self.torque_on and back.any():
+                self._repower(back)
+
+    def _gather(
+        self, now: float, prompt: bool = True
+    ) -> tuple[dict[Item, dict[int, bytes]], np.ndarray, np.ndarray]:
+        """Parse every reply that has come, in the order owed; a request past its expiry is
+        a miss for its servos (a failed sync read sends them to be read alone). Returns the
+        data read of each item by joint, and which joints answered and which missed."""
+        pipe = self._pipe
+        pipe.receive()
+        answered: dict[Item, dict[int, bytes]] = {}
+        got = np.zeros(len(self.ids), bool)
+        missed = np.zeros(len(self.ids), bool)
+        states = (self.model.state, self.model.health)
+        while self._requests:
+            request = self._requests[0]
+            try:
+                parsed = pipe.attempt(request.parse)
+            except MISPARSE:  # bytes the SDK cannot make sense of: corrupt, dropped
+                pipe.drop()
+                parsed = (sdk.COMM_RX_CORRUPT, {}, 0)
+            if parsed is None and now < self._expires(request):
+                break
+            self._requests.popleft()
+            joints = list(request.joints)
+            self.read_schedule.pending[joints] = False
+            if self._frame and (parsed is None or (prompt and parsed[0] == sdk.COMM_SUCCESS)):
+                self._seen_hold(request, now, parsed is not None)
+            result, data, error = parsed or (sdk.COMM_RX_TIMEOUT, {}, 0)
+            if result != sdk.COMM_SUCCESS:
+                missed[joints] = True
+                if len(joints) > 1:
+                    self._alone[joints] = True
+                continue
+            answered.setdefault(request.item, {}).update(data)
+            if request.item in states:
+                self.read_schedule.read(request.joints, request.sent)
+            got[joints] = True
+            if self.model.protocol == 1:
+                self.errors[joints] = error
+            elif len(joints) == 1:
+                self._alone[joints] = False
+        if not self._requests:
+            pipe.drop()
+        missed &= ~got
+        self.read_schedule.missed += int(missed.sum())
+        return answered, got, missed
+
+    def _read_pipelined(self, item: Item, joints: list[int]) -> dict[int, bytes]:
+        """READ ``item`` from each of ``joints`` behind an adapter, now: each sent as the bus
+        frees, the replies taken as they come, so the adapter's hold is paid once, not once
+        a servo (18 AX-18A behind a 16 ms timer: ~35 ms, not ~300); those whose reply
+        missed are asked once more. Data by joint."""
+        self._quiesce()
+        out: dict[int, bytes] = {}
+        todo = deque(joints)
+        retried = False
+        while todo or self._requests or not retried:
+            if not todo and not self._requests:  # once more for those a reply missed
+                retried = True
+                todo.extend(k for k in joints if k not in out)
+                continue
+            now = time.monotonic()
+            answered, _, _ = self._gather(now)
+            out.update(answered.get(item, {}))
+            if todo and now >= self._bus_free:
+                k = todo.popleft()
+                self.ph.readTx(self._pipe, self.ids[k], item.address, item.size)
+                self._expect((k,), item, now, self._read_wire(item.size), self._parser(k, item))
+                continue
+            if not todo and not self._requests:
+                continue
+            until = self._bus_free if todo else self._expires(self._requests[0])
+            select.select([self.port.ser.fd], [], [], max(until - now, 0.0))
+        return out
+
+    def _apply(self, item: Item, data: dict[int, bytes]) -> None:
+        """Decode the blocks read of ``item`` (state, health or hardware error status)."""
+        m = self.model
+        idx = np.array(sorted(data))
+        if item == m.hardware_error_status:
+            self.errors[idx] = [data[k][0] for k in idx]
+            return
+        rows = np.frombuffer(b"".join(data[k] for k in idx), np.uint8).reshape(idx.size, -1)
+        self._decode(rows, idx)
+        if item == m.health:
+            base = m.state.address
+            self.voltage[idx] = little_endian(rows, m.voltage.address - base, m.voltage.size) / 10.0
+            self.temperature[idx] = rows[:, m.temperature.address - base]
+
+    def _quiesce(self) -> None:
+        """Before a blocking exchange (torque, fault reset): take or give up every reply
+        still owed, so a flush drops nothing anybody waits for."""
+        while self._requests:
+            now = time.monotonic()
+            self._collect(now)
+            if self._requests:
+                wait = self._expires(self._requests[0]) - now
+                select.select([self.port.ser.fd], [], [], max(wait, 0.0))
+
+    def schedule(self) -> BusSchedule:
+        """How the reads between ticks keep up (Health.bus); the plan made at open."""
+        return self.read_schedule.report()
 
     def read_health(self) -> None:
         """A read cycle including voltage, temperature and error status (bring-up, tests)."""
         with self._device("health read"):
+            self._quiesce()
             self._read_blocks(True)
 
     def _read_blocks(self, health: bool) -> None:
+        """Read every servo now, waiting for each reply (bring-up, torque, a stepped loop)."""
         m = self.model
+        start = time.monotonic()
         item = m.health if health else m.state
         want = ~self.lost | health  # lost servos are probed on health cycles only
         blocks = self._read_each(item, want) if m.protocol == 1 else self._read_sync(item, want)
         got = np.array([b is not None for b in blocks])
+        if not (self._frame and m.protocol == 1):  # pipelined READs are stamped one by one
+            self.read_schedule.read(tuple(np.flatnonzero(got).tolist()), start)
         back = self._account(got, want)
         if not got.any():
             return
@@ -417,7 +810,11 @@ class DynamixelBus:
         self.effort[idx] = self.map.effort(full)[idx]
 
     def _read_each(self, item: Item, want: np.ndarray) -> list[bytes | None]:
-        """Protocol 1.0: one READ of the block per servo; keeps the status error byte."""
+        """Protocol 1.0: one READ of the block per servo (pipelined behind an adapter);
+        keeps the status error byte."""
+        if self._frame:
+            data = self._read_pipelined(item, np.flatnonzero(want).tolist())
+            return [data.get(k) for k in range(len(self.ids))]
         out: list[bytes | None] = []
         for k, ident in enumerate(self.ids):
             if not want[k]:
@@ -527,30 +924,49 @@ class DynamixelBus:
             raise DriverError(f"{self._where()}: non-finite goal for {', '.join(bad)}")
         with self._device("write"):
             self._sync_write(self.model.goal_position, self.map.goal_ticks(q), ~self.lost)
+        now = time.monotonic()
+        self.read_schedule.error = np.abs(q - self.position)
+        self.read_schedule.wrote(now)
+        if self._served:  # the first request rides behind the goals: no reply stands between
+            with self._device("read after write"):
+                end = self._tick + 1.0 / self.profile.rate_hz - IDLE_MARGIN
+                self._send_next(now, end, self._written_wire)
 
     def torque(self, on: bool) -> None:
         """Torque on (goal = present position first, so nothing jumps) or off, all joints."""
         with self._device(f"torque {'on' if on else 'off'}"):
+            self._quiesce()
             if on:
                 self._read_blocks(False)
                 ticks = self.map.goal_ticks(self.position)
                 self._sync_write(self.model.goal_position, ticks, ~self.lost)
             self._sync_write(self.model.torque_enable, np.full(len(self.ids), int(on)), ~self.lost)
             self.torque_on = on
-            refused = []
-            for k, ident in enumerate(self.ids):
-                if self.lost[k]:
-                    continue
-                value, result, _ = self.ph.read1ByteTxRx(
-                    self.port, ident, self.model.torque_enable.address
-                )
-                if result == sdk.COMM_SUCCESS and value != int(on):
-                    refused.append(f"id {ident} ({self.names[k]})")
+            refused = [
+                f"id {self.ids[k]} ({self.names[k]})"
+                for k, value in self._torque_enabled().items()
+                if value != int(on)
+            ]
+            if self._served:  # the state read above is now as old as this exchange
+                self._read_blocks(False)
             if refused:
                 raise DriverError(
                     f"{self._where()}: torque {'on' if on else 'off'} refused by "
                     + ", ".join(refused)
                 )
+
+    def _torque_enabled(self) -> dict[int, int]:
+        """Torque Enable of every servo not lost that answered, by joint."""
+        item = self.model.torque_enable
+        joints = np.flatnonzero(~self.lost).tolist()
+        if self._frame:
+            return {k: data[0] for k, data in self._read_pipelined(item, joints).items()}
+        values = {}
+        for k in joints:
+            value, result, _ = self.ph.read1ByteTxRx(self.port, self.ids[k], item.address)
+            if result == sdk.COMM_SUCCESS:
+                values[k] = value
+        return values
 
     def clear_faults(self) -> list[str]:
         """The operator's fault reset: bring back the servos a fault switched off; their names.
@@ -566,6 +982,7 @@ class DynamixelBus:
         limp = np.zeros(len(self.ids), bool)
         latched = np.zeros(len(self.ids), bool)
         with self._device("fault reset"), self._patience():
+            self._quiesce()
             for k, ident in enumerate(self.ids):
                 if self.lost[k]:
                     continue
@@ -635,6 +1052,8 @@ class DynamixelBus:
 
     def close(self) -> None:
         """Close the port (idempotent); torque is left as it is — the e-stop policy decides."""
+        self._requests.clear()
+        self._served = False
         if self.port is not None:
             with contextlib.suppress(Exception):
                 self.port.closePort()

@@ -78,6 +78,7 @@ class DynamixelEmulator:
         self._slave = -1
         self._wake_r = self._wake_w = -1
         self._thread: threading.Thread | None = None
+        self._adapter: UsbSerialAdapter | None = None
         self._stop = threading.Event()
 
     def start(self) -> DynamixelEmulator:
@@ -106,6 +107,13 @@ class DynamixelEmulator:
                     os.close(fd)
         self._master = self._slave = self._wake_r = self._wake_w = -1
 
+    def retime(self, latency_ms: float) -> None:
+        """Change the adapter's latency timer while serving (a user's echo, or udev, under
+        load); there must be an adapter."""
+        if self._adapter is None:
+            raise ValueError("no USB adapter to retime: start with latency_ms")
+        self._adapter.latency = latency_ms * 1e-3
+
     def vanish(self) -> None:
         """The port disappears: the pty closes under the host (reads and writes fail with EIO)."""
         self.stop()
@@ -122,7 +130,9 @@ class DynamixelEmulator:
         if self.realtime_motor:
             chain.clock = time.monotonic
         framer = Framer(chain.protocol)
-        adapter = UsbSerialAdapter(self.latency_ms * 1e-3) if self.latency_ms else None
+        adapter = self._adapter = (
+            UsbSerialAdapter(self.latency_ms * 1e-3) if self.latency_ms else None
+        )
         inbox: deque[tuple[float, Instruction]] = deque()  # (arrival, instruction)
         pending: deque[tuple[float, bytes]] = deque()
         bus_free = last_rx = time.monotonic()

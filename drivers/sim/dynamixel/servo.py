@@ -52,6 +52,8 @@ class EmulatedServo:
         self.tau = tau
         self.external = False
         self.pending: tuple[int, bytes] | None = None
+        self.goals = 0
+        """Goal positions received (written and accepted) since power-up."""
         self.t: float | None = None
         self.state = MotorState(angle=angle)
         self.memory = bytearray(spec.table_size)
@@ -114,9 +116,12 @@ class EmulatedServo:
                 return P2_ACCESS
             before = bytes(self.memory)
             self.memory[address:end] = data
-            error = self._check_goal() if self.spec.fields["goal_position"] in touched else 0
+            goal = self.spec.fields["goal_position"] in touched
+            error = self._check_goal() if goal else 0
             if error:
                 self.memory[:] = before
+            elif goal:
+                self.goals += 1
             return error
 
     def _touched(self, address: int, end: int) -> tuple[Field, ...]:
