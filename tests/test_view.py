@@ -30,7 +30,7 @@ import pytest
 import websockets
 import zenoh
 from conftest import free_port
-from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
+from support.scene_decode import decoded, in_frame, proto_dict, tree
 
 from climbd.daemon.cli.view import Latest, Presence, Viewer
 from climbd.daemon.contract import messages as m
@@ -41,64 +41,6 @@ from climbd.daemon.runtime import scene
 ROOT = Path(__file__).resolve().parent.parent
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 """What the client offers: foxglove-sdk ≥ 0.30 names the protocol foxglove.sdk.v1."""
-
-
-# --- decoding as a Foxglove client does -----------------------------------------------------
-
-_classes: dict[tuple[str, bytes], type] = {}
-
-
-def proto_class(name: str, descriptor_set: bytes) -> type:
-    """The protobuf message class ``name`` from a serialized FileDescriptorSet."""
-    k = (name, descriptor_set)
-    if k not in _classes:
-        pool = descriptor_pool.DescriptorPool()
-        for f in descriptor_pb2.FileDescriptorSet.FromString(descriptor_set).file:
-            pool.Add(f)
-        _classes[k] = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
-    return _classes[k]
-
-
-def proto_dict(name: str, descriptor_set: bytes, payload: bytes) -> dict:
-    """``payload`` decoded strictly as ``name``, every field present (zeros included)."""
-    msg = proto_class(name, descriptor_set)()
-    msg.ParseFromString(payload)
-    assert msg.SerializeToString() == payload or msg.ByteSize() == len(payload)
-    return json_format.MessageToDict(
-        msg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True
-    )
-
-
-def decoded(message) -> dict:
-    """A foxglove-sdk message object, encoded and decoded against its own schema."""
-    schema = type(message).get_schema()
-    assert schema.encoding == "protobuf"
-    return proto_dict(schema.name, schema.data, message.encode())
-
-
-def tree(transforms: list[dict]) -> dict[str, tuple[str, np.ndarray, np.ndarray]]:
-    """child → (parent, translation, rotation matrix) of decoded FrameTransform dicts."""
-    out = {}
-    for t in transforms:
-        r = t["rotation"]
-        q = [r["w"], r["x"], r["y"], r["z"]]
-        v = t["translation"]
-        out[t["child_frame_id"]] = (
-            t["parent_frame_id"],
-            np.array([v["x"], v["y"], v["z"]]),
-            rotation(q),
-        )
-    return out
-
-
-def in_frame(frames: dict, child: str, root: str) -> tuple[np.ndarray, np.ndarray]:
-    """Position and rotation of ``child`` in ``root`` by chaining the tree's transforms."""
-    p, r = np.zeros(3), np.eye(3)
-    while child != root:
-        parent, t, rot = frames[child]
-        p, r = rot @ p + t, rot @ r
-        child = parent
-    return p, r
 
 
 def xyz(v: dict) -> list[float]:

@@ -1,5 +1,6 @@
-"""What the operator tools (estop, status, teleop, top, record, replay) share at start-up:
-their credential options, and the Zenoh config from ``--connect`` and ``--tls``/``--user``."""
+"""What the operator tools (estop, status, teleop, top, record, replay, view) share at start-up:
+their credential options, the Zenoh config from ``--connect`` and ``--tls``/``--user``, and the
+robot's profile where a tool needs it (view, record --scene)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import sys
 
 import zenoh
 
+from climbd.daemon.contract import profile as profiles
 from climbd.daemon.runtime.access import AccessError, client_credentials
 from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
@@ -45,3 +47,16 @@ def open_client(args: argparse.Namespace, robot: str, role: str) -> Network | No
     except AccessError as e:
         print(f"error: {e}", file=sys.stderr)
         return None
+
+
+def find_profile(robot: str, path: str | None) -> profiles.Profile:
+    """``path``'s profile, or the stock profile named ``robot``; ProfileError when neither."""
+    if path is not None:
+        return profiles.load(path)
+    stock = profiles.stock_profiles()
+    if robot in stock:
+        return profiles.load(stock[robot])
+    raise profiles.ProfileError(
+        f"no stock profile for robot {robot!r} (stock: {', '.join(sorted(stock))}): "
+        "pass --profile with the robot's profile"
+    )

@@ -12,6 +12,15 @@ recording cleanly: the file is cut back to its last whole record and sealed so i
 readable, the reason is printed, and nothing on the bus notices (the recorder only subscribes).
 A recording that cannot start (full disk, unwritable path) or keeps no message is removed.
 
+With ``--scene`` the recording also holds the robot drawn in Foxglove's well-known schemas, on
+the topics and with the schemas ``climbd view`` serves live (``/tf``, ``/robot``, ``/joists``,
+``/holds``, ``/stairs``, ``/truss``, ``/elevation``, ``/mode``, ``/health``; see
+daemon/runtime/scene.py): the file opened in Foxglove shows the 3-D scene. They are derived
+from the raw topics as they are written (transforms at ``--scene-rate``, stamped with the log
+time), need the robot's profile (``--profile``, default the stock one of ``--robot``), and
+carry the channel metadata ``scene``; ``climbd replay`` leaves them out (it republishes the raw
+topics, which ``climbd view`` then draws again).
+
 A recorder killed outright (kill -9, power cut) leaves a file without its footer:
 RecordingFile reads every complete message of it, and ``climbd record --recover FILE`` rewrites
 those into a sealed, indexed MCAP.
@@ -39,8 +48,10 @@ from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
 import msgspec
 
-from climbd.daemon.cli.client import add_credential_arguments, client_config
+from climbd.daemon.cli.client import add_credential_arguments, client_config, find_profile
+from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import ALL_MESSAGES, SchemaMismatch, decode, key
+from climbd.daemon.runtime import scene
 from climbd.daemon.runtime.access import AccessError
 
 if TYPE_CHECKING:
@@ -61,6 +72,9 @@ MAGIC = b"\x89MCAP0\r\n"
 
 FOOTER_SIZE = 1 + 8 + 20
 """Bytes of a Footer record: opcode, length, summary start, summary offset start, CRC."""
+
+SCENE = "scene"
+"""Channel metadata key of the scene's channels (``--scene``): derived, not climbd messages."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -85,6 +99,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="rewrite the complete messages of a recording that was not closed cleanly "
         "(recorder killed, power cut) into a sealed, indexed MCAP, then exit",
+    )
+    parser.add_argument(
+        "--scene",
+        action="store_true",
+        help="also write the robot as a Foxglove 3-D scene (the channels climbd view serves), "
+        "drawn from the raw topics, which are then recorded too",
+    )
+    parser.add_argument(
+        "--profile",
+        help="with --scene: the robot's profile (default: the stock profile robots/<robot>.toml)",
+    )
+    parser.add_argument(
+        "--scene-rate", type=float, default=30.0, help="with --scene: transforms per second"
     )
     add_credential_arguments(parser)
 
@@ -158,9 +185,17 @@ class McapSink:
     Records are written unchunked, so every message ends at a known offset; on a failed write
     the file is cut back to the last whole record that fits together with a closing footer.
     With ``robot`` the channels of its topics are declared up front, silent ones included.
+    With ``scene_stream`` each message written also feeds it, and what it draws goes on the scene's
+    channels (declared up front) with the message's log time.
     """
 
-    def __init__(self, path: Path, messages: list[type], robot: str | None = None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        messages: list[type],
+        robot: str | None = None,
+        scene_stream: scene.SceneStream | None = None,
+    ) -> None:
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
@@ -173,6 +208,9 @@ class McapSink:
         self.topics: dict[str, int] = {}
         self.channels: dict[str, int] = {}
         self.schemas: dict[type, int] = {}
+        self.scene = scene_stream
+        self.scene_channels: dict[str, int] = {}
+        self.scene_topics: dict[str, int] = {}
         self._marks: collections.deque[tuple[int, int]] = collections.deque(maxlen=4096)
         self._last_flush = time.monotonic()
         try:
@@ -197,23 +235,53 @@ class McapSink:
         if robot is not None:
             for m in messages:
                 self.channel(key(robot, m), m)
-        topics = " ".join(m.TOPIC for m in messages)
-        self.writer.add_metadata("climbd", {"robot": robot or "*", "topics": topics})
+        info = {"robot": robot or "*", "topics": " ".join(m.TOPIC for m in messages)}
+        if self.scene is not None:
+            self._start_scene(robot or "*")
+            info[SCENE] = self.scene.robot.profile.name
+        self.writer.add_metadata("climbd", info)
         self.file.flush()
         os.fsync(self.file.fileno())
 
+    def _start_scene(self, robot: str) -> None:
+        """Declare the scene's schemas and channels (``scene.TOPICS``), as the view does."""
+        schemas: dict[tuple[str, str, bytes], int] = {}
+        for topic in scene.TOPICS:
+            declared = scene.channel_schema(topic)
+            schema = declared[:3]
+            if schema not in schemas:
+                schemas[schema] = self.writer.register_schema(*schema)
+            self.scene_channels[topic] = self.writer.register_channel(
+                topic,
+                declared.message_encoding,
+                schemas[schema],
+                {SCENE: "foxglove", "robot": robot},
+            )
+            self.scene_topics[topic] = 0
+
     def write(self, sample: Sample) -> None:
-        """Add one message (and its channel on first sight); raises WriteFailed once sealed."""
+        """Add one message (and its channel on first sight), and what the scene draws of it;
+        raises WriteFailed once sealed."""
         try:
             channel = self.channel(sample.key, type(sample.message))
             data = msgspec.json.encode(sample.message)
             self.writer.add_message(channel, sample.log_time, data, sample.log_time, self.count)
+            if self.scene is not None:
+                self._write_scene(sample)
         except OSError as e:
             self.fail(e)
         self.count += 1
         self._marks.append((self.file.tell(), self.count))
         self.topics[sample.key] = self.topics.get(sample.key, 0) + 1
         self.flush_due()
+
+    def _write_scene(self, sample: Sample) -> None:
+        t = sample.log_time
+        for topic, out in self.scene.update((sample.message,), t, t * 1e-9):
+            self.writer.add_message(
+                self.scene_channels[topic], t, scene.payload(out), t, self.count
+            )
+            self.scene_topics[topic] += 1
 
     def channel(self, key: str, message: type) -> int:
         """The channel id of ``key``, registered (with its schema) on first use."""
@@ -306,7 +374,8 @@ class McapSink:
 
 
 class Entry(NamedTuple):
-    """One complete message of a recording: its MCAP records and the decoded Struct."""
+    """One complete message of a recording: its MCAP records and the decoded Struct (None for
+    a message of the scene's channels)."""
 
     schema: Schema
     channel: Channel
@@ -320,11 +389,13 @@ class RecordingFile:
     A file that ends with its footer (sealed) is read strictly: any damage raises
     RecordingError. One that does not (recorder killed, power cut, still being written) is
     read up to the first record that is cut short or unreadable; ``reason`` then says where
-    reading stopped and ``count`` how many messages were recovered.
+    reading stopped and ``count`` how many messages were recovered. The scene's channels
+    (``--scene``) are skipped, or with ``scene`` given as entries without a decoded value.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, scene: bool = False) -> None:
         self.path = Path(path)
+        self.scene = scene
         self.sealed = False
         self.reason = ""
         self.count = 0
@@ -383,6 +454,12 @@ class RecordingFile:
                 elif isinstance(r, Channel):
                     channels[r.id] = r
                 elif isinstance(r, Message):
+                    channel = channels.get(r.channel_id)
+                    if channel is not None and SCENE in channel.metadata:
+                        if self.scene and channel.schema_id in schemas:
+                            self.count += 1
+                            yield Entry(schemas[channel.schema_id], channel, r, None)
+                        continue
                     entry = self._entry(r, at, schemas, channels, types)
                     if entry is None:
                         return
@@ -480,7 +557,7 @@ def _rewrite(source: Path, target: Path) -> RecordingFile:
     """Copy the messages of ``source`` with their schemas and channels to a new, chunked MCAP."""
     from mcap.writer import CompressionType, Writer
 
-    recording = RecordingFile(source)
+    recording = RecordingFile(source, scene=True)
     with open(target, "wb") as f:
         writer = Writer(f, compression=CompressionType.NONE)
         writer.start(profile="climbd", library="climbd record --recover")
@@ -610,13 +687,16 @@ def main(args: argparse.Namespace) -> int:
         if not args.robot:
             raise ValueError("--robot is required to record (or --recover FILE)")
         messages = select_topics(args.topics)
+        stream = scene_of(args) if args.scene else None
+        if stream is not None:  # the scene is drawn from these: record them too
+            messages = [m for m in ALL_MESSAGES if m in messages or m in scene.INPUTS]
         config = client_config(args, "record")
-    except (ValueError, AccessError) as e:
+    except (ValueError, AccessError, profiles.ProfileError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     path = Path(args.output) if args.output else default_output(args.robot)
     try:
-        sink = McapSink(path, messages, None if args.robot == "*" else args.robot)
+        sink = McapSink(path, messages, None if args.robot == "*" else args.robot, stream)
     except WriteFailed as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
@@ -626,7 +706,8 @@ def main(args: argparse.Namespace) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     recorder.start()
-    print(f"climbd: recording {len(messages)} topics of {args.robot} to {path}", flush=True)
+    drawn = f", with its scene on {len(scene.TOPICS)} channels" if stream is not None else ""
+    print(f"climbd: recording {len(messages)} topics of {args.robot}{drawn} to {path}", flush=True)
     until = time.monotonic() + args.duration if args.duration else None
     code = 0
     try:
@@ -639,6 +720,9 @@ def main(args: argparse.Namespace) -> int:
         recorder.stop()
         session.close()
     topics = "" if code else ", ".join(f"{k} {n}" for k, n in sorted(sink.topics.items()))
+    if stream is not None and not code:
+        drawn = ", ".join(f"{k} {n}" for k, n in sink.scene_topics.items())
+        topics += f"; scene: {sum(sink.scene_topics.values())} messages ({drawn})"
     print(
         f"climbd: recorded {sink.count} messages on {len(sink.topics)} topics to {path}"
         f"{'; ' + topics if topics else ''}; dropped {recorder.dropped}, "
@@ -646,3 +730,18 @@ def main(args: argparse.Namespace) -> int:
         flush=True,
     )
     return code
+
+
+def scene_of(args: argparse.Namespace) -> scene.SceneStream:
+    """The scene of ``--scene``: the robot's profile, transforms at ``--scene-rate``; a drawing
+    that fails is said once per topic on stderr."""
+    if args.robot == "*":
+        raise ValueError("--scene draws one robot: give its name with --robot")
+    if not args.scene_rate > 0:
+        raise ValueError(f"--scene-rate must be positive, found {args.scene_rate}")
+    robot = scene.RobotScene(find_profile(args.robot, args.profile))
+
+    def refused(text: str) -> None:
+        print(f"climbd: {text}", file=sys.stderr, flush=True)
+
+    return scene.SceneStream(robot, refused, tf_period=1.0 / args.scene_rate)

@@ -22,47 +22,30 @@ goes silent and when it is heard again; Zenoh reconnects to ``--connect`` by its
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
 import time
 
 import foxglove
+import foxglove.messages as fg
 from foxglove import channels as ch
 
-from climbd.daemon.cli.client import add_credential_arguments, open_client
+from climbd.daemon.cli.client import add_credential_arguments, find_profile, open_client
 from climbd.daemon.contract import profile as profiles
-from climbd.daemon.contract.messages import (
-    BodyState,
-    ElevationGrid,
-    Health,
-    HoldMap,
-    JointState,
-    JoistMap,
-    Message,
-    ModeState,
-    StairMap,
-    TrussMembers,
-)
+from climbd.daemon.contract.messages import Health, Message
 from climbd.daemon.runtime import scene
 
-SUBSCRIBED: tuple[type[Message], ...] = (
-    BodyState,
-    JointState,
-    ModeState,
-    Health,
-    JoistMap,
-    HoldMap,
-    StairMap,
-    TrussMembers,
-    ElevationGrid,
-)
+SUBSCRIBED = scene.INPUTS
 """What the view takes from the robot; all of it the robot publishes whether or not anyone
 watches."""
 
-GEOMETRY_PERIOD = 1.0
-"""Seconds between repeats of the robot's geometry, for clients that join later."""
+TYPED_CHANNELS = {
+    fg.FrameTransforms: ch.FrameTransformsChannel,
+    fg.SceneUpdate: ch.SceneUpdateChannel,
+    fg.Grid: ch.GridChannel,
+}
+"""The SDK's channel of each Foxglove message a scene topic carries (``scene.TOPICS``)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -93,19 +76,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="seconds without a message after which the robot is reported silent",
     )
     add_credential_arguments(parser)
-
-
-def find_profile(robot: str, path: str | None) -> profiles.Profile:
-    """``path``'s profile, or the stock profile named ``robot``; ProfileError when neither."""
-    if path is not None:
-        return profiles.load(path)
-    stock = profiles.stock_profiles()
-    if robot in stock:
-        return profiles.load(stock[robot])
-    raise profiles.ProfileError(
-        f"no stock profile for robot {robot!r} (stock: {', '.join(sorted(stock))}): "
-        "pass --profile with the robot's profile"
-    )
 
 
 class Latest:
@@ -169,79 +139,37 @@ class Presence:
 
 
 class Viewer:
-    """The Foxglove channels of one robot in a foxglove Context, and what goes on each."""
+    """The Foxglove channels of one robot in a foxglove Context (``scene.TOPICS``), and what
+    goes on each (``scene.SceneStream``)."""
 
     def __init__(self, robot_scene: scene.RobotScene, context: foxglove.Context) -> None:
         self.scene = robot_scene
-        self.tf = ch.FrameTransformsChannel("/tf", context=context)
-        self.robot = ch.SceneUpdateChannel("/robot", context=context)
-        self.maps = {
-            JoistMap: (ch.SceneUpdateChannel("/joists", context=context), scene.joists),
-            HoldMap: (ch.SceneUpdateChannel("/holds", context=context), scene.holds),
-            StairMap: (ch.SceneUpdateChannel("/stairs", context=context), scene.stairs),
-            TrussMembers: (ch.SceneUpdateChannel("/truss", context=context), scene.truss),
-            ElevationGrid: (ch.GridChannel("/elevation", context=context), scene.elevation),
-        }
-        self.json = {}
-        for topic, message in (("/mode", ModeState), ("/health", Health)):
-            schema = foxglove.Schema(
-                name=f"climbd.{message.__name__}",
-                encoding="jsonschema",
-                data=json.dumps(scene.json_schema(message)).encode(),
-            )
-            self.json[message] = foxglove.Channel(
-                topic, schema=schema, message_encoding="json", context=context
-            )
-        self.body: BodyState | None = None
-        self.joints: JointState | None = None
-        self._geometry_at = -float("inf")
-        self._refused: set[str] = set()
+        self.stream = scene.SceneStream(robot_scene, refused=_say)
+        self.channels = {}
+        for topic, kind in scene.TOPICS.items():
+            if kind in TYPED_CHANNELS:
+                self.channels[topic] = TYPED_CHANNELS[kind](topic, context=context)
+            else:
+                declared = scene.channel_schema(topic)
+                schema = foxglove.Schema(
+                    name=declared.name, encoding=declared.encoding, data=declared.data
+                )
+                self.channels[topic] = foxglove.Channel(
+                    topic,
+                    schema=schema,
+                    message_encoding=declared.message_encoding,
+                    context=context,
+                )
 
     def publish(self, fresh: dict[object, Message], now_ns: int, now: float) -> None:
         """Translate and log what arrived; transforms whenever the body or joints moved, and
-        the robot's geometry every GEOMETRY_PERIOD."""
-        moved = False
-        for kind, msg in fresh.items():
-            if kind is BodyState:
-                self.body, moved = msg, True
-            elif kind is JointState:
-                self.joints, moved = msg, True
-            elif type(msg) in self.maps:
-                channel, translate = self.maps[type(msg)]
-                out = self._draw(msg.TOPIC, translate, msg, now_ns)
-                if out is not None:
-                    channel.log(out, log_time=now_ns)
-            elif type(msg) in self.json:
-                self.json[type(msg)].log(scene.json_payload(msg), log_time=now_ns)
-        if now - self._geometry_at >= GEOMETRY_PERIOD:
-            self._geometry_at = now
-            self.robot.log(self.scene.geometry(now_ns), log_time=now_ns)
-            moved = True  # the cameras' static transforms go out with it
-        if moved:
-            tf = self._draw(
-                f"{BodyState.TOPIC} and {JointState.TOPIC}",
-                self.scene.transforms,
-                self.body,
-                self.joints,
-                now_ns,
-            )
-            if tf is not None:
-                self.tf.log(tf, log_time=now_ns)
+        the robot's geometry every scene.GEOMETRY_PERIOD."""
+        for topic, out in self.stream.update(fresh.values(), now_ns, now):
+            self.channels[topic].log(out, log_time=now_ns)
 
-    def _draw(self, what: str, translate, *args):
-        """``translate(*args)``, or None once it said on stderr (first time per topic) why a
-        message of ``what`` cannot be drawn: one odd message never stops the view."""
-        try:
-            return translate(*args)
-        except Exception as e:
-            if what not in self._refused:
-                self._refused.add(what)
-                print(
-                    f"cannot draw {what}: {type(e).__name__}: {e} (further ones dropped quietly)",
-                    file=sys.stderr,
-                    flush=True,
-                )
-            return None
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
 
 
 def main(args: argparse.Namespace) -> int:

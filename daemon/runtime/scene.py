@@ -1,8 +1,12 @@
-"""climbd's messages as Foxglove's well-known schemas, for ``climbd view`` (and recordings).
+"""climbd's messages as Foxglove's well-known schemas, for ``climbd view`` and ``climbd record
+--scene``.
 
 Pure translation, no I/O and no clock: every function takes the time to stamp with (``now``,
 integer nanoseconds) and returns foxglove-sdk message objects, which the caller logs on its
-channels. Foxglove's 3-D panel draws them without configuration.
+channels. Foxglove's 3-D panel draws them without configuration. ``SceneStream`` says what goes
+on which topic (``TOPICS``) as climbd messages arrive; the live view logs that to its WebSocket
+channels, the recorder writes it into the MCAP beside the raw topics, so both show the same
+scene under the same topic names and schemas.
 
 Frames (``FrameTransforms``), one tree rooted at the odometry frame:
 
@@ -22,8 +26,10 @@ spheres, all coloured by confidence (red 0 → yellow → green 1).
 
 from __future__ import annotations
 
+import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
+from typing import NamedTuple
 
 import foxglove.messages as fg
 import msgspec
@@ -36,10 +42,12 @@ from climbd.daemon.contract.hardware import mount_extrinsics
 from climbd.daemon.contract.messages import (
     BodyState,
     ElevationGrid,
+    Health,
     HoldMap,
     JointState,
     JoistMap,
     Message,
+    ModeState,
     StairMap,
     TrussMembers,
 )
@@ -441,3 +449,150 @@ def _nullable_numbers(node):
 def json_payload(msg: Message) -> bytes:
     """``msg`` as JSON (NaN and infinities as null)."""
     return msgspec.json.encode(msg)
+
+
+# --- the scene's topics, as the view serves them and recordings keep them --------------------
+
+INPUTS: tuple[type[Message], ...] = (
+    BodyState,
+    JointState,
+    ModeState,
+    Health,
+    JoistMap,
+    HoldMap,
+    StairMap,
+    TrussMembers,
+    ElevationGrid,
+)
+"""What the scene is drawn from; all of it the robot publishes whether or not anyone watches."""
+
+GEOMETRY_PERIOD = 1.0
+"""Seconds between repeats of the robot's geometry, for clients that join (or seek) later."""
+
+TF = "/tf"
+ROBOT = "/robot"
+MAPS: dict[type[Message], tuple[str, Callable]] = {
+    JoistMap: ("/joists", joists),
+    HoldMap: ("/holds", holds),
+    StairMap: ("/stairs", stairs),
+    TrussMembers: ("/truss", truss),
+    ElevationGrid: ("/elevation", elevation),
+}
+"""Each map's topic and its translation."""
+JSON: dict[type[Message], str] = {ModeState: "/mode", Health: "/health"}
+"""Messages carried as they are, as JSON, for an operator to read or plot."""
+
+TOPICS: dict[str, type] = {
+    TF: fg.FrameTransforms,
+    ROBOT: fg.SceneUpdate,
+    "/joists": fg.SceneUpdate,
+    "/holds": fg.SceneUpdate,
+    "/stairs": fg.SceneUpdate,
+    "/truss": fg.SceneUpdate,
+    "/elevation": fg.Grid,
+    "/mode": ModeState,
+    "/health": Health,
+}
+"""Every scene topic and what it carries: a Foxglove message (protobuf) or a climbd message
+(JSON)."""
+
+
+class ChannelSchema(NamedTuple):
+    """How a scene topic is declared: its schema (name, encoding, bytes) and message encoding."""
+
+    name: str
+    encoding: str
+    data: bytes
+    message_encoding: str
+
+
+def channel_schema(topic: str) -> ChannelSchema:
+    """The schema ``topic`` is declared with: the foxglove-sdk message's own (a protobuf
+    FileDescriptorSet), or the JSON Schema of a climbd message (``json_schema``)."""
+    kind = TOPICS[topic]
+    if issubclass(kind, Message):
+        data = json.dumps(json_schema(kind)).encode()
+        return ChannelSchema(f"climbd.{kind.__name__}", "jsonschema", data, "json")
+    schema = kind.get_schema()
+    return ChannelSchema(schema.name, schema.encoding, bytes(schema.data), "protobuf")
+
+
+def payload(out) -> bytes:
+    """The bytes of what ``SceneStream.update`` put on a topic (a Foxglove message or JSON)."""
+    return out if isinstance(out, bytes) else out.encode()
+
+
+class SceneStream:
+    """What goes on each scene topic as climbd messages arrive, for one robot.
+
+    Transforms go out whenever the body or the joints moved, at most once per ``tf_period``
+    (the latest pose; a move inside the period goes out with the next message after it), and
+    with the robot's geometry every ``geometry_period``; maps, mode and health on arrival.
+    A message that cannot be drawn is left out and ``refused`` is told once per topic, so one
+    odd message never stops the scene.
+    """
+
+    def __init__(
+        self,
+        robot: RobotScene,
+        refused: Callable[[str], None] | None = None,
+        tf_period: float = 0.0,
+        geometry_period: float = GEOMETRY_PERIOD,
+    ) -> None:
+        self.robot = robot
+        self.refused = refused
+        self.tf_period = tf_period
+        self.geometry_period = geometry_period
+        self.body: BodyState | None = None
+        self.joints: JointState | None = None
+        self._moved = False
+        self._tf_at = -math.inf
+        self._geometry_at = -math.inf
+        self._refused: set[str] = set()
+
+    def update(self, fresh: Iterable[Message], now_ns: int, now: float) -> list[tuple[str, object]]:
+        """(topic, message) pairs for what arrived (``fresh``), stamped ``now_ns``; ``now``
+        (seconds, monotonic) paces the transforms and the geometry."""
+        out: list[tuple[str, object]] = []
+        for msg in fresh:
+            kind = type(msg)
+            if kind is BodyState:
+                self.body, self._moved = msg, True
+            elif kind is JointState:
+                self.joints, self._moved = msg, True
+            elif kind in MAPS:
+                topic, translate = MAPS[kind]
+                drawn = self._draw(msg.TOPIC, translate, msg, now_ns)
+                if drawn is not None:
+                    out.append((topic, drawn))
+            elif kind in JSON:
+                out.append((JSON[kind], json_payload(msg)))
+        if now - self._geometry_at >= self.geometry_period:
+            self._geometry_at = now
+            out.append((ROBOT, self.robot.geometry(now_ns)))
+            self._moved = True  # the cameras' static transforms go out with it
+        if self._moved and now - self._tf_at >= self.tf_period:
+            self._moved, self._tf_at = False, now
+            tf = self._draw(
+                f"{BodyState.TOPIC} and {JointState.TOPIC}",
+                self.robot.transforms,
+                self.body,
+                self.joints,
+                now_ns,
+            )
+            if tf is not None:
+                out.append((TF, tf))
+        return out
+
+    def _draw(self, what: str, translate, *args):
+        """``translate(*args)``, or None once ``refused`` was told (first time per topic) why a
+        message of ``what`` cannot be drawn."""
+        try:
+            return translate(*args)
+        except Exception as e:
+            if what not in self._refused:
+                self._refused.add(what)
+                if self.refused is not None:
+                    why = f"{type(e).__name__}: {e}"
+                    self.refused(f"cannot draw {what}: {why} (further ones dropped quietly)")
+            return None
