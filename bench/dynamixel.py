@@ -34,6 +34,7 @@ import tempfile
 import time
 import tty
 from pathlib import Path
+from typing import NamedTuple
 
 import dynamixel_sdk as sdk
 import numpy as np
@@ -41,6 +42,7 @@ from loop import realtime
 
 from climbd.daemon.contract.messages import JointCommand
 from climbd.daemon.contract.profile import load
+from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock
 from climbd.drivers.dynamixel.bus import MISPARSE, DynamixelBus, LatencyPort
 from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim.dynamixel import ServoChain
@@ -111,9 +113,10 @@ def pty_round_trip_s(count: int = 2000) -> float:
 class Emulator:
     """``python -m climbd.drivers.sim.dynamixel`` in a child process; ``.port`` is its pty."""
 
-    def __init__(self, profile_path: Path, baud: int, rt: bool) -> None:
+    def __init__(self, profile_path: Path, baud: int, rt: bool, latency_ms: float = 0.0) -> None:
         cmd = [sys.executable, "-m", "climbd.drivers.sim.dynamixel", "--profile", str(profile_path)]
         cmd += ["--baud", str(baud), "--return-delay-us", "0", "--spin-us", "150"]
+        cmd += ["--latency-ms", str(latency_ms)]
         self.proc = subprocess.Popen(
             cmd,
             cwd=ROOT,
@@ -238,12 +241,155 @@ def run_naive(profile, port: str, cycles: int) -> np.ndarray:
     return times
 
 
+class Scheduled(NamedTuple):
+    """One run of the driver under the control loop, reads between ticks."""
+
+    on_time: float
+    """Share of ticks after the first second that ended before the next was due."""
+    writes_per_servo: float
+    reads_per_servo: float
+    oldest_p50: float
+    oldest_p99: float
+    updates: float
+    """Joint updates per second: reads plus goals, every servo."""
+
+
+def run_scheduled(profile, port: str, seconds: float) -> Scheduled:
+    """The driver as the control role runs it: read, a goal sweeping every joint, write, and
+    the idle time served; ages are what each tick's JointState says."""
+    bus = DynamixelBus.from_profile(profile, port=port)
+    bus.open()
+    rest = np.asarray(bus.read().position)
+    phase = np.arange(rest.size)
+    oldest: list[float] = []
+
+    def tick(t: float, dt: float) -> None:
+        state = bus.read()
+        if loop.ticks == warm:  # the first second (the first tick reads every servo) left out
+            loop.timing.overruns = 0
+        if state.age:
+            oldest.append(float(np.nanmax(state.age)))
+        goal = rest + 0.2 * np.sin(2 * np.pi * 0.5 * t + phase)
+        bus.write(JointCommand(position=goal.tolist()))
+
+    loop = ControlLoop(profile.rate_hz, MonotonicClock(), tick, bus.serve_until)
+    ticks = int(seconds * profile.rate_hz)
+    warm = int(profile.rate_hz)
+    reads0 = bus.read_schedule.read_count
+    start = time.monotonic()
+    loop.run(max_ticks=ticks)
+    took = time.monotonic() - start
+    reads = bus.read_schedule.read_count - reads0
+    lost = [h.name for h in bus.health() if h.lost]
+    bus.close()
+    if lost:
+        raise SystemExit(f"servos lost during the benchmark: {lost}")
+    n = len(profile.joints)
+    ages = np.array(oldest[int(profile.rate_hz) :])  # after the first second
+    return Scheduled(
+        on_time=1.0 - loop.timing.overruns / (ticks - warm),
+        writes_per_servo=ticks / took,
+        reads_per_servo=reads / took / n,
+        oldest_p50=float(np.percentile(ages, 50)),
+        oldest_p99=float(np.percentile(ages, 99)),
+        updates=(reads + ticks * n) / took,
+    )
+
+
+def run_naive_rate(profile, port: str, seconds: float, latency_ms: float) -> tuple[float, float]:
+    """The SDK examples' loop (read then write, servo by servo, each waiting for its status)
+    behind the same adapter: joint updates per second, and the share of 1/rate periods in
+    which it completed a cycle of every servo."""
+    handler = LatencyPort(port, max(latency_ms, 1.0))
+    handler.openPort()
+    config = DynamixelConfig.from_profile(profile)
+    handler.setBaudRate(config.baud)
+    ph = sdk.PacketHandler(float(config.protocol))
+    ids = [j.id for j in profile.joints]
+    if config.protocol == 1:
+        read, write, present, goal, value = ph.read2ByteTxRx, ph.write2ByteTxRx, 36, 30, 512
+    else:
+        read, write, present, goal, value = ph.read4ByteTxRx, ph.write4ByteTxRx, 132, 116, 2048
+    updates = cycles = 0
+    start = time.monotonic()
+    while time.monotonic() - start < seconds:
+        for i in ids:
+            try:
+                updates += read(handler, i, present)[1] == sdk.COMM_SUCCESS
+            except MISPARSE:
+                handler.clearPort()
+        for i in ids:
+            try:
+                updates += write(handler, i, goal, value)[0] == sdk.COMM_SUCCESS
+            except MISPARSE:
+                handler.clearPort()
+        cycles += 1
+    took = time.monotonic() - start
+    handler.closePort()
+    return updates / took, min(1.0, cycles / (took * profile.rate_hz))
+
+
+def adapter_table(rt: bool, rounds: int, seconds: float) -> None:
+    """Reads between ticks behind no adapter, a 1 ms and a 16 ms latency timer (#38)."""
+    print(
+        "| robot | adapter | ticks on time | goals /servo/s | reads /servo/s | oldest state p50 ms "
+        "| oldest p99 ms | joint updates/s | naive SDK updates/s | naive cycles on time "
+        "| ours / naive |"
+    )
+    print("|" + "---|" * 11)
+    for robot in ("widowx", "hubrobo"):
+        path = ROOT / "robots" / f"{robot}.toml"
+        profile = load(path)
+        baud = DynamixelConfig.from_profile(profile).baud
+        for latency in (0.0, 1.0, 16.0):
+            runs, naive = [], []
+            for _ in range(rounds):
+                emu = Emulator(path, baud, rt, latency)
+                try:
+                    runs.append(run_scheduled(profile, emu.port, seconds))
+                    naive.append(run_naive_rate(profile, emu.port, min(seconds, 3.0), latency))
+                finally:
+                    emu.close()
+
+            def spread(values, scale=1.0, fmt="{:.0f}"):
+                v = np.array(values) * scale
+                med = fmt.format(np.median(v))
+                return f"{med} ({fmt.format(v.min())}–{fmt.format(v.max())})"
+
+            ours = [r.updates for r in runs]
+            theirs = [u for u, _ in naive]
+            print(
+                f"| {robot} | {f'{latency:g} ms' if latency else 'none (pty)'} "
+                f"| {spread([r.on_time for r in runs], 100, '{:.1f}')} % "
+                f"| {spread([r.writes_per_servo for r in runs])} "
+                f"| {spread([r.reads_per_servo for r in runs])} "
+                f"| {spread([r.oldest_p50 for r in runs], 1e3)} "
+                f"| {spread([r.oldest_p99 for r in runs], 1e3)} "
+                f"| {spread(ours)} | {spread(theirs)} "
+                f"| {spread([c for _, c in naive], 100, '{:.0f}')} % "
+                f"| {spread(np.array(ours) / np.array(theirs), 1.0, '{:.1f}')}× |",
+                flush=True,
+            )
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cycles", type=int, default=300)
     parser.add_argument("--no-realtime", action="store_true", help="normal scheduling")
+    parser.add_argument(
+        "--adapter",
+        action="store_true",
+        help="instead: reads between ticks of the control loop behind no, a 1 ms and a 16 ms "
+        "USB adapter, against the SDK's one-servo-at-a-time loop (#38)",
+    )
+    parser.add_argument("--rounds", type=int, default=3, help="with --adapter: runs per row")
+    parser.add_argument("--seconds", type=float, default=5.0, help="with --adapter: per run")
     args = parser.parse_args()
     rt = not args.no_realtime and realtime(DRIVER_PRIORITY)
+    if args.adapter:
+        print(f"scheduling: {'SCHED_FIFO' if rt else 'normal'}; load {os.getloadavg()[0]:.1f}\n")
+        adapter_table(rt, args.rounds, args.seconds)
+        return 0
     rtt = pty_round_trip_s()
     print(
         f"scheduling: {'SCHED_FIFO' if rt else 'normal'}; load average "

@@ -91,11 +91,13 @@ def format_health(health) -> str:
         f"decode errors {health.decode_errors}"
     ]
     if (b := health.bus) is not None:
+        by = ", ".join(f"{name} {count}" for name, count in b.missed_by.items())
         lines.append(
             f"  bus: {b.reads_per_tick:.1f} reads a tick ({b.reads_per_s:.0f}/s), goals "
             f"{b.writes_per_s:.0f}/s; oldest joint state p50 {b.oldest_age_p50 * 1e3:.0f} ms "
             f"p99 {b.oldest_age_p99 * 1e3:.0f} ms max {b.oldest_age_max * 1e3:.0f} ms "
             f"(bound {b.age_bound * 1e3:.0f} ms); {b.missed} replies missed"
+            + (f" ({by})" if by else "")
         )
         if b.plan:
             lines.append(f"  bus plan: {b.plan}")

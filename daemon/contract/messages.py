@@ -150,8 +150,8 @@ class LoopStats(msgspec.Struct, kw_only=True):
 class BusSchedule(msgspec.Struct, kw_only=True):
     """How a joint bus that reads between ticks keeps up, over the last window: reads per tick
     and per second, goal writes per second, the age (s) of the oldest joint state each tick
-    took (p50, p99, max) against the profile's bound, replies missed, and what the driver
-    says of its plan (the adapter's latency, a lowered read rate)."""
+    took (p50, p99, max) against the profile's bound, replies missed (by joint), and what the
+    driver says of its plan (the adapter's latency, a lowered read rate)."""
 
     reads_per_tick: float = 0.0
     reads_per_s: float = 0.0
@@ -161,6 +161,7 @@ class BusSchedule(msgspec.Struct, kw_only=True):
     oldest_age_max: float = 0.0
     age_bound: float = 0.0
     missed: int = 0
+    missed_by: Annotated[dict[Name, int], msgspec.Meta(max_length=MAX_ENTRIES)] = {}
     plan: Text = ""
 
 

@@ -86,6 +86,16 @@ TOUCH_SUPPORT = 10.0
 the feed-forward's share) before its feed-forward fades in: a late foot is not pushed down."""
 
 
+def current_joints(state: JointState, velocity_limits: np.ndarray) -> np.ndarray:
+    """Where the joints are now, for the estimator: a joint read ``age`` s ago has moved on by
+    its velocity (within its limit) since; a lost joint (age NaN) stays where it was read."""
+    q = np.asarray(state.position)
+    if not state.age:
+        return q
+    qd = np.clip(np.asarray(state.velocity), -velocity_limits, velocity_limits)
+    return q + np.nan_to_num(qd * np.asarray(state.age))
+
+
 def fusable(feature: AlignedFeature) -> bool:
     """Whether an aligned feature carries an alignment filter 2 can take: a finite shift (3)
     and unit directions (k x 3); anything else from the wire is dropped rather than poison the
@@ -142,6 +152,7 @@ class Controller:
         self.kinematics = Kinematics(profile)
         self.motion: MotionPipeline | None = None
         self.dt = 1.0 / profile.rate_hz
+        self._velocity_limits = np.array([j.limits.velocity for j in profile.joints])
         self.stand_q = self.kinematics.stand_joints()
         self._q = self.stand_q.copy()
         self.mode = Mode.OFF
@@ -311,14 +322,15 @@ class Controller:
         self.measured = state
         self.safety.check_state_age(state, t)
         q = np.asarray(state.position)
+        q_now = current_joints(state, self._velocity_limits)
         if self.estimator is not None:
-            self._estimate(t, dt, q, state)
+            self._estimate(t, dt, q_now, state)
         elif self._ticks % self._odometry_every == 0 or self._stance_changed:
             sample = self._read_imu()
             if sample is None:
-                self.body = self.odometry.update(q, self.stance, t)
+                self.body = self.odometry.update(q_now, self.stance, t)
             else:
-                self.body = self.odometry.update(q, self.stance, t, sample.gyro, sample.accel)
+                self.body = self.odometry.update(q_now, self.stance, t, sample.gyro, sample.accel)
             self._stance_changed = False
         if self.fault_reset:
             self.fault_reset = False

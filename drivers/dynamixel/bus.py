@@ -247,7 +247,7 @@ class DynamixelBus:
         self._group_ids: tuple[int, ...] = ()
         self._error_group: sdk.GroupSyncRead | None = None
         self.read_schedule = ReadSchedule(
-            n, profile.rate_hz, profile.bus.max_state_age, 1.0 / profile.bus.health_rate_hz
+            self.names, profile.rate_hz, profile.bus.max_state_age, 1.0 / profile.bus.health_rate_hz
         )
         self._failure: DriverError | None = None
         """What failed between ticks, raised by the next read."""
@@ -620,7 +620,8 @@ class DynamixelBus:
     def _seen_hold(self, request: Request, now: float, answered: bool) -> None:
         """Follow the adapter's hold: a reply shows it (it decays slowly to what replies
         show), a reply given up doubles it (a latency timer raised under load), up to
-        ``MAX_HOLD``; a change of over 2× is said, with what it does to the schedule."""
+        ``MAX_HOLD``; a change of over 2× is said (a rise as a warning), with what it does to
+        the schedule."""
         if answered:
             shown = now - request.sent - self._frame - request.wire
             self._hold = max(0.99 * self._hold, min(shown, MAX_HOLD))
@@ -628,7 +629,8 @@ class DynamixelBus:
             self._hold = min(max(2.0 * self._hold, USB_FRAME), MAX_HOLD)
         if self._hold > 2.0 * self._told or self._hold < 0.5 * self._told:
             before, self._told = self._told, self._hold
-            log.warning(
+            log.log(
+                logging.WARNING if self._hold > before else logging.INFO,
                 "%s: replies now held ~%.0f ms (was ~%.0f ms): the oldest joint state ages "
                 "by as much",
                 self._where(),
@@ -708,7 +710,7 @@ class DynamixelBus:
         if not self._requests:
             pipe.drop()
         missed &= ~got
-        self.read_schedule.missed += int(missed.sum())
+        self.read_schedule.miss(missed)
         return answered, got, missed
 
     def _read_pipelined(self, item: Item, joints: list[int]) -> dict[int, bytes]:

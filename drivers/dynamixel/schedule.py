@@ -15,7 +15,8 @@ import numpy as np
 from climbd.daemon.contract.messages import BusSchedule
 
 ERROR_SCALE = 0.05
-"""Tracking error (rad) that doubles a joint's claim to the next read."""
+"""Tracking error (rad) at which a joint's claim to the next read is a full tick older than
+its age (less in proportion, never more: no joint starves the others)."""
 
 WINDOW = 2.0
 """Seconds of ticks the reported figures cover."""
@@ -24,7 +25,9 @@ WINDOW = 2.0
 class ReadSchedule:
     """Sample times of ``n`` joints, the choice of the next to read, and the figures."""
 
-    def __init__(self, n: int, rate_hz: float, bound: float, probe_period: float) -> None:
+    def __init__(self, names: list[str], rate_hz: float, bound: float, probe_period: float) -> None:
+        n = len(names)
+        self.names = names
         self.sampled = np.full(n, -np.inf)
         """When each joint's state was sampled (monotonic s): when its READ was sent."""
         self.error = np.zeros(n)
@@ -32,20 +35,25 @@ class ReadSchedule:
         self.pending = np.zeros(n, bool)
         self.probed = np.full(n, -np.inf)
         self.bound = bound
+        self.period = 1.0 / rate_hz
         self.probe_period = probe_period
         self.plan = ""
-        self.missed = 0
+        self.missed = np.zeros(n, np.int64)
+        """Replies given up or corrupt, by joint."""
         self._ticks: deque[tuple[float, int, float]] = deque(maxlen=max(2, int(WINDOW * rate_hz)))
         self._reads = 0
+        self.read_count = 0
+        """States read since start."""
         self._writes: deque[float] = deque(maxlen=max(2, int(WINDOW * rate_hz)))
 
     def next(self, since: float, lost: np.ndarray) -> int | None:
         """The joint to read next: not read since ``since`` (the last tick's start), no reply
-        owed, not lost; the oldest first, weighted by its tracking error. None: all are fresh."""
+        owed, not lost; the oldest first, up to a tick sooner for its tracking error. None: all
+        are fresh."""
         free = (self.sampled < since) & ~self.pending & ~lost
         if not free.any():
             return None
-        score = (since - self.sampled) * (1.0 + self.error / ERROR_SCALE)
+        score = since - self.sampled + self.period * np.minimum(self.error / ERROR_SCALE, 1.0)
         score[~free] = -np.inf
         return int(np.argmax(score))
 
@@ -58,10 +66,15 @@ class ReadSchedule:
         self.probed[k] = now
         return k
 
+    def miss(self, joints: np.ndarray) -> None:
+        """The joints at mask ``joints`` did not answer (given up, or corrupt)."""
+        self.missed += joints
+
     def read(self, joints: tuple[int, ...], sampled: float) -> None:
         """``joints`` answered a request sent at ``sampled``."""
         self.sampled[list(joints)] = sampled
         self._reads += len(joints)
+        self.read_count += len(joints)
 
     def ages(self, now: float, lost: np.ndarray) -> list[float]:
         """Each joint's state age (s) at ``now``; NaN for a lost joint (it is not read)."""
@@ -82,7 +95,7 @@ class ReadSchedule:
         """The figures over the last ``WINDOW`` s (reads: those before each tick but the
         first, whose reads began before the window)."""
         if len(self._ticks) < 2:
-            return BusSchedule(age_bound=self.bound, missed=self.missed, plan=self.plan)
+            return BusSchedule(age_bound=self.bound, plan=self.plan, **self._misses())
         t = np.array([x[0] for x in self._ticks])
         reads = np.array([x[1] for x in self._ticks])
         oldest = np.array([x[2] for x in self._ticks])
@@ -96,6 +109,12 @@ class ReadSchedule:
             oldest_age_p99=float(np.percentile(oldest, 99)),
             oldest_age_max=float(oldest.max()),
             age_bound=self.bound,
-            missed=self.missed,
             plan=self.plan,
+            **self._misses(),
         )
+
+    def _misses(self) -> dict:
+        return {
+            "missed": int(self.missed.sum()),
+            "missed_by": {self.names[k]: int(self.missed[k]) for k in np.flatnonzero(self.missed)},
+        }
