@@ -544,7 +544,8 @@ class DynamixelBus:
         Without an adapter a reply is back within a wire time: one request at a time.
 
         2.0: a sync read of the servos not lost (the health block at the health rate, then
-        their error status), once a tick; those a sync read missed, and 1.0's servos, get
+        their error status), once a tick and again while one comes back before the next
+        tick (the tick then takes the freshest); those a sync read missed, and 1.0's servos, get
         READs of their own, the oldest first. Lost servos are probed at the health rate."""
         if not self._frame and self._requests:  # no adapter: the reply is due at once
             return False
@@ -553,7 +554,9 @@ class DynamixelBus:
             joints = tuple(np.flatnonzero(~lost & ~self._alone).tolist())
             stale = bool(joints) and self.read_schedule.sampled[list(joints)].min() < self._tick
             free = bool(joints) and not self.read_schedule.pending[list(joints)].any()
-            if free and (self._errors_due or stale):
+            trip = self._frame + self._sync_read_wire(m.state.size, len(joints)) + self._hold
+            fresher = now + trip < end  # another comes back before the tick: fresher state
+            if free and (self._errors_due or stale or fresher):
                 if self._errors_due:
                     item = m.hardware_error_status
                 else:
@@ -624,7 +627,7 @@ class DynamixelBus:
         the schedule."""
         if answered:
             shown = now - request.sent - self._frame - request.wire
-            self._hold = max(0.99 * self._hold, min(shown, MAX_HOLD))
+            self._hold = max(0.9 * self._hold, min(shown, MAX_HOLD))
         else:
             self._hold = min(max(2.0 * self._hold, USB_FRAME), MAX_HOLD)
         if self._hold > 2.0 * self._told or self._hold < 0.5 * self._told:
