@@ -653,10 +653,15 @@ class DynamixelBus:
         return parse
 
     def _parse_fast(self, group: sdk.GroupSyncRead, joints: tuple[int, ...]) -> Parsed:
+        """A fast sync read's one status; one of another size (the late reply to a request
+        given up, of another item: its status carries no item) is corrupt."""
         result = group.fastSyncReadRxPacket()
         if result != sdk.COMM_SUCCESS:
             return result, {}, 0
-        return result, {k: bytes(group.data_dict[self.ids[k]]) for k in joints}, 0
+        data = {k: bytes(group.data_dict[self.ids[k]]) for k in joints}
+        if any(len(d) != group.data_length for d in data.values()):
+            return sdk.COMM_RX_CORRUPT, {}, 0
+        return result, data, 0
 
     def _collect(self, now: float, prompt: bool = True) -> None:
         """Take every reply that has come and file it: state, health, error status, and
