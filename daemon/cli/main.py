@@ -48,6 +48,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "republish an MCAP recording on the bus at real or chosen speed",
     ),
     "top": ("climbd.daemon.cli.top", "live terminal view of a robot or the fleet"),
+    "urdf": ("climbd.daemon.cli.urdf", "write a robot's URDF from its profile"),
     "view": (
         "climbd.daemon.cli.view",
         "serve a robot live to Foxglove (WebSocket): its frames, links and maps in 3-D",

@@ -10,6 +10,13 @@ with the Foxglove SDK in Foxglove's well-known schemas (daemon/runtime/scene.py)
     /joists /holds /stairs /truss          foxglove.SceneUpdate, the world model's maps (odom)
     /elevation   foxglove.Grid             perception's height map, placed in odom
     /mode /health                          the robot's ModeState and Health as JSON
+    /depth       foxglove.PointCloud       each camera's depth in its optical frame, when the
+                                           robot publishes depth (the twin's sim/depth in a
+                                           --sim run), at --cloud-rate of --cloud-points at most
+    /truth/joists /truth/stairs /truth/holds /truth/truss
+                 foxglove.SceneUpdate      with --truth WORLD: the twin world's true maps, in
+                                           translucent blue beside perception's (odom is the
+                                           world frame in a --sim run)
 
 Zenoh callbacks only keep the latest message of each kind; a publisher thread translates at
 ``--rate`` (transforms) or on arrival (maps, mode, health), so a 1 kHz joint stream costs the
@@ -22,6 +29,7 @@ goes silent and when it is heard again; Zenoh reconnects to ``--connect`` by its
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import threading
@@ -33,8 +41,13 @@ from foxglove import channels as ch
 
 from climbd.daemon.cli.client import add_credential_arguments, find_profile, open_client
 from climbd.daemon.contract import profile as profiles
-from climbd.daemon.contract.messages import Health, Message
+from climbd.daemon.contract.hardware import Intrinsics
+from climbd.daemon.contract.messages import DepthImage, Health, Message
 from climbd.daemon.runtime import scene
+from climbd.drivers.realsense.models import model
+from climbd.drivers.sim.truth import truth
+from climbd.drivers.sim.worlds import WorldError
+from climbd.drivers.sim.worlds import load as load_world
 
 SUBSCRIBED = scene.INPUTS
 """What the view takes from the robot; all of it the robot publishes whether or not anyone
@@ -44,6 +57,7 @@ TYPED_CHANNELS = {
     fg.FrameTransforms: ch.FrameTransformsChannel,
     fg.SceneUpdate: ch.SceneUpdateChannel,
     fg.Grid: ch.GridChannel,
+    fg.PointCloud: ch.PointCloudChannel,
 }
 """The SDK's channel of each Foxglove message a scene topic carries (``scene.TOPICS``)."""
 
@@ -75,11 +89,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=3.0,
         help="seconds without a message after which the robot is reported silent",
     )
+    parser.add_argument(
+        "--cloud-rate",
+        type=float,
+        default=2.0,
+        help="depth point clouds per second and camera (0: depth not subscribed to)",
+    )
+    parser.add_argument(
+        "--cloud-points", type=int, default=20_000, help="most points of one depth point cloud"
+    )
+    parser.add_argument(
+        "--truth",
+        metavar="WORLD",
+        help="the twin world the robot runs in (climbd run --sim WORLD): its true joists, "
+        "stairs, holds and truss drawn beside perception's (/truth/...)",
+    )
     add_credential_arguments(parser)
 
 
+def camera_intrinsics(profile: profiles.Profile):
+    """The nominal intrinsics of the profile's cameras by name and image size (the twin renders
+    its depth with them), for ``scene.SceneStream``."""
+    configs = {c.name: c for c in profile.cameras}
+
+    def intrinsics(camera: str, width: int, height: int) -> Intrinsics | None:
+        config = configs.get(camera)
+        if config is None:
+            return None
+        try:
+            return model(config.model).intrinsics(width, height)
+        except (KeyError, ValueError):
+            return None
+
+    return intrinsics
+
+
 class Latest:
-    """The latest message of each kind (Health: of each role), filled on Zenoh's threads.
+    """The latest message of each kind (Health: of each role; depth: of each camera), filled on
+    Zenoh's threads.
 
     ``put`` only stores under a lock: it never blocks on the viewer and never calls Zenoh."""
 
@@ -90,7 +137,12 @@ class Latest:
         """time.monotonic() of the last message."""
 
     def put(self, msg: Message) -> None:
-        kind = (Health, msg.role) if isinstance(msg, Health) else type(msg)
+        if isinstance(msg, Health):
+            kind = (Health, msg.role)
+        elif isinstance(msg, DepthImage):
+            kind = (DepthImage, msg.camera)
+        else:
+            kind = type(msg)
         now = time.monotonic()
         with self._lock:
             self._fresh[kind] = msg
@@ -140,32 +192,37 @@ class Presence:
 
 class Viewer:
     """The Foxglove channels of one robot in a foxglove Context (``scene.TOPICS``), and what
-    goes on each (``scene.SceneStream``)."""
+    goes on each (``scene.SceneStream``); an optional topic (``scene.OPTIONAL_TOPICS``: depth,
+    truth) is advertised when its first message is drawn."""
 
-    def __init__(self, robot_scene: scene.RobotScene, context: foxglove.Context) -> None:
+    def __init__(
+        self, robot_scene: scene.RobotScene, context: foxglove.Context, **stream_options
+    ) -> None:
         self.scene = robot_scene
-        self.stream = scene.SceneStream(robot_scene, refused=_say)
+        self.context = context
+        self.stream = scene.SceneStream(robot_scene, refused=_say, **stream_options)
         self.channels = {}
-        for topic, kind in scene.TOPICS.items():
-            if kind in TYPED_CHANNELS:
-                self.channels[topic] = TYPED_CHANNELS[kind](topic, context=context)
-            else:
-                declared = scene.channel_schema(topic)
-                schema = foxglove.Schema(
-                    name=declared.name, encoding=declared.encoding, data=declared.data
-                )
-                self.channels[topic] = foxglove.Channel(
-                    topic,
-                    schema=schema,
-                    message_encoding=declared.message_encoding,
-                    context=context,
-                )
+        for topic in scene.TOPICS:
+            self.channels[topic] = self._channel(topic)
+
+    def _channel(self, topic: str):
+        kind = scene.TOPICS.get(topic) or scene.OPTIONAL_TOPICS[topic]
+        if kind in TYPED_CHANNELS:
+            return TYPED_CHANNELS[kind](topic, context=self.context)
+        declared = scene.channel_schema(topic)
+        schema = foxglove.Schema(name=declared.name, encoding=declared.encoding, data=declared.data)
+        return foxglove.Channel(
+            topic, schema=schema, message_encoding=declared.message_encoding, context=self.context
+        )
 
     def publish(self, fresh: dict[object, Message], now_ns: int, now: float) -> None:
         """Translate and log what arrived; transforms whenever the body or joints moved, and
         the robot's geometry every scene.GEOMETRY_PERIOD."""
         for topic, out in self.stream.update(fresh.values(), now_ns, now):
-            self.channels[topic].log(out, log_time=now_ns)
+            channel = self.channels.get(topic)
+            if channel is None:
+                channel = self.channels[topic] = self._channel(topic)
+            channel.log(out, log_time=now_ns)
 
 
 def _say(text: str) -> None:
@@ -175,18 +232,31 @@ def _say(text: str) -> None:
 def main(args: argparse.Namespace) -> int:
     try:
         robot_scene = scene.RobotScene(find_profile(args.robot, args.profile))
-    except (profiles.ProfileError, OSError) as e:
+        world_truth = truth(load_world(args.truth)) if args.truth else []
+    except (profiles.ProfileError, WorldError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    if args.rate <= 0 or args.backlog < 1:
-        print("error: --rate must be positive and --backlog at least 1", file=sys.stderr)
+    if args.rate <= 0 or args.backlog < 1 or args.cloud_rate < 0 or args.cloud_points < 1:
+        print(
+            "error: --rate must be positive, --cloud-rate not negative, --backlog and "
+            "--cloud-points at least 1",
+            file=sys.stderr,
+        )
         return 2
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):  # explicit: an inherited SIG_IGN would hang us
         signal.signal(sig, lambda *_: stop.set())
 
     context = foxglove.Context()
-    viewer = Viewer(robot_scene, context)
+    clouds = args.cloud_rate > 0
+    viewer = Viewer(
+        robot_scene,
+        context,
+        intrinsics=camera_intrinsics(robot_scene.profile) if clouds else None,
+        cloud_period=1.0 / args.cloud_rate if clouds else math.inf,
+        cloud_points=args.cloud_points,
+        truth=world_truth,
+    )
     try:
         server = foxglove.start_server(
             name=f"climbd {args.robot}",
@@ -211,7 +281,7 @@ def main(args: argparse.Namespace) -> int:
         if net is None:
             return 2
         latest = Latest()
-        for message in SUBSCRIBED:
+        for message in SUBSCRIBED + ((DepthImage,) if clouds else ()):
             net.subscribe(message, latest.put)
         presence = Presence(args.robot, where, args.silent_after, time.monotonic())
         period = 1.0 / args.rate

@@ -21,7 +21,11 @@ Frames (``FrameTransforms``), one tree rooted at the odometry frame:
 Scenes (``SceneUpdate``, each replacing the whole of its topic's previous scene): the robot's
 links as primitives locked to their frames, and the world model's maps in ``odom``: joists as
 boxes, holds as spheres, stair treads as boxes, truss members as cylinders with their nodes as
-spheres, all coloured by confidence (red 0 → yellow → green 1).
+spheres, all coloured by confidence (red 0 → yellow → green 1). A twin world's ground truth
+(drivers/sim/truth.py), when given, is drawn the same way in translucent blue on ``/truth/…``.
+
+Depth (``PointCloud``): a depth image deprojected in its camera's optical frame, decimated on
+a pixel grid to a number of points, at a set rate.
 """
 
 from __future__ import annotations
@@ -38,9 +42,10 @@ import numpy as np
 from climbd.daemon.algorithms.estimation import quaternion
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.geometry import rotation
-from climbd.daemon.contract.hardware import mount_extrinsics
+from climbd.daemon.contract.hardware import Intrinsics, mount_extrinsics
 from climbd.daemon.contract.messages import (
     BodyState,
+    DepthImage,
     ElevationGrid,
     Health,
     HoldMap,
@@ -65,6 +70,8 @@ NODE_SCALE = 2.5
 """A truss node's sphere, in diameters of its thickest member."""
 MIN_THICKNESS = 0.005
 """Smallest extent (m) of a drawn box: a zero rise or height still shows as a slab."""
+
+RGBA = tuple[float, float, float, float]
 
 ROBOT_COLOR = (0.55, 0.6, 0.7, 1.0)
 BODY_COLOR = (0.3, 0.35, 0.45, 0.9)
@@ -149,7 +156,9 @@ class RobotScene:
         self.cameras: list[tuple[str, list[float], list[float]]] = []
         for camera in profile.cameras:
             t = mount_extrinsics(camera)
-            self.cameras.append((f"camera_{camera.name}", t[:3, 3].tolist(), quaternion(t[:3, :3])))
+            self.cameras.append(
+                (camera_frame(camera.name), t[:3, 3].tolist(), quaternion(t[:3, :3]))
+            )
 
     @property
     def frames(self) -> list[str]:
@@ -273,7 +282,7 @@ class RobotScene:
 # --- the world model's maps -----------------------------------------------------------------
 
 
-def joists(msg: JoistMap, now: int) -> fg.SceneUpdate:
+def joists(msg: JoistMap, now: int, rgba: RGBA | None = None) -> fg.SceneUpdate:
     """Each mapped joist as a box: its top along the edge seen so far, ``height`` deep,
     JOIST_WIDTH wide on the side its normal points to (away from where it was first seen)."""
     ts = stamp(now)
@@ -291,13 +300,13 @@ def joists(msg: JoistMap, now: int) -> fg.SceneUpdate:
         box = fg.CubePrimitive(
             pose=pose(centre, yaw_quaternion(j.heading)),
             size=vector([JOIST_WIDTH, length, height]),
-            color=color(confidence_rgba(j.confidence)),
+            color=color(rgba or confidence_rgba(j.confidence)),
         )
         entities.append(_entity(ts, f"joist/{j.id}", j, cubes=[box]))
     return _replace_all(entities, now)
 
 
-def holds(msg: HoldMap, now: int) -> fg.SceneUpdate:
+def holds(msg: HoldMap, now: int, rgba: RGBA | None = None) -> fg.SceneUpdate:
     """Each mapped hold as a sphere of HOLD_DIAMETER at its position."""
     ts = stamp(now)
     entities = []
@@ -307,13 +316,13 @@ def holds(msg: HoldMap, now: int) -> fg.SceneUpdate:
         sphere = fg.SpherePrimitive(
             pose=pose(h.position[:3]),
             size=vector([HOLD_DIAMETER] * 3),
-            color=color(confidence_rgba(h.confidence)),
+            color=color(rgba or confidence_rgba(h.confidence)),
         )
         entities.append(_entity(ts, f"hold/{h.id}", h, spheres=[sphere]))
     return _replace_all(entities, now)
 
 
-def stairs(msg: StairMap, now: int) -> fg.SceneUpdate:
+def stairs(msg: StairMap, now: int, rgba: RGBA | None = None) -> fg.SceneUpdate:
     """Each mapped step as a block: its tread ``depth`` deep from the edge up the flight, its
     top at ``height``, ``rise`` tall. The edge runs left to right facing up the flight, so up
     the flight is the edge direction turned a quarter left."""
@@ -335,13 +344,13 @@ def stairs(msg: StairMap, now: int) -> fg.SceneUpdate:
         box = fg.CubePrimitive(
             pose=pose(centre, yaw_quaternion(math.atan2(up[1], up[0]))),
             size=vector([depth, width, rise]),
-            color=color(confidence_rgba(s.confidence)),
+            color=color(rgba or confidence_rgba(s.confidence)),
         )
         entities.append(_entity(ts, f"stair/{s.id}", s, cubes=[box]))
     return _replace_all(entities, now)
 
 
-def truss(msg: TrussMembers, now: int) -> fg.SceneUpdate:
+def truss(msg: TrussMembers, now: int, rgba: RGBA | None = None) -> fg.SceneUpdate:
     """Each member as a cylinder between its ends, each node as a sphere NODE_SCALE times the
     diameter of its thickest member."""
     ts = stamp(now)
@@ -360,7 +369,7 @@ def truss(msg: TrussMembers, now: int) -> fg.SceneUpdate:
             size=vector([2 * m.radius, 2 * m.radius, length]),
             bottom_scale=1.0,
             top_scale=1.0,
-            color=color(confidence_rgba(m.confidence)),
+            color=color(rgba or confidence_rgba(m.confidence)),
         )
         name = f"member/{m.id}" if m.id else f"member/#{i}"
         entities.append(_entity(ts, name, m, cylinders=[cylinder]))
@@ -371,7 +380,7 @@ def truss(msg: TrussMembers, now: int) -> fg.SceneUpdate:
         sphere = fg.SpherePrimitive(
             pose=pose(n.position[:3]),
             size=vector([2 * NODE_SCALE * r] * 3),
-            color=color((0.6, 0.6, 0.6, 1.0)),
+            color=color(rgba or (0.6, 0.6, 0.6, 1.0)),
         )
         entities.append(
             fg.SceneEntity(timestamp=ts, frame_id=ODOM, id=f"node/{i}", spheres=[sphere])
@@ -419,6 +428,50 @@ def elevation(msg: ElevationGrid, now: int) -> fg.Grid | None:
             )
         ],
         data=data,
+    )
+
+
+def camera_frame(camera: str) -> str:
+    """The frame of the profile camera named ``camera`` (its optical frame)."""
+    return f"camera_{camera}"
+
+
+CLOUD_FIELDS = [
+    fg.PackedElementField(name=axis, offset=4 * k, type=fg.PackedElementFieldNumericType.Float32)
+    for k, axis in enumerate("xyz")
+]
+
+
+def depth_cloud(
+    image: DepthImage, intrinsics: Intrinsics, max_points: int, now: int
+) -> fg.PointCloud | None:
+    """A depth image as a point cloud in its camera's optical frame (x right, y down, z
+    forward), decimated on a pixel grid coarse enough to keep at most ``max_points`` pixels
+    (every pixel when they fit); pixels without a return (0) are left out. None for an image
+    whose bytes do not match its size or whose size is not ``intrinsics``'."""
+    w, h = image.width, image.height
+    if w <= 0 or h <= 0 or len(image.depth) != 2 * w * h or max_points < 1:
+        return None
+    if (w, h) != (intrinsics.width, intrinsics.height) or not image.depth_scale > 0:
+        return None
+    step = max(1, math.ceil(math.sqrt(w * h / max_points)))
+    while math.ceil(w / step) * math.ceil(h / step) > max_points:
+        step += 1
+    raw = np.frombuffer(image.depth, "<u2").reshape(h, w)[::step, ::step]
+    v, u = np.nonzero(raw)
+    z = raw[v, u].astype(np.float32) * np.float32(image.depth_scale)
+    u, v = u * step, v * step
+    points = np.empty((len(z), 3), np.float32)
+    points[:, 0] = (u - intrinsics.ppx) * z / intrinsics.fx
+    points[:, 1] = (v - intrinsics.ppy) * z / intrinsics.fy
+    points[:, 2] = z
+    return fg.PointCloud(
+        timestamp=stamp(now),
+        frame_id=camera_frame(image.camera),
+        pose=pose([0.0, 0.0, 0.0]),
+        point_stride=12,
+        fields=CLOUD_FIELDS,
+        data=points.tobytes(),
     )
 
 
@@ -479,6 +532,15 @@ MAPS: dict[type[Message], tuple[str, Callable]] = {
     ElevationGrid: ("/elevation", elevation),
 }
 """Each map's topic and its translation."""
+TRUTH: dict[type[Message], str] = {
+    JoistMap: "/truth/joists",
+    HoldMap: "/truth/holds",
+    StairMap: "/truth/stairs",
+    TrussMembers: "/truth/truss",
+}
+"""The topic of each map of a twin world's ground truth, drawn beside perception's."""
+TRUTH_COLOR = (0.25, 0.45, 1.0, 0.4)
+"""Truth's colour: translucent blue, apart from perception's red → yellow → green."""
 JSON: dict[type[Message], str] = {ModeState: "/mode", Health: "/health"}
 """Messages carried as they are, as JSON, for an operator to read or plot."""
 
@@ -496,6 +558,14 @@ TOPICS: dict[str, type] = {
 """Every scene topic and what it carries: a Foxglove message (protobuf) or a climbd message
 (JSON)."""
 
+CLOUD = "/depth"
+OPTIONAL_TOPICS: dict[str, type] = {
+    CLOUD: fg.PointCloud,
+    **{topic: fg.SceneUpdate for topic in TRUTH.values()},
+}
+"""Topics drawn only in some runs (the twin's ``sim/depth`` in a ``--sim`` run, a twin world's
+truth given to the view): a view advertises each when its first message is drawn."""
+
 
 class ChannelSchema(NamedTuple):
     """How a scene topic is declared: its schema (name, encoding, bytes) and message encoding."""
@@ -509,7 +579,7 @@ class ChannelSchema(NamedTuple):
 def channel_schema(topic: str) -> ChannelSchema:
     """The schema ``topic`` is declared with: the foxglove-sdk message's own (a protobuf
     FileDescriptorSet), or the JSON Schema of a climbd message (``json_schema``)."""
-    kind = TOPICS[topic]
+    kind = TOPICS.get(topic) or OPTIONAL_TOPICS[topic]
     if issubclass(kind, Message):
         data = json.dumps(json_schema(kind)).encode()
         return ChannelSchema(f"climbd.{kind.__name__}", "jsonschema", data, "json")
@@ -538,8 +608,17 @@ class SceneStream:
         refused: Callable[[str], None] | None = None,
         tf_period: float = 0.0,
         geometry_period: float = GEOMETRY_PERIOD,
+        intrinsics: Callable[[str, int, int], Intrinsics | None] | None = None,
+        cloud_period: float = 0.5,
+        cloud_points: int = 20_000,
+        truth: Sequence[Message] = (),
     ) -> None:
+        self.truth = [msg for msg in truth if type(msg) in TRUTH]
         self.robot = robot
+        self.intrinsics = intrinsics
+        self.cloud_period = cloud_period
+        self.cloud_points = cloud_points
+        self._cloud_at: dict[str, float] = {}
         self.refused = refused
         self.tf_period = tf_period
         self.geometry_period = geometry_period
@@ -567,9 +646,21 @@ class SceneStream:
                     out.append((topic, drawn))
             elif kind in JSON:
                 out.append((JSON[kind], json_payload(msg)))
+            elif kind is DepthImage and self.intrinsics is not None:
+                if now - self._cloud_at.get(msg.camera, -math.inf) < self.cloud_period:
+                    continue
+                self._cloud_at[msg.camera] = now
+                cloud = self._draw(msg.TOPIC, self._cloud, msg, now_ns)
+                if cloud is not None:
+                    out.append((CLOUD, cloud))
         if now - self._geometry_at >= self.geometry_period:
             self._geometry_at = now
             out.append((ROBOT, self.robot.geometry(now_ns)))
+            for msg in self.truth:
+                translate = MAPS[type(msg)][1]
+                drawn = self._draw(f"truth of {msg.TOPIC}", translate, msg, now_ns, TRUTH_COLOR)
+                if drawn is not None:
+                    out.append((TRUTH[type(msg)], drawn))
             self._moved = True  # the cameras' static transforms go out with it
         if self._moved and now - self._tf_at >= self.tf_period:
             self._moved, self._tf_at = False, now
@@ -583,6 +674,15 @@ class SceneStream:
             if tf is not None:
                 out.append((TF, tf))
         return out
+
+    def _cloud(self, image: DepthImage, now_ns: int) -> fg.PointCloud:
+        intrinsics = self.intrinsics(image.camera, image.width, image.height)
+        if intrinsics is None:
+            raise ValueError(f"no camera {image.camera!r} of {image.width}x{image.height}")
+        cloud = depth_cloud(image, intrinsics, self.cloud_points, now_ns)
+        if cloud is None:
+            raise ValueError(f"{len(image.depth)} bytes for {image.width}x{image.height}")
+        return cloud
 
     def _draw(self, what: str, translate, *args):
         """``translate(*args)``, or None once ``refused`` was told (first time per topic) why a
