@@ -6,7 +6,7 @@ import msgspec
 import pytest
 
 from climbd.daemon.contract import profile as profiles
-from climbd.daemon.contract.messages import EstopPolicy, JointHealth, Mode
+from climbd.daemon.contract.messages import EstopPolicy, JointHealth, JointState, Mode
 from climbd.daemon.runtime.safety import DERATE_SCALE, MAX_ESTOP_SOURCES, Safety
 
 
@@ -192,3 +192,18 @@ def test_health_policy(safety: Safety) -> None:
 )
 def test_policy_comes_from_the_profile(robots, name: str, policy: EstopPolicy) -> None:
     assert Safety(profiles.load(robots / f"{name}.toml")).policy == policy
+
+
+def test_a_joint_state_older_than_the_bound_is_a_fault_naming_the_joint(safety: Safety) -> None:
+    bound = safety.profile.bus.max_state_age
+    names = [j.name for j in safety.profile.joints[:3]]
+    stale = JointState(names=names, position=[0.0] * 3, age=[0.01, bound * 1.5, float("nan")])
+    safety.check_state_age(stale, 0.0)
+    assert safety.mode == Mode.OFF, "a robot not on its legs has nothing to fault"
+    safety.request(Mode.STAND, 0.1)
+    fresh = JointState(names=names, position=[0.0] * 3, age=[0.01, bound, float("nan")])
+    safety.check_state_age(fresh, 0.2)
+    assert safety.mode == Mode.STAND, "at the bound, and a lost joint (NaN), are no fault"
+    safety.check_state_age(stale, 0.3)
+    assert safety.mode == Mode.FAULT
+    assert names[1] in safety.reason and names[0] not in safety.reason
