@@ -200,8 +200,13 @@ def test_a_silent_servo_is_lost_the_others_stay_fresh_and_it_comes_back():
     assert back
 
 
-def test_corrupt_replies_are_misses_not_losses():
-    profile, chain, emu = _robot("widowx", 1)
+@pytest.mark.parametrize("robot,latency_ms", [("widowx", 1), ("hubrobo", None)])
+def test_corrupt_replies_are_misses_not_losses(robot, latency_ms):
+    """Two corrupt replies of one servo: counted against it by name, nobody lost. On 2.0 a
+    corrupt fast sync read status costs every servo its read (one status for all); they are
+    read on their own, then the sync read takes them back: every state is fresh again, as
+    fresh as with no corruption (a 2.0 tick takes a state under 10 ms old)."""
+    profile, chain, emu = _robot(robot, latency_ms)
     with emu:
         bus = DynamixelBus.from_profile(profile, port=emu.port)
         bus.open()
@@ -215,7 +220,8 @@ def test_corrupt_replies_are_misses_not_losses():
             bus.close()
     assert report.missed_by.get(profile.joints[2].name, 0) >= 2  # the corrupt two, named
     assert not any(h.lost for h in bus.health())
-    assert max(states[-1].age) <= profile.bus.max_state_age
+    ages = np.array([s.age for s in states[-10:]])
+    assert ages.max() <= (0.05 if robot == "hubrobo" else profile.bus.max_state_age)
 
 
 def test_a_latency_timer_raised_under_load_is_followed_and_said(caplog):

@@ -543,44 +543,45 @@ class DynamixelBus:
         ``behind``: seconds of an instruction without reply just written, that it follows.
         Without an adapter a reply is back within a wire time: one request at a time.
 
-        2.0: a sync read of the servos not lost (the health block at the health rate, then
-        their error status), once a tick and again while one comes back before the next
-        tick (the tick then takes the freshest); those a sync read missed, and 1.0's servos, get
-        READs of their own, the oldest first. Lost servos are probed at the health rate."""
+        First a lost servo due a probe (at the health rate), then READs of their own, oldest
+        state first: every 1.0 servo, and the 2.0 servos a sync read missed. Then, on 2.0, a
+        sync read of the others (the health block at the health rate, then their error
+        status), once a tick and again while one comes back before the next tick (the tick
+        then takes the freshest)."""
         if not self._frame and self._requests:  # no adapter: the reply is due at once
             return False
         m, lost = self.model, self.lost
-        if m.protocol == 2:
-            joints = tuple(np.flatnonzero(~lost & ~self._alone).tolist())
-            stale = bool(joints) and self.read_schedule.sampled[list(joints)].min() < self._tick
-            free = bool(joints) and not self.read_schedule.pending[list(joints)].any()
-            trip = self._frame + self._sync_read_wire(m.state.size, len(joints)) + self._hold
-            fresher = now + trip < end  # another comes back before the tick: fresher state
-            if free and (self._errors_due or stale or fresher):
-                if self._errors_due:
-                    item = m.hardware_error_status
-                else:
-                    health = (self._sync_reads + 1) % self.health_every == 0
-                    item = m.health if health else m.state
-                wire = behind + self._sync_read_wire(item.size, len(joints))
-                if now + self._frame + wire > end:
-                    return False
-                self._sync_reads += item != m.hardware_error_status
-                self._errors_due = item == m.health
-                self._send_sync(joints, item, now, wire)
-                return True
         single = ~lost & self._alone if m.protocol == 2 else ~lost
         k = self.read_schedule.probe(now, lost)
         if k is None:
             k = self.read_schedule.next(self._tick, ~single)
-        if k is None:
+        if k is not None:
+            item = m.health if m.protocol == 1 else m.state
+            wire = behind + self._read_wire(item.size)
+            if now + self._frame + wire > end:
+                return False
+            self.ph.readTx(self._pipe, self.ids[k], item.address, item.size)
+            self._expect((k,), item, now, wire, self._parser(k, item))
+            return True
+        joints = tuple(np.flatnonzero(~lost & ~self._alone).tolist())
+        if m.protocol == 1 or not joints or self.read_schedule.pending[list(joints)].any():
             return False
-        item = m.health if m.protocol == 1 else m.state
-        wire = behind + self._read_wire(item.size)
+        stale = self.read_schedule.sampled[list(joints)].min() < self._tick
+        trip = self._frame + self._sync_read_wire(m.state.size, len(joints)) + self._hold
+        fresher = now + trip < end  # another comes back before the tick: fresher state
+        if not (self._errors_due or stale or fresher):
+            return False
+        if self._errors_due:
+            item = m.hardware_error_status
+        else:
+            health = (self._sync_reads + 1) % self.health_every == 0
+            item = m.health if health else m.state
+        wire = behind + self._sync_read_wire(item.size, len(joints))
         if now + self._frame + wire > end:
             return False
-        self.ph.readTx(self._pipe, self.ids[k], item.address, item.size)
-        self._expect((k,), item, now, wire, self._parser(k, item))
+        self._sync_reads += item != m.hardware_error_status
+        self._errors_due = item == m.health
+        self._send_sync(joints, item, now, wire)
         return True
 
     def _send_sync(self, joints: tuple[int, ...], item: Item, now: float, wire: float) -> None:
