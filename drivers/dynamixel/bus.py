@@ -793,7 +793,7 @@ class DynamixelBus:
         blocks = self._read_each(item, want) if m.protocol == 1 else self._read_sync(item, want)
         got = np.array([b is not None for b in blocks])
         if not (self._frame and m.protocol == 1):  # pipelined READs are stamped one by one
-            self.read_schedule.read(tuple(np.flatnonzero(got).tolist()), start)
+            self.read_schedule.read_all(got, start)
         back = self._account(got, want)
         if not got.any():
             return
@@ -935,10 +935,10 @@ class DynamixelBus:
             raise DriverError(f"{self._where()}: non-finite goal for {', '.join(bad)}")
         with self._device("write"):
             self._sync_write(self.model.goal_position, self.map.goal_ticks(q), ~self.lost)
-        now = time.monotonic()
-        self.read_schedule.error = np.abs(q - self.position)
-        self.read_schedule.wrote(now)
         if self._served:  # the first request rides behind the goals: no reply stands between
+            now = time.monotonic()
+            self.read_schedule.error = np.abs(q - self.position)
+            self.read_schedule.wrote(now)
             with self._device("read after write"):
                 end = self._tick + 1.0 / self.profile.rate_hz - IDLE_MARGIN
                 self._send_next(now, end, self._written_wire)

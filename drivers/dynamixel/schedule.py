@@ -70,6 +70,14 @@ class ReadSchedule:
         """The joints at mask ``joints`` did not answer (given up, or corrupt)."""
         self.missed += joints
 
+    def read_all(self, answered: np.ndarray, sampled: float) -> None:
+        """The joints at mask ``answered`` were read together at ``sampled`` (a blocking read
+        of every servo)."""
+        self.sampled[answered] = sampled
+        count = int(answered.sum())
+        self._reads += count
+        self.read_count += count
+
     def read(self, joints: tuple[int, ...], sampled: float) -> None:
         """``joints`` answered a request sent at ``sampled``."""
         self.sampled[list(joints)] = sampled
