@@ -510,7 +510,8 @@ class DynamixelBus:
         deadline, and take the replies as they come."""
         if self.port is None:
             return
-        end = deadline - IDLE_MARGIN
+        # never more than a period: a deadline further off is the loop's clock jumping
+        end = min(deadline, time.monotonic() + 1.0 / self.profile.rate_hz) - IDLE_MARGIN
         try:
             if not self._served:  # the first: every servo at once, so no state starts old
                 with self._device("read"):
