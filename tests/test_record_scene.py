@@ -113,7 +113,7 @@ def test_record_scene_writes_the_views_channels_as_one_tree_rooted_at_odom(
     recording: tuple[Path, str],
 ) -> None:
     out, stdout = recording
-    assert "with its scene on 9 channels" in stdout and "scene: " in stdout, stdout
+    assert "with its scene on 11 channels" in stdout and "scene: " in stdout, stdout
 
     with open(out, "rb") as f:
         reader = make_reader(f)
@@ -130,6 +130,8 @@ def test_record_scene_writes_the_views_channels_as_one_tree_rooted_at_odom(
         "/elevation": ("protobuf", "foxglove.Grid"),
         "/mode": ("json", "climbd.ModeState"),
         "/health": ("json", "climbd.Health"),
+        "/loop": ("json", "climbd.Loop"),
+        "/estop": ("json", "climbd.EStopState"),
     }
     for topic, (encoding, name) in expected.items():
         channel = channels[topic]

@@ -470,7 +470,7 @@ def test_view_serves_a_live_robot_to_a_foxglove_client(endpoint: str) -> None:
         topics = check_payloads(channels, data)
         assert set(topics) == {
             "/tf", "/robot", "/joists", "/holds", "/stairs", "/truss", "/elevation", "/mode",
-            "/health",
+            "/health", "/loop", "/estop",
         }  # fmt: skip
 
         # the transforms: one tree rooted at odom, with every link, foot and the camera
@@ -497,6 +497,7 @@ def test_view_serves_a_live_robot_to_a_foxglove_client(endpoint: str) -> None:
         assert topics["/elevation"][-1]["column_count"] == 4
         assert topics["/mode"][-1]["mode"] in {"STAND", "HOLD"}
         assert any(h["role"] == "control" for h in topics["/health"])
+        assert topics["/loop"][-1]["rate_hz"] > 0 and topics["/estop"][-1]["engaged"] is False
 
         # the robot goes away (and the maps with it), then comes back
         maps.close()

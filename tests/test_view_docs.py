@@ -54,18 +54,31 @@ def test_layout_is_json_naming_only_the_scenes_topics_and_frames() -> None:
             topics |= {topic_of(p["value"]) for p in cfg["paths"]}
         elif kind == "RawMessages":
             topics.add(topic_of(cfg["topicPath"]))
-    assert topics <= set(scene.TOPICS), topics - set(scene.TOPICS)
+    known = set(scene.TOPICS) | set(scene.OPTIONAL_TOPICS)
+    assert topics <= known, topics - known
     assert {"/robot", "/joists", "/holds", "/stairs", "/truss", "/health", "/mode"} <= topics
+    assert {"/loop", "/estop", "/plan", "/grasp", "/depth"} <= topics
+    assert set(scene.TRUTH.values()) <= topics, "the twin's truth shows in the 3-D panel"
 
     # plotted fields exist in the messages the JSON channels carry
+    fields_of = {
+        "/health": scene.json_schema(m.Health)["properties"],
+        "/loop": scene.json_schema(scene.Loop)["properties"],
+        "/estop": scene.json_schema(scene.EStopState)["properties"],
+        "/mode": scene.json_schema(m.ModeState)["properties"],
+    }
     loop = scene.json_schema(m.Health)["$defs"]["LoopStats"]["properties"]
+    plotted = set()
     for cfg in config.values():
         for p in cfg.get("paths", []):
             fields = re.sub(r"\{[^}]*\}", "", p["value"]).split(".")
+            plotted.add(fields[0])
+            assert fields[1] in fields_of[fields[0]], p["value"]
             if fields[0] == "/health":
                 assert fields[1] == "loop" and fields[2] in loop, p["value"]
             else:
-                assert fields == ["/mode", "mode"], p["value"]
+                assert len(fields) == 2, p["value"]
+    assert {"/loop", "/mode", "/estop"} <= plotted
 
 
 def png_size(data: bytes) -> tuple[int, int]:

@@ -14,7 +14,8 @@ A recording that cannot start (full disk, unwritable path) or keeps no message i
 
 With ``--scene`` the recording also holds the robot drawn in Foxglove's well-known schemas, on
 the topics and with the schemas ``climbd view`` serves live (``/tf``, ``/robot``, ``/joists``,
-``/holds``, ``/stairs``, ``/truss``, ``/elevation``, ``/mode``, ``/health``; see
+``/holds``, ``/stairs``, ``/truss``, ``/elevation``, ``/mode``, ``/health``, ``/loop``,
+``/estop``, and once drawn ``/plan``, ``/grasp`` and the twin's ``/truth/…``; see
 daemon/runtime/scene.py): the file opened in Foxglove shows the 3-D scene. They are derived
 from the raw topics as they are written (transforms at ``--scene-rate``, stamped with the log
 time), need the robot's profile (``--profile``, default the stock one of ``--robot``), and
@@ -145,6 +146,9 @@ def restore_nan(value, info):
 
     if isinstance(info, mi.FloatType):
         return math.nan if value is None else value
+    if isinstance(info, mi.UnionType) and isinstance(value, dict):  # a Struct or None
+        structs = [t for t in info.types if isinstance(t, mi.StructType)]
+        return restore_nan(value, structs[0]) if len(structs) == 1 else value
     if isinstance(info, mi.StructType) and isinstance(value, dict):
         fields = {f.encode_name: f.type for f in info.fields}
         return {k: restore_nan(v, fields[k]) if k in fields else v for k, v in value.items()}
@@ -244,20 +248,26 @@ class McapSink:
         os.fsync(self.file.fileno())
 
     def _start_scene(self, robot: str) -> None:
-        """Declare the scene's schemas and channels (``scene.TOPICS``), as the view does."""
-        schemas: dict[tuple[str, str, bytes], int] = {}
+        """Declare the scene's schemas and channels (``scene.TOPICS``), as the view does; an
+        optional one (``scene.OPTIONAL_TOPICS``) is declared when first drawn."""
+        self._scene_robot = robot
+        self._scene_schemas: dict[tuple[str, str, bytes], int] = {}
         for topic in scene.TOPICS:
-            declared = scene.channel_schema(topic)
-            schema = declared[:3]
-            if schema not in schemas:
-                schemas[schema] = self.writer.register_schema(*schema)
-            self.scene_channels[topic] = self.writer.register_channel(
-                topic,
-                declared.message_encoding,
-                schemas[schema],
-                {SCENE: "foxglove", "robot": robot},
-            )
-            self.scene_topics[topic] = 0
+            self._scene_channel(topic)
+
+    def _scene_channel(self, topic: str) -> int:
+        declared = scene.channel_schema(topic)
+        schema = declared[:3]
+        if schema not in self._scene_schemas:
+            self._scene_schemas[schema] = self.writer.register_schema(*schema)
+        self.scene_channels[topic] = self.writer.register_channel(
+            topic,
+            declared.message_encoding,
+            self._scene_schemas[schema],
+            {SCENE: "foxglove", "robot": self._scene_robot},
+        )
+        self.scene_topics[topic] = 0
+        return self.scene_channels[topic]
 
     def write(self, sample: Sample) -> None:
         """Add one message (and its channel on first sight), and what the scene draws of it;
@@ -278,9 +288,10 @@ class McapSink:
     def _write_scene(self, sample: Sample) -> None:
         t = sample.log_time
         for topic, out in self.scene.update((sample.message,), t, t * 1e-9):
-            self.writer.add_message(
-                self.scene_channels[topic], t, scene.payload(out), t, self.count
-            )
+            channel = self.scene_channels.get(topic)
+            if channel is None:
+                channel = self._scene_channel(topic)
+            self.writer.add_message(channel, t, scene.payload(out), t, self.count)
             self.scene_topics[topic] += 1
 
     def channel(self, key: str, message: type) -> int:

@@ -6,7 +6,9 @@ the twin's ray-cast depth goes over Zenoh (``sim/depth``) to the perception role
 it into a pyrealsense2 software device as it would a camera. ``--stepped`` runs the loop on
 simulated time in lock-step with the physics and, while a perception role answers, waits for
 its features of each frame before simulating on (PerceptionGate), so perception sees the world
-at the pace it would in real time.
+at the pace it would in real time. The twin also publishes its world's ground truth
+(``sim/truth``, drivers/sim/truth.py) about once a second (TruthPublisher), for viewers to draw
+beside perception's maps.
 """
 
 from __future__ import annotations
@@ -19,16 +21,18 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.estimation import EstimatorConfig
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.hardware import DepthFrame, Imu, ImuSample, mount_extrinsics
-from climbd.daemon.contract.messages import DepthImage, Feature, Joists, Message
+from climbd.daemon.contract.messages import DepthImage, Feature, Joists, Message, SimTruth
 from climbd.daemon.contract.profile import CameraConfig, Profile
 from climbd.daemon.runtime.loop import MonotonicClock, SteppedClock
 from climbd.drivers.realsense.models import model
 from climbd.drivers.sim.topview import render_top_view
+from climbd.drivers.sim.truth import truth_message
 from climbd.drivers.torque.bus import waiting_for_replies
 
 if TYPE_CHECKING:  # the twin (MuJoCo) loads only when a --sim run starts one
@@ -115,6 +119,40 @@ class PerceptionGate:
             return False
 
 
+TRUTH_PERIOD = 1.0
+"""Seconds between the twin's ``sim/truth`` messages (simulated seconds in a stepped run)."""
+
+
+class TruthPublisher:
+    """The world's ground truth (``sim/truth``), published at most once per ``period`` of
+    whatever clock ``due`` is given (the first call publishes); nothing for a world without
+    joists, stairs, holds or truss. The message is built once; each copy gets its stamp."""
+
+    def __init__(
+        self, message: SimTruth, publish: Callable[[Message], None], period: float = TRUTH_PERIOD
+    ) -> None:
+        self.message = message
+        self.publish = publish
+        self.period = period
+        self.sent = 0
+        self.empty = all(
+            m is None for m in (message.joists, message.stairs, message.holds, message.truss)
+        )
+        self._next = -math.inf
+
+    def due(self, t: float) -> None:
+        """Publish the truth stamped ``t`` if ``period`` has passed since the last one."""
+        if t >= self._next:
+            self._next = t + self.period
+            self.send(t)
+
+    def send(self, t: float) -> None:
+        """Publish the truth stamped ``t`` (unless the world has none)."""
+        if not self.empty:
+            self.publish(msgspec.structs.replace(self.message, stamp=t))
+            self.sent += 1
+
+
 class TwinImu:
     """The twin's IMU behind the hardware ``Imu`` interface."""
 
@@ -145,15 +183,35 @@ class SimHost:
         self.path: list[np.ndarray] = []
         self.detected: list[tuple[list[float], list[float]]] = []
         self.gate = PerceptionGate()
+        self.truth = TruthPublisher(truth_message(self.twin.world), publish)
+        self._truth_thread: threading.Thread | None = None
+        self._truth_stop = threading.Event()
         self._next_sample = 0.0
 
     def start(self) -> None:
         self.twin.start()
         self.twin.on_depth(self._on_depth)
         self.path.append(self.twin.body_pose()[0].copy())
+        if not self.stepped and not self.truth.empty and self._truth_thread is None:
+            self._truth_stop.clear()
+            self._truth_thread = threading.Thread(
+                target=self._publish_truth, name="twin-truth", daemon=True
+            )
+            self._truth_thread.start()
 
     def stop(self) -> None:
+        self._truth_stop.set()
+        if self._truth_thread is not None:
+            self._truth_thread.join(timeout=2.0)
+            self._truth_thread = None
         self.twin.stop()
+
+    def _publish_truth(self) -> None:
+        """Real time: the truth every TRUTH_PERIOD, stamped with the monotonic clock (the
+        loop's clock in real time); a stepped run publishes it from ``_advance`` instead."""
+        while not self._truth_stop.is_set():
+            self.truth.send(time.monotonic())
+            self._truth_stop.wait(self.truth.period)
 
     def driver(self) -> tuple[Profile, dict]:
         """The profile and options the control role opens its driver with, on the twin's port."""
@@ -181,6 +239,7 @@ class SimHost:
         self.gate.pass_frame()
         self.twin.advance_to(t1)
         self._sample_path(t1)
+        self.truth.due(t1)
 
     def _sample_path(self, t: float) -> None:
         if t >= self._next_sample:

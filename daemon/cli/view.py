@@ -10,13 +10,21 @@ with the Foxglove SDK in Foxglove's well-known schemas (daemon/runtime/scene.py)
     /joists /holds /stairs /truss          foxglove.SceneUpdate, the world model's maps (odom)
     /elevation   foxglove.Grid             perception's height map, placed in odom
     /mode /health                          the robot's ModeState and Health as JSON
+    /loop        JSON (climbd.Loop)        the control role's loop statistics, flat, to plot
+    /estop       JSON (climbd.EStopState)  whether an e-stop is latched, and by whom
+    /plan        foxglove.SceneUpdate      while a gait steps: each foot's target (body frame;
+                                           stance green, swing magenta) and a swinging foot's
+                                           path from where it is to its target
+    /grasp       foxglove.SceneUpdate      perception's graspable points, when it publishes them
     /depth       foxglove.PointCloud       each camera's depth in its optical frame, when the
                                            robot publishes depth (the twin's sim/depth in a
                                            --sim run), at --cloud-rate of --cloud-points at most
     /truth/joists /truth/stairs /truth/holds /truth/truss
-                 foxglove.SceneUpdate      with --truth WORLD: the twin world's true maps, in
-                                           translucent blue beside perception's (odom is the
-                                           world frame in a --sim run)
+                 foxglove.SceneUpdate      the twin world's true maps, in translucent blue
+                                           beside perception's: from the twin's sim/truth in a
+                                           --sim run, or with --truth WORLD for a robot that
+                                           publishes none (odom is the world frame in a --sim
+                                           run)
 
 Zenoh callbacks only keep the latest message of each kind; a publisher thread translates at
 ``--rate`` (transforms) or on arrival (maps, mode, health), so a 1 kHz joint stream costs the
@@ -101,8 +109,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--truth",
         metavar="WORLD",
-        help="the twin world the robot runs in (climbd run --sim WORLD): its true joists, "
-        "stairs, holds and truss drawn beside perception's (/truth/...)",
+        help="the twin world the robot runs in: its true joists, stairs, holds and truss drawn "
+        "beside perception's (/truth/...); not needed for climbd run --sim, whose twin "
+        "publishes its truth (sim/truth), which then takes over",
     )
     add_credential_arguments(parser)
 
@@ -192,8 +201,8 @@ class Presence:
 
 class Viewer:
     """The Foxglove channels of one robot in a foxglove Context (``scene.TOPICS``), and what
-    goes on each (``scene.SceneStream``); an optional topic (``scene.OPTIONAL_TOPICS``: depth,
-    truth) is advertised when its first message is drawn."""
+    goes on each (``scene.SceneStream``); an optional topic (``scene.OPTIONAL_TOPICS``: plan,
+    graspable points, depth, truth) is advertised when its first message is drawn."""
 
     def __init__(
         self, robot_scene: scene.RobotScene, context: foxglove.Context, **stream_options

@@ -644,6 +644,23 @@ class DepthImage(Message):
     depth: Annotated[bytes, msgspec.Meta(max_length=MAX_DEPTH_BYTES)] = b""
 
 
+class SimTruth(Message):
+    """The twin world's ground truth (``climbd run --sim``): its joists, stair steps, holds and
+    truss as the world model's maps would hold them if perception were perfect (every item of
+    confidence 1, ``seen`` 0, age 0), from drivers/sim/truth.py. Positions are in the world
+    frame, which is the run's odometry frame (the estimator starts at the twin's body pose).
+    A map the world has none of is None. For viewers (``climbd view``, ``climbd record
+    --scene``), never for behaviours: they read perception's maps."""
+
+    TOPIC: ClassVar[str] = "sim/truth"
+    RATE: ClassVar[str] = "1 Hz, simulated time in a stepped run"
+    world: Name = ""
+    joists: JoistMap | None = None
+    stairs: StairMap | None = None
+    holds: HoldMap | None = None
+    truss: TrussMembers | None = None
+
+
 ALL_MESSAGES: tuple[type[Message], ...] = (
     JointState,
     JointCommand,
@@ -670,6 +687,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     TrussMembers,
     Stairs,
     StairMap,
+    SimTruth,
 )
 
 

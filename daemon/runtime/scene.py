@@ -22,10 +22,20 @@ Scenes (``SceneUpdate``, each replacing the whole of its topic's previous scene)
 links as primitives locked to their frames, and the world model's maps in ``odom``: joists as
 boxes, holds as spheres, stair treads as boxes, truss members as cylinders with their nodes as
 spheres, all coloured by confidence (red 0 → yellow → green 1). A twin world's ground truth
-(drivers/sim/truth.py), when given, is drawn the same way in translucent blue on ``/truth/…``.
+(drivers/sim/truth.py: the twin's ``sim/truth`` in a ``--sim`` run, or a world given to the
+view) is drawn the same way in translucent blue on ``/truth/…``. The gait's plan (``FootTargets``,
+body frame) on ``/plan``: each foot's target as a small sphere (stance and swing coloured apart),
+and for a swinging foot a line from where the foot is (forward kinematics of the joints) to its
+target. Perception's graspable points (``GraspablePoints``, body frame at their depth frame's
+pose) as small spheres in ``odom`` on ``/grasp``.
 
 Depth (``PointCloud``): a depth image deprojected in its camera's optical frame, decimated on
 a pixel grid to a number of points, at a set rate.
+
+JSON, for an operator to read or plot: ``/mode`` and ``/health`` as the robot sends them,
+``/loop`` the control role's loop statistics as a flat message (``Loop``: a Plot panel plots
+``/loop.lateness_p99`` without filtering by role), ``/estop`` whether an e-stop is latched and
+by whom (``EStopState``, from ``ModeState``).
 """
 
 from __future__ import annotations
@@ -47,12 +57,17 @@ from climbd.daemon.contract.messages import (
     BodyState,
     DepthImage,
     ElevationGrid,
+    FootTargets,
+    GraspablePoints,
     Health,
     HoldMap,
     JointState,
     JoistMap,
+    LoopStats,
     Message,
+    Mode,
     ModeState,
+    SimTruth,
     StairMap,
     TrussMembers,
 )
@@ -76,6 +91,16 @@ RGBA = tuple[float, float, float, float]
 ROBOT_COLOR = (0.55, 0.6, 0.7, 1.0)
 BODY_COLOR = (0.3, 0.35, 0.45, 0.9)
 CAMERA_COLOR = (0.1, 0.5, 0.9, 1.0)
+STANCE_COLOR = (0.2, 0.8, 0.3, 0.9)
+"""A stance foot's target: green."""
+SWING_COLOR = (1.0, 0.3, 0.9, 0.9)
+"""A swinging foot's target and its path: magenta."""
+GRASP_COLOR = (0.0, 0.85, 0.85, 0.8)
+"""A graspable point: cyan."""
+GRASP_DIAMETER = 0.015
+"""Diameter (m) of a graspable point's sphere."""
+GRASP_POINTS = 500
+"""Most graspable points drawn of one message (evenly thinned beyond)."""
 
 
 # --- small pieces ---------------------------------------------------------------------------
@@ -89,6 +114,10 @@ def stamp(now: int) -> fg.Timestamp:
 
 def vector(v: Sequence[float]) -> fg.Vector3:
     return fg.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def point(p: Sequence[float]) -> fg.Point3:
+    return fg.Point3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
 
 
 def quat(q: Sequence[float]) -> fg.Quaternion:
@@ -153,6 +182,14 @@ class RobotScene:
         self.leg_frames = [
             [*(j.name for j in leg.joints), f"{leg.name}_foot"] for leg in profile.legs
         ]
+        self.leg_names = [leg.name for leg in profile.legs]
+        kin = self.kinematics
+        links = np.stack([kin.l1, kin.l2, kin.l3], 1)
+        self.links = links
+        self.thickness = max(
+            0.01, 0.15 * float(np.median(links[links > 0])) if links.any() else 0.02
+        )
+        """Diameter (m) the links are drawn with; the feet are 1.5 times it."""
         self.cameras: list[tuple[str, list[float], list[float]]] = []
         for camera in profile.cameras:
             t = mount_extrinsics(camera)
@@ -216,8 +253,7 @@ class RobotScene:
         mounts, each link as a cylinder, each foot as a sphere, each camera as a small box."""
         ts = stamp(now)
         kin = self.kinematics
-        links = np.stack([kin.l1, kin.l2, kin.l3], 1)
-        thickness = max(0.01, 0.15 * float(np.median(links[links > 0])) if links.any() else 0.02)
+        links, thickness = self.links, self.thickness
         entities = []
         lo, hi = kin.mount.min(0), kin.mount.max(0)
         size = np.maximum(hi - lo, thickness) + [thickness, thickness, 0.0]
@@ -275,6 +311,56 @@ class RobotScene:
             )
             entities.append(
                 fg.SceneEntity(timestamp=ts, frame_id=name, id=name, frame_locked=True, cubes=[box])
+            )
+        return _replace_all(entities, now)
+
+    def plan(self, targets: FootTargets, joints: JointState | None, now: int) -> fg.SceneUpdate:
+        """The gait's foot targets in the body frame: a sphere per foot (STANCE_COLOR or
+        SWING_COLOR, two thirds of a foot's size), and for a swinging foot a line from where it
+        is (forward kinematics of ``joints``; none while a joint of its leg is unknown) to its
+        target. A leg the message has no finite target for is left out. Each carries its phase
+        (and grip and unload flags, when the gait sets them) as metadata."""
+        ts = stamp(now)
+        feet = None
+        if joints is not None:
+            feet = self.kinematics.fk(self.joint_vector(joints))
+        size = vector([self.thickness] * 3)
+        entities = []
+        for leg, name in enumerate(self.leg_names):
+            if leg >= len(targets.positions):
+                break
+            target = targets.positions[leg]
+            if len(target) < 3 or not _finite(target[:3]):
+                continue
+            swing = leg < len(targets.stance) and not targets.stance[leg]
+            rgba = SWING_COLOR if swing else STANCE_COLOR
+            sphere = fg.SpherePrimitive(pose=pose(target[:3]), size=size, color=color(rgba))
+            lines = []
+            if swing and feet is not None and _finite(feet[leg]):
+                lines.append(
+                    fg.LinePrimitive(
+                        type=fg.LinePrimitiveLineType.LineStrip,
+                        pose=pose([0.0, 0.0, 0.0]),
+                        thickness=2.0,
+                        scale_invariant=True,
+                        points=[point(feet[leg]), point(target)],
+                        color=color(rgba),
+                    )
+                )
+            meta = [fg.KeyValuePair(key="phase", value="swing" if swing else "stance")]
+            for flag, flags in (("grip", targets.grip), ("unload", targets.unload)):
+                if flags is not None and leg < len(flags):
+                    meta.append(fg.KeyValuePair(key=flag, value=str(bool(flags[leg])).lower()))
+            entities.append(
+                fg.SceneEntity(
+                    timestamp=ts,
+                    frame_id=BODY,
+                    id=f"target/{name}",
+                    frame_locked=True,
+                    metadata=meta,
+                    spheres=[sphere],
+                    lines=lines,
+                )
             )
         return _replace_all(entities, now)
 
@@ -396,6 +482,29 @@ def _entity(ts: fg.Timestamp, name: str, item, **primitives) -> fg.SceneEntity:
     return fg.SceneEntity(timestamp=ts, frame_id=ODOM, id=name, metadata=meta, **primitives)
 
 
+def grasp(msg: GraspablePoints, now: int, max_points: int = GRASP_POINTS) -> fg.SceneUpdate:
+    """Graspable points as small spheres in ``odom``, placed with the body pose of the depth
+    frame they were found in (``frame_position``, ``frame_orientation``); at most
+    ``max_points``, evenly thinned, non-finite points left out."""
+    ts = stamp(now)
+    points = np.array([p[:3] for p in msg.points if len(p) >= 3], float).reshape(-1, 3)
+    points = points[np.isfinite(points).all(1)]
+    if len(points) > max_points:
+        points = points[np.linspace(0, len(points) - 1, max_points).round().astype(int)]
+    entities = []
+    if len(points):
+        if not _finite(msg.frame_position, msg.frame_orientation):
+            raise ValueError("the frame's body pose is not finite")
+        r = rotation(msg.frame_orientation, zero_norm_ok=True)
+        placed = points @ r.T + np.asarray(msg.frame_position[:3], float)
+        size, rgba = vector([GRASP_DIAMETER] * 3), color(GRASP_COLOR)
+        spheres = [fg.SpherePrimitive(pose=pose(p), size=size, color=rgba) for p in placed]
+        entities.append(
+            fg.SceneEntity(timestamp=ts, frame_id=ODOM, id="graspable", spheres=spheres)
+        )
+    return _replace_all(entities, now)
+
+
 # --- grids ----------------------------------------------------------------------------------
 
 
@@ -478,7 +587,45 @@ def depth_cloud(
 # --- JSON channels --------------------------------------------------------------------------
 
 
-def json_schema(message: type[Message]) -> dict:
+class Loop(LoopStats, kw_only=True):
+    """The control role's loop statistics (``Health.loop``) as a flat message for a plot:
+    ``stamp`` is the Health's (s, the robot's clock); the rest as ``LoopStats`` (s, Hz)."""
+
+    stamp: float = 0.0
+
+
+class EStopState(msgspec.Struct, kw_only=True):
+    """Whether an e-stop is latched (the robot is in ESTOP) and by whom (the sources holding
+    the latch), from ``ModeState``: ``stamp`` is its (s, the robot's clock), ``mode`` and
+    ``reason`` the mode and why it was entered, ``reset_by`` the session that last reset one."""
+
+    stamp: float = 0.0
+    engaged: bool = False
+    by: list[str] = []
+    mode: Mode = Mode.OFF
+    reason: str = ""
+    reset_by: str = ""
+
+
+def loop_of(health: Health) -> Loop | None:
+    """The control role's loop statistics of ``health`` (None for another role's)."""
+    if health.role != "control":
+        return None
+    return Loop(stamp=health.stamp, **msgspec.structs.asdict(health.loop))
+
+
+def estop_of(mode: ModeState) -> EStopState:
+    return EStopState(
+        stamp=mode.stamp,
+        engaged=mode.mode is Mode.ESTOP,
+        by=list(mode.estop_by),
+        mode=mode.mode,
+        reason=mode.reason,
+        reset_by=mode.reset_by,
+    )
+
+
+def json_schema(message: type[msgspec.Struct]) -> dict:
     """The JSON Schema a JSON channel of ``message`` advertises: the message's own schema at
     the top (Foxglove reads its fields there), its parts under ``$defs``; every number may be
     null, which is how JSON carries a NaN (a lost joint's temperature)."""
@@ -499,7 +646,7 @@ def _nullable_numbers(node):
     return node
 
 
-def json_payload(msg: Message) -> bytes:
+def json_payload(msg: msgspec.Struct) -> bytes:
     """``msg`` as JSON (NaN and infinities as null)."""
     return msgspec.json.encode(msg)
 
@@ -509,6 +656,7 @@ def json_payload(msg: Message) -> bytes:
 INPUTS: tuple[type[Message], ...] = (
     BodyState,
     JointState,
+    FootTargets,
     ModeState,
     Health,
     JoistMap,
@@ -516,6 +664,8 @@ INPUTS: tuple[type[Message], ...] = (
     StairMap,
     TrussMembers,
     ElevationGrid,
+    GraspablePoints,
+    SimTruth,
 )
 """What the scene is drawn from; all of it the robot publishes whether or not anyone watches."""
 
@@ -524,6 +674,10 @@ GEOMETRY_PERIOD = 1.0
 
 TF = "/tf"
 ROBOT = "/robot"
+PLAN = "/plan"
+GRASP = "/grasp"
+LOOP = "/loop"
+ESTOP = "/estop"
 MAPS: dict[type[Message], tuple[str, Callable]] = {
     JoistMap: ("/joists", joists),
     HoldMap: ("/holds", holds),
@@ -554,17 +708,23 @@ TOPICS: dict[str, type] = {
     "/elevation": fg.Grid,
     "/mode": ModeState,
     "/health": Health,
+    LOOP: Loop,
+    ESTOP: EStopState,
 }
 """Every scene topic and what it carries: a Foxglove message (protobuf) or a climbd message
 (JSON)."""
 
 CLOUD = "/depth"
 OPTIONAL_TOPICS: dict[str, type] = {
+    PLAN: fg.SceneUpdate,
+    GRASP: fg.SceneUpdate,
     CLOUD: fg.PointCloud,
     **{topic: fg.SceneUpdate for topic in TRUTH.values()},
 }
-"""Topics drawn only in some runs (the twin's ``sim/depth`` in a ``--sim`` run, a twin world's
-truth given to the view): a view advertises each when its first message is drawn."""
+"""Topics drawn only in some runs (the gait's plan while a gait steps, graspable points of a
+climber's perception, the twin's ``sim/depth`` and ``sim/truth`` in a ``--sim`` run, a twin
+world's truth given to the view): a view advertises each, and a recording declares it, when its
+first message is drawn."""
 
 
 class ChannelSchema(NamedTuple):
@@ -578,13 +738,19 @@ class ChannelSchema(NamedTuple):
 
 def channel_schema(topic: str) -> ChannelSchema:
     """The schema ``topic`` is declared with: the foxglove-sdk message's own (a protobuf
-    FileDescriptorSet), or the JSON Schema of a climbd message (``json_schema``)."""
+    FileDescriptorSet), or the JSON Schema of a climbd message or of the view's own (``Loop``,
+    ``EStopState``: ``json_schema``)."""
     kind = TOPICS.get(topic) or OPTIONAL_TOPICS[topic]
-    if issubclass(kind, Message):
+    if issubclass(kind, msgspec.Struct):
         data = json.dumps(json_schema(kind)).encode()
         return ChannelSchema(f"climbd.{kind.__name__}", "jsonschema", data, "json")
     schema = kind.get_schema()
     return ChannelSchema(schema.name, schema.encoding, bytes(schema.data), "protobuf")
+
+
+def truth_maps(msg: SimTruth) -> list[Message]:
+    """The maps a ``sim/truth`` message carries (those the world has)."""
+    return [m for m in (msg.joists, msg.stairs, msg.holds, msg.truss) if m is not None]
 
 
 def payload(out) -> bytes:
@@ -597,9 +763,12 @@ class SceneStream:
 
     Transforms go out whenever the body or the joints moved, at most once per ``tf_period``
     (the latest pose; a move inside the period goes out with the next message after it), and
-    with the robot's geometry every ``geometry_period``; maps, mode and health on arrival.
-    A message that cannot be drawn is left out and ``refused`` is told once per topic, so one
-    odd message never stops the scene.
+    with the robot's geometry every ``geometry_period``; the gait's plan with the transforms
+    while foot targets come (cleared when the robot leaves ACTIVE); maps, mode, e-stop, health
+    and loop statistics on arrival; graspable points at most once per ``grasp_period``; the
+    twin's truth on arrival of ``sim/truth``, or, given as ``truth``, with the geometry until
+    a ``sim/truth`` arrives. A message that cannot be drawn is left out and ``refused`` is told
+    once per topic, so one odd message never stops the scene.
     """
 
     def __init__(
@@ -612,18 +781,24 @@ class SceneStream:
         cloud_period: float = 0.5,
         cloud_points: int = 20_000,
         truth: Sequence[Message] = (),
+        grasp_period: float = 0.5,
     ) -> None:
         self.truth = [msg for msg in truth if type(msg) in TRUTH]
         self.robot = robot
         self.intrinsics = intrinsics
         self.cloud_period = cloud_period
         self.cloud_points = cloud_points
+        self.grasp_period = grasp_period
         self._cloud_at: dict[str, float] = {}
+        self._grasp_at = -math.inf
         self.refused = refused
         self.tf_period = tf_period
         self.geometry_period = geometry_period
         self.body: BodyState | None = None
         self.joints: JointState | None = None
+        self.feet: FootTargets | None = None
+        self._planned = False
+        self._truth_heard = False
         self._moved = False
         self._tf_at = -math.inf
         self._geometry_at = -math.inf
@@ -631,7 +806,7 @@ class SceneStream:
 
     def update(self, fresh: Iterable[Message], now_ns: int, now: float) -> list[tuple[str, object]]:
         """(topic, message) pairs for what arrived (``fresh``), stamped ``now_ns``; ``now``
-        (seconds, monotonic) paces the transforms and the geometry."""
+        (seconds, monotonic) paces the transforms, the plan, the geometry and the clouds."""
         out: list[tuple[str, object]] = []
         for msg in fresh:
             kind = type(msg)
@@ -639,13 +814,35 @@ class SceneStream:
                 self.body, self._moved = msg, True
             elif kind is JointState:
                 self.joints, self._moved = msg, True
+            elif kind is FootTargets:
+                self.feet, self._moved = msg, True
             elif kind in MAPS:
                 topic, translate = MAPS[kind]
                 drawn = self._draw(msg.TOPIC, translate, msg, now_ns)
                 if drawn is not None:
                     out.append((topic, drawn))
-            elif kind in JSON:
+            elif kind is ModeState:
                 out.append((JSON[kind], json_payload(msg)))
+                out.append((ESTOP, json_payload(estop_of(msg))))
+                if msg.mode is not Mode.ACTIVE and self._planned:
+                    self.feet, self._planned = None, False
+                    out.append((PLAN, _replace_all([], now_ns)))
+            elif kind is Health:
+                out.append((JSON[kind], json_payload(msg)))
+                loop = loop_of(msg)
+                if loop is not None:
+                    out.append((LOOP, json_payload(loop)))
+            elif kind is GraspablePoints:
+                if now - self._grasp_at < self.grasp_period:
+                    continue
+                self._grasp_at = now
+                drawn = self._draw(msg.TOPIC, grasp, msg, now_ns)
+                if drawn is not None:
+                    out.append((GRASP, drawn))
+            elif kind is SimTruth:
+                self._truth_heard = True
+                self.truth = truth_maps(msg)
+                out += self._draw_truth(now_ns)
             elif kind is DepthImage and self.intrinsics is not None:
                 if now - self._cloud_at.get(msg.camera, -math.inf) < self.cloud_period:
                     continue
@@ -656,11 +853,8 @@ class SceneStream:
         if now - self._geometry_at >= self.geometry_period:
             self._geometry_at = now
             out.append((ROBOT, self.robot.geometry(now_ns)))
-            for msg in self.truth:
-                translate = MAPS[type(msg)][1]
-                drawn = self._draw(f"truth of {msg.TOPIC}", translate, msg, now_ns, TRUTH_COLOR)
-                if drawn is not None:
-                    out.append((TRUTH[type(msg)], drawn))
+            if not self._truth_heard:
+                out += self._draw_truth(now_ns)
             self._moved = True  # the cameras' static transforms go out with it
         if self._moved and now - self._tf_at >= self.tf_period:
             self._moved, self._tf_at = False, now
@@ -673,6 +867,22 @@ class SceneStream:
             )
             if tf is not None:
                 out.append((TF, tf))
+            if self.feet is not None:
+                plan = self._draw(
+                    FootTargets.TOPIC, self.robot.plan, self.feet, self.joints, now_ns
+                )
+                if plan is not None:
+                    self._planned = True
+                    out.append((PLAN, plan))
+        return out
+
+    def _draw_truth(self, now_ns: int) -> list[tuple[str, object]]:
+        out = []
+        for msg in self.truth:
+            translate = MAPS[type(msg)][1]
+            drawn = self._draw(f"truth of {msg.TOPIC}", translate, msg, now_ns, TRUTH_COLOR)
+            if drawn is not None:
+                out.append((TRUTH[type(msg)], drawn))
         return out
 
     def _cloud(self, image: DepthImage, now_ns: int) -> fg.PointCloud:

@@ -1,5 +1,7 @@
 """A twin world's ground truth as the contract's map messages (what perception would map if it
-were perfect), for drawing beside what perception did map (``climbd view --truth WORLD``).
+were perfect), for drawing beside what perception did map: ``climbd view --truth WORLD``, and
+in a ``climbd run --sim`` run the twin's ``sim/truth`` (``truth_message``), which the view and
+``climbd record --scene`` draw by themselves.
 
 Positions are in the world frame, which is the odometry frame of a ``climbd run --sim`` run:
 the estimator starts at the twin's body pose (SimHost.estimator_start). Every item has
@@ -27,6 +29,7 @@ from climbd.daemon.contract.messages import (
     MappedJoist,
     MappedStair,
     Message,
+    SimTruth,
     StairMap,
     TrussMember,
     TrussMembers,
@@ -126,3 +129,15 @@ def truth(world: World) -> list[Message]:
     """The maps of ``world`` that it has: joists, stairs, holds, truss (empty ones left out)."""
     j, s, h, t = joists(world), stairs(world), holds(world), truss(world)
     return [m for m, items in ((j, j.joists), (s, s.steps), (h, h.holds), (t, t.members)) if items]
+
+
+def truth_message(world: World) -> SimTruth:
+    """The ``sim/truth`` message of ``world``: its maps, None for those it has none of."""
+    maps = {type(msg): msg for msg in truth(world)}
+    return SimTruth(
+        world=world.name,
+        joists=maps.get(JoistMap),
+        stairs=maps.get(StairMap),
+        holds=maps.get(HoldMap),
+        truss=maps.get(TrussMembers),
+    )
