@@ -20,6 +20,7 @@ import subprocess
 import sys
 import threading
 import time
+import zlib
 from pathlib import Path
 
 import foxglove
@@ -262,6 +263,38 @@ def test_elevation_grid_cells_land_where_the_body_frame_grid_puts_them() -> None
             expected = np.array([1.0, 0.0, 0.2]) + body @ [0.5 + row * 0.1, -0.1 + col * 0.1, 0]
             np.testing.assert_allclose(corner, expected, atol=1e-6)
     assert scene.elevation(m.ElevationGrid(rows=2, cols=3, heights=b"\0" * 4), now=0) is None
+
+
+def test_terrain_map_is_a_grid_with_every_layer_at_its_odometry_cells() -> None:
+    """Each TerrainMap layer becomes a float32 field of the cell it describes (height back in
+    the odometry frame, NaN kept unknown), so Foxglove colours the grid by any layer."""
+    rows, cols, z0 = 2, 3, 0.25
+    values = {
+        name: np.arange(rows * cols, dtype=np.float32).reshape(rows, cols) + 10 * k
+        for k, name in enumerate(m.TERRAIN_LAYERS)
+    }
+    values["height"] = np.array([[0.01, 0.02, np.nan], [0.04, 0.05, 0.06]], np.float32)
+    layers = {n: zlib.compress(v.astype("<f2").tobytes()) for n, v in values.items()}
+    terrain = m.TerrainMap(
+        rows=rows, cols=cols, resolution=0.05, origin_x=1.0, origin_y=-0.5, origin_z=z0,
+        layers=layers,
+    )  # fmt: skip
+    out = decoded(scene.terrain(terrain, now=0))
+    names = [f["name"] for f in out["fields"]]
+    assert names == list(m.TERRAIN_LAYERS) and out["column_count"] == rows
+    assert xyz(out["pose"]["position"]) == [1.0, -0.5, 0.0]
+    data = np.frombuffer(base64.b64decode(out["data"]), "<f4").reshape(cols, rows, len(names))
+    for row in range(rows):
+        for col in range(cols):
+            cell = data[col, row]  # Foxglove: columns along the grid's x (climbd's rows)
+            for k, name in enumerate(names):
+                want = np.float32(np.float16(values[name][row, col]))
+                want = want + np.float32(z0) if name == "height" else want
+                if np.isnan(want):
+                    assert np.isnan(cell[k])
+                else:
+                    assert cell[k] == pytest.approx(want, abs=1e-6)
+    assert scene.terrain(m.TerrainMap(), now=0) is None
 
 
 def test_json_channels_carry_nan_as_null_and_still_match_their_schema() -> None:

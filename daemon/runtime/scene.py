@@ -51,9 +51,11 @@ import numpy as np
 
 from climbd.daemon.algorithms.estimation import quaternion
 from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.algorithms.world import TerrainView
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.hardware import Intrinsics, mount_extrinsics
 from climbd.daemon.contract.messages import (
+    TERRAIN_LAYERS,
     BodyState,
     DepthImage,
     ElevationGrid,
@@ -69,6 +71,7 @@ from climbd.daemon.contract.messages import (
     ModeState,
     SimTruth,
     StairMap,
+    TerrainMap,
     TrussMembers,
 )
 from climbd.daemon.contract.profile import Profile
@@ -540,6 +543,42 @@ def elevation(msg: ElevationGrid, now: int) -> fg.Grid | None:
     )
 
 
+TERRAIN_FIELDS = [
+    fg.PackedElementField(name=name, offset=4 * k, type=fg.PackedElementFieldNumericType.Float32)
+    for k, name in enumerate(TERRAIN_LAYERS)
+]
+"""One float32 field per layer of the world model's terrain map, in TERRAIN_LAYERS' order."""
+
+
+def terrain(msg: TerrainMap, now: int) -> fg.Grid | None:
+    """The world model's terrain map (grid_map-style layers) as a Foxglove grid in ``odom``:
+    one float32 field per layer, height in the odometry frame, NaN unknown; the 3-D panel
+    colours it by the layer chosen (traversability, slope, step...). None for an empty map; a
+    layer that does not decode raises (told once)."""
+    if msg.rows * msg.cols == 0 or msg.resolution <= 0:
+        return None
+    view = TerrainView(msg)
+    layers = [
+        view.layer(name) + (msg.origin_z if name == "height" else 0.0) for name in TERRAIN_LAYERS
+    ]
+    cells = np.stack(layers, axis=-1).astype("<f4")  # rows (x) × cols (y) × layers
+    data = np.ascontiguousarray(
+        cells.transpose(1, 0, 2)
+    ).tobytes()  # Foxglove's columns run along x
+    size = 4 * len(TERRAIN_LAYERS)
+    return fg.Grid(
+        timestamp=stamp(now),
+        frame_id=ODOM,
+        pose=pose([msg.origin_x, msg.origin_y, 0.0]),
+        column_count=msg.rows,
+        cell_size=fg.Vector2(x=msg.resolution, y=msg.resolution),
+        row_stride=size * msg.rows,
+        cell_stride=size,
+        fields=TERRAIN_FIELDS,
+        data=data,
+    )
+
+
 def camera_frame(camera: str) -> str:
     """The frame of the profile camera named ``camera`` (its optical frame)."""
     return f"camera_{camera}"
@@ -664,6 +703,7 @@ INPUTS: tuple[type[Message], ...] = (
     StairMap,
     TrussMembers,
     ElevationGrid,
+    TerrainMap,
     GraspablePoints,
     SimTruth,
 )
@@ -684,6 +724,7 @@ MAPS: dict[type[Message], tuple[str, Callable]] = {
     StairMap: ("/stairs", stairs),
     TrussMembers: ("/truss", truss),
     ElevationGrid: ("/elevation", elevation),
+    TerrainMap: ("/terrain", terrain),
 }
 """Each map's topic and its translation."""
 TRUTH: dict[type[Message], str] = {
@@ -719,9 +760,11 @@ OPTIONAL_TOPICS: dict[str, type] = {
     PLAN: fg.SceneUpdate,
     GRASP: fg.SceneUpdate,
     CLOUD: fg.PointCloud,
+    "/terrain": fg.Grid,
     **{topic: fg.SceneUpdate for topic in TRUTH.values()},
 }
-"""Topics drawn only in some runs (the gait's plan while a gait steps, graspable points of a
+"""Topics drawn only in some runs (the world model's terrain once it has one, the gait's plan
+while a gait steps, graspable points of a
 climber's perception, the twin's ``sim/depth`` and ``sim/truth`` in a ``--sim`` run, a twin
 world's truth given to the view): a view advertises each, and a recording declares it, when its
 first message is drawn."""
