@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import websockets
 from mcap.reader import make_reader
-from support.scene_decode import decoded, proto_dict
-from test_view import SUBPROTOCOLS, Proc
+from support.scene_decode import decoded, proto_dict, tree
+from test_view import SUBPROTOCOLS, Proc, check_payloads, foxglove_client
 
 from climbd.daemon.cli.record import McapSink, Sample
 from climbd.daemon.cli.sim_host import TruthPublisher
@@ -125,7 +125,8 @@ async def first_on(port: int, topic: str, until: float) -> dict:
 
 def test_a_stepped_sim_runs_view_gets_the_true_joists(tmp_path: Path, endpoint: str) -> None:
     """``climbd run --sim attic_paper --stepped`` and ``climbd view`` of it, no ``--truth``:
-    a Foxglove client gets the twin's joists on /truth/joists."""
+    a Foxglove client gets the twin's joists on /truth/joists, every message it gets decodes
+    against its channel's schema, and the transforms form one tree rooted at odom."""
     robot = Proc(
         "run", "--profile", "robots/widowx.toml", "--sim", "attic_paper", "--stepped",
         "--duration", "60", "--listen", endpoint, "--quiet", "--snapshot", str(tmp_path / "t.png"),
@@ -137,9 +138,25 @@ def test_a_stepped_sim_runs_view_gets_the_true_joists(tmp_path: Path, endpoint: 
         port = int(view.wait_for("to Foxglove on ws://").split("ws://127.0.0.1:")[1].split()[0])
         view.wait_for("robot 'widowx' heard", timeout=60)
         joists = asyncio.run(first_on(port, "/truth/joists", time.monotonic() + 30))
+        channels, data = asyncio.run(foxglove_client(port, time.monotonic() + 4))
     finally:
         robot.stop()
         code = view.stop()
+    # every message of every channel decodes against its advertised schema; the twin's robot,
+    # standing, sends its frames, links, mode, health, loop and e-stop (no perception role
+    # runs: its maps stay silent)
+    topics = check_payloads(channels, data, every=False)
+    assert {"/tf", "/robot", "/mode", "/health", "/loop", "/estop"} <= set(topics)
+    frames = tree([t for msg in topics["/tf"] for t in msg["transforms"]])
+    joints = {j.name for j in profiles.load(ROOT / "robots" / "widowx.toml").joints}
+    assert joints <= set(frames) and "body" in frames
+    for child in frames:  # one tree: every frame reaches odom
+        seen = child
+        for _ in range(len(frames) + 1):
+            if seen == "odom":
+                break
+            seen = frames[seen][0]
+        assert seen == "odom", f"{child} does not reach odom"
     boxes = [e for e in joists["entities"] if e["cubes"]]
     assert len(boxes) == len(truth(load("attic_paper"))[0].joists)
     (box,) = boxes[0]["cubes"]
