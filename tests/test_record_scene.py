@@ -22,9 +22,9 @@ import pytest
 import zenoh
 from conftest import free_port
 from mcap.reader import make_reader
+from support.foxglove_ws import Proc, check_payloads, foxglove_client
 from support.recording import climbd, wait_line
 from support.scene_decode import in_frame, proto_dict, tree
-from test_view import Proc, check_payloads, foxglove_client
 
 from climbd.daemon.cli.record import RecordingFile
 from climbd.daemon.cli.replay import read

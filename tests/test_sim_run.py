@@ -29,30 +29,9 @@ def climbd(tmp_path: Path, *args: str, timeout: float = 300) -> subprocess.Compl
     )
 
 
-def test_control_role_stands_in_the_twin_through_the_real_driver(tmp_path: Path, endpoint: str):
-    res = climbd(
-        tmp_path,
-        "--profile",
-        str(ROOT / "robots" / "widowx.toml"),
-        "--sim",
-        "attic",
-        "--stepped",
-        "--duration",
-        "3",
-        "--listen",
-        endpoint,
-        "--quiet",
-    )
-    assert res.returncode == 0, res.stderr
-    assert "stand complete" in res.stderr and "Traceback" not in res.stderr
-    summary = re.search(r"body height ([0-9.]+) m, fallen: (\w+)", res.stdout)
-    assert summary, res.stdout
-    assert abs(float(summary.group(1)) - 0.10) < 0.015 and summary.group(2) == "no"
-    assert "sat down, then torque off" in res.stdout
-    assert (tmp_path / "top.png").stat().st_size > 10_000
-
-
-def test_all_roles_walk_toward_a_joist_they_perceive(tmp_path: Path, endpoint: str):
+def test_all_roles_stand_and_walk_toward_a_joist_they_perceive_then_sit(
+    tmp_path: Path, endpoint: str
+):
     res = climbd(
         tmp_path,
         "--profile",
@@ -75,4 +54,9 @@ def test_all_roles_walk_toward_a_joist_they_perceive(tmp_path: Path, endpoint: s
     assert moved and float(moved.group(1)) > 0.2, res.stdout
     published = re.search(r"perception stopped; (\d+) features published", res.stdout)
     assert published and int(published.group(1)) > 20, res.stdout
-    assert "fallen: no" in res.stdout
+    assert "stand complete" in res.stderr and "Traceback" not in res.stderr
+    summary = re.search(r"body height ([0-9.]+) m, fallen: (\w+)", res.stdout)
+    assert summary, res.stdout
+    assert abs(float(summary.group(1)) - 0.10) < 0.015 and summary.group(2) == "no"
+    assert "sat down, then torque off" in res.stdout
+    assert (tmp_path / "top.png").stat().st_size > 10_000

@@ -14,10 +14,6 @@ import asyncio
 import base64
 import json
 import math
-import signal
-import struct
-import subprocess
-import sys
 import threading
 import time
 import zlib
@@ -28,10 +24,10 @@ import jsonschema
 import msgspec
 import numpy as np
 import pytest
-import websockets
 import zenoh
 from conftest import free_port
-from support.scene_decode import decoded, in_frame, proto_dict, tree
+from support.foxglove_ws import Proc, check_payloads, foxglove_client
+from support.scene_decode import decoded, in_frame, tree
 
 from climbd.daemon.cli.view import Latest, Presence, Viewer
 from climbd.daemon.contract import messages as m
@@ -40,8 +36,6 @@ from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.runtime import scene
 
 ROOT = Path(__file__).resolve().parent.parent
-SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
-"""What the client offers: foxglove-sdk ≥ 0.30 names the protocol foxglove.sdk.v1."""
 
 
 def xyz(v: dict) -> list[float]:
@@ -348,79 +342,6 @@ def test_presence_says_when_the_robot_is_not_heard_goes_silent_and_comes_back() 
 # --- end to end -----------------------------------------------------------------------------
 
 
-class Proc:
-    """A ``climbd`` subprocess, its output (stdout and stderr) collected line by line."""
-
-    def __init__(self, *args: str) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "climbd.daemon.cli", *args],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        for line in self.proc.stdout:
-            self.lines.append(line)
-
-    def wait_for(self, text: str, timeout: float = 20.0, after: int = 0) -> str:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            for line in self.lines[after:]:
-                if text in line:
-                    return line
-            if self.proc.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise AssertionError(f"{text!r} not printed; output:\n{''.join(self.lines)}")
-
-    def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-        try:
-            return self.proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise
-
-
-async def foxglove_client(port: int, until: float) -> tuple[dict, dict[int, list[bytes]]]:
-    """Speak the Foxglove WebSocket protocol: take the advertised channels, subscribe to all,
-    and collect message data until every channel sent twice or ``until`` (monotonic s)."""
-    uri = f"ws://127.0.0.1:{port}"
-    async with websockets.connect(uri, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
-        assert ws.subprotocol in SUBPROTOCOLS
-        channels: dict[int, dict] = {}
-        data: dict[int, list[bytes]] = {}
-        server_info = None
-        while time.monotonic() < until:
-            try:
-                frame = await asyncio.wait_for(ws.recv(), 0.2)
-            except asyncio.TimeoutError:
-                continue
-            if isinstance(frame, str):
-                msg = json.loads(frame)
-                if msg["op"] == "serverInfo":
-                    server_info = msg
-                elif msg["op"] == "advertise":
-                    new = {c["id"]: c for c in msg["channels"]}
-                    channels.update(new)
-                    subscriptions = [{"id": cid, "channelId": cid} for cid in new]
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
-                continue
-            opcode, subscription, _ = struct.unpack_from("<BIQ", frame)
-            assert opcode == 1, f"binary opcode {opcode}"
-            data.setdefault(subscription, []).append(frame[13:])
-            if channels and all(len(data.get(c, ())) >= 2 for c in channels):
-                break
-        assert server_info is not None and "climbd widowx" in server_info["name"]
-        return channels, data
-
-
 MAPS = [
     m.JoistMap(joists=[m.MappedJoist(id=1, confidence=0.7, seen=2, age=0.0, heading=0.0,
                                      offset=0.5, height=0.1,
@@ -460,31 +381,6 @@ class MapPublisher:
         self.stop.set()
         self.thread.join(5)
         self.session.close()
-
-
-def check_payloads(
-    channels: dict[int, dict], data: dict[int, list[bytes]], every: bool = True
-) -> dict[str, list]:
-    """Every advertised channel sent data (unless not ``every``: a run whose world has no such
-    map), each payload decodes against its advertised schema; the decoded messages by topic."""
-    out: dict[str, list] = {}
-    for cid, channel in channels.items():
-        payloads = data.get(cid)
-        if not every and not payloads:
-            continue
-        assert payloads, f"nothing on {channel['topic']}"
-        if channel["encoding"] == "protobuf":
-            assert channel["schemaEncoding"] == "protobuf"
-            descriptor_set = base64.b64decode(channel["schema"])
-            decoded_all = [proto_dict(channel["schemaName"], descriptor_set, p) for p in payloads]
-        else:
-            assert (channel["encoding"], channel["schemaEncoding"]) == ("json", "jsonschema")
-            schema = json.loads(channel["schema"])
-            decoded_all = [json.loads(p) for p in payloads]
-            for msg in decoded_all:
-                jsonschema.validate(msg, schema)
-        out[channel["topic"]] = decoded_all
-    return out
 
 
 def test_view_serves_a_live_robot_to_a_foxglove_client(endpoint: str) -> None:

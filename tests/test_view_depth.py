@@ -10,16 +10,14 @@ from __future__ import annotations
 
 import asyncio
 import base64
-import json
-import struct
 import threading
 import time
 from pathlib import Path
 
 import foxglove
 import numpy as np
-import websockets
-from support.scene_decode import decoded, proto_dict
+from support.foxglove_ws import first_on
+from support.scene_decode import decoded
 
 from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.cli.view import Latest, Viewer, camera_intrinsics
@@ -106,35 +104,6 @@ def test_latest_keeps_the_newest_image_of_each_camera() -> None:
     assert fresh[(m.DepthImage, "front")].stamp == 4.0 and len(fresh) == 2
 
 
-async def first_cloud(port: int, until: float) -> tuple[dict, dict]:
-    """Subscribe to every channel as advertised; the /depth channel and its first message."""
-    uri = f"ws://127.0.0.1:{port}"
-    async with websockets.connect(uri, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
-        channels: dict[int, dict] = {}
-        while time.monotonic() < until:
-            try:
-                frame = await asyncio.wait_for(ws.recv(), 0.2)
-            except asyncio.TimeoutError:
-                continue
-            if isinstance(frame, str):
-                msg = json.loads(frame)
-                if msg["op"] == "advertise":
-                    new = {c["id"]: c for c in msg["channels"]}
-                    channels.update(new)
-                    subscriptions = [{"id": cid, "channelId": cid} for cid in new]
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
-                continue
-            _, subscription, _ = struct.unpack_from("<BIQ", frame)
-            channel = channels[subscription]
-            if channel["topic"] == "/depth":
-                return channel, proto_dict(
-                    channel["schemaName"], base64.b64decode(channel["schema"]), frame[13:]
-                )
-        raise AssertionError(
-            f"no /depth message; channels: {[c['topic'] for c in channels.values()]}"
-        )
-
-
 def test_view_advertises_depth_when_heard_and_serves_it_as_a_point_cloud() -> None:
     context = foxglove.Context()
     profile = widowx()
@@ -160,7 +129,7 @@ def test_view_advertises_depth_when_heard_and_serves_it_as_a_point_cloud() -> No
     thread = threading.Thread(target=robot, daemon=True)
     thread.start()
     try:
-        channel, msg = asyncio.run(first_cloud(server.port, time.monotonic() + 10))
+        channel, msg = asyncio.run(first_on(server.port, "/depth", time.monotonic() + 10))
     finally:
         stop.set()
         thread.join(5)

@@ -5,17 +5,13 @@ on /truth/… when they arrive (``--truth WORLD`` stays for a robot not in the t
 from __future__ import annotations
 
 import asyncio
-import base64
-import json
-import struct
 import time
 from pathlib import Path
 
 import pytest
-import websockets
 from mcap.reader import make_reader
+from support.foxglove_ws import Proc, check_payloads, first_on, foxglove_client
 from support.scene_decode import decoded, proto_dict, tree
-from test_view import SUBPROTOCOLS, Proc, check_payloads, foxglove_client
 
 from climbd.daemon.cli.record import McapSink, Sample
 from climbd.daemon.cli.sim_host import TruthPublisher
@@ -96,33 +92,6 @@ def test_a_scene_recording_declares_the_truth_when_it_comes(tmp_path: Path) -> N
     assert len(raw) == 1, "the raw sim/truth is recorded beside it"
 
 
-async def first_on(port: int, topic: str, until: float) -> dict:
-    """Speak the Foxglove WebSocket protocol: subscribe to every channel as advertised and
-    return the first message on ``topic``, decoded from its channel's schema."""
-    uri = f"ws://127.0.0.1:{port}"
-    async with websockets.connect(uri, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
-        channels: dict[int, dict] = {}
-        while time.monotonic() < until:
-            try:
-                frame = await asyncio.wait_for(ws.recv(), 0.2)
-            except asyncio.TimeoutError:
-                continue
-            if isinstance(frame, str):
-                msg = json.loads(frame)
-                if msg["op"] == "advertise":
-                    new = {c["id"]: c for c in msg["channels"]}
-                    channels.update(new)
-                    subscriptions = [{"id": cid, "channelId": cid} for cid in new]
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
-                continue
-            _, subscription, _ = struct.unpack_from("<BIQ", frame)
-            channel = channels[subscription]
-            if channel["topic"] == topic:
-                schema = base64.b64decode(channel["schema"])
-                return proto_dict(channel["schemaName"], schema, frame[13:])
-        raise AssertionError(f"no {topic}; channels: {[c['topic'] for c in channels.values()]}")
-
-
 def test_a_stepped_sim_runs_view_gets_the_true_joists(tmp_path: Path, endpoint: str) -> None:
     """``climbd run --sim attic_paper --stepped`` and ``climbd view`` of it, no ``--truth``:
     a Foxglove client gets the twin's joists on /truth/joists, every message it gets decodes
@@ -137,7 +106,7 @@ def test_a_stepped_sim_runs_view_gets_the_true_joists(tmp_path: Path, endpoint: 
     try:
         port = int(view.wait_for("to Foxglove on ws://").split("ws://127.0.0.1:")[1].split()[0])
         view.wait_for("robot 'widowx' heard", timeout=60)
-        joists = asyncio.run(first_on(port, "/truth/joists", time.monotonic() + 30))
+        _, joists = asyncio.run(first_on(port, "/truth/joists", time.monotonic() + 30))
         channels, data = asyncio.run(foxglove_client(port, time.monotonic() + 4))
     finally:
         robot.stop()

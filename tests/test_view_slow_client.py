@@ -23,7 +23,7 @@ import time
 import numpy as np
 import websockets
 import zenoh
-from test_view import SUBPROTOCOLS, Proc
+from support.foxglove_ws import SUBPROTOCOLS, Proc
 
 from climbd.daemon.contract import messages as m
 from climbd.daemon.contract import profile as profiles

@@ -1,0 +1,151 @@
+"""A plain Foxglove WebSocket client (not climbd's code) and a ``climbd`` subprocess, for the
+tests and benches of ``climbd view``: subscribe to every advertised channel, collect or pick
+messages, decode each against the schema its channel advertises."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import jsonschema
+import websockets
+
+from support.scene_decode import proto_dict
+
+ROOT = Path(__file__).resolve().parent.parent.parent
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+"""What the client offers: foxglove-sdk ≥ 0.30 names the protocol foxglove.sdk.v1."""
+
+
+class Proc:
+    """A ``climbd`` subprocess, its output (stdout and stderr) collected line by line."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "climbd.daemon.cli", *args],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.append(line)
+
+    def wait_for(self, text: str, timeout: float = 20.0, after: int = 0) -> str:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for line in self.lines[after:]:
+                if text in line:
+                    return line
+            if self.proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"{text!r} not printed; output:\n{''.join(self.lines)}")
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        try:
+            return self.proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise
+
+
+async def foxglove_client(port: int, until: float) -> tuple[dict, dict[int, list[bytes]]]:
+    """Speak the Foxglove WebSocket protocol: take the advertised channels, subscribe to all,
+    and collect message data until every channel sent twice or ``until`` (monotonic s)."""
+    uri = f"ws://127.0.0.1:{port}"
+    async with websockets.connect(uri, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+        assert ws.subprotocol in SUBPROTOCOLS
+        channels: dict[int, dict] = {}
+        data: dict[int, list[bytes]] = {}
+        server_info = None
+        while time.monotonic() < until:
+            try:
+                frame = await asyncio.wait_for(ws.recv(), 0.2)
+            except asyncio.TimeoutError:
+                continue
+            if isinstance(frame, str):
+                msg = json.loads(frame)
+                if msg["op"] == "serverInfo":
+                    server_info = msg
+                channels.update(await _subscribe_advertised(ws, msg))
+                continue
+            opcode, subscription, _ = struct.unpack_from("<BIQ", frame)
+            assert opcode == 1, f"binary opcode {opcode}"
+            data.setdefault(subscription, []).append(frame[13:])
+            if channels and all(len(data.get(c, ())) >= 2 for c in channels):
+                break
+        assert server_info is not None and "climbd widowx" in server_info["name"]
+        return channels, data
+
+
+async def first_on(port: int, topic: str, until: float) -> tuple[dict, dict]:
+    """Subscribe to every channel as advertised; the channel ``topic`` and its first message,
+    decoded from the channel's protobuf schema, before ``until`` (monotonic s)."""
+    uri = f"ws://127.0.0.1:{port}"
+    async with websockets.connect(uri, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+        channels: dict[int, dict] = {}
+        while time.monotonic() < until:
+            try:
+                frame = await asyncio.wait_for(ws.recv(), 0.2)
+            except asyncio.TimeoutError:
+                continue
+            if isinstance(frame, str):
+                channels.update(await _subscribe_advertised(ws, json.loads(frame)))
+                continue
+            _, subscription, _ = struct.unpack_from("<BIQ", frame)
+            channel = channels[subscription]
+            if channel["topic"] == topic:
+                schema = base64.b64decode(channel["schema"])
+                return channel, proto_dict(channel["schemaName"], schema, frame[13:])
+        raise AssertionError(f"no {topic}; channels: {[c['topic'] for c in channels.values()]}")
+
+
+async def _subscribe_advertised(ws, msg: dict) -> dict[int, dict]:
+    """For an ``advertise`` op: subscribe to each channel it names; the channels by id."""
+    if msg["op"] != "advertise":
+        return {}
+    new = {c["id"]: c for c in msg["channels"]}
+    subscriptions = [{"id": cid, "channelId": cid} for cid in new]
+    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+    return new
+
+
+def check_payloads(
+    channels: dict[int, dict], data: dict[int, list[bytes]], every: bool = True
+) -> dict[str, list]:
+    """Every advertised channel sent data (unless not ``every``: a run whose world has no such
+    map), each payload decodes against its advertised schema; the decoded messages by topic."""
+    out: dict[str, list] = {}
+    for cid, channel in channels.items():
+        payloads = data.get(cid)
+        if not every and not payloads:
+            continue
+        assert payloads, f"nothing on {channel['topic']}"
+        if channel["encoding"] == "protobuf":
+            assert channel["schemaEncoding"] == "protobuf"
+            descriptor_set = base64.b64decode(channel["schema"])
+            decoded_all = [proto_dict(channel["schemaName"], descriptor_set, p) for p in payloads]
+        else:
+            assert (channel["encoding"], channel["schemaEncoding"]) == ("json", "jsonschema")
+            schema = json.loads(channel["schema"])
+            decoded_all = [json.loads(p) for p in payloads]
+            for msg in decoded_all:
+                jsonschema.validate(msg, schema)
+        out[channel["topic"]] = decoded_all
+    return out
