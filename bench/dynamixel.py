@@ -214,18 +214,24 @@ def run_driver(profile, port: str, cycles: int) -> tuple[np.ndarray, np.ndarray]
     return times, health
 
 
-def run_naive(profile, port: str, cycles: int) -> np.ndarray:
-    """The SDK examples' pattern: readNByteTxRx then writeNByteTxRx, servo by servo."""
-    handler = sdk.PortHandler(port)
-    handler.openPort()
+def naive_sdk(profile, handler: sdk.PortHandler) -> tuple:
+    """The SDK examples' calls on ``handler`` (opened, set to the profile's baud): servo ids,
+    their read and write of 2 (1.0) or 4 (2.0) bytes, present and goal position addresses, a
+    mid-range goal."""
     config = DynamixelConfig.from_profile(profile)
     handler.setBaudRate(config.baud)
     ph = sdk.PacketHandler(float(config.protocol))
     ids = [j.id for j in profile.joints]
     if config.protocol == 1:
-        read, write, present, goal, value = ph.read2ByteTxRx, ph.write2ByteTxRx, 36, 30, 512
-    else:
-        read, write, present, goal, value = ph.read4ByteTxRx, ph.write4ByteTxRx, 132, 116, 2048
+        return ids, ph.read2ByteTxRx, ph.write2ByteTxRx, 36, 30, 512
+    return ids, ph.read4ByteTxRx, ph.write4ByteTxRx, 132, 116, 2048
+
+
+def run_naive(profile, port: str, cycles: int) -> np.ndarray:
+    """The SDK examples' pattern: readNByteTxRx then writeNByteTxRx, servo by servo."""
+    handler = sdk.PortHandler(port)
+    handler.openPort()
+    ids, read, write, present, goal, value = naive_sdk(profile, handler)
     times = np.empty(cycles)
     for k in range(cycles):
         t0 = time.perf_counter()
@@ -302,14 +308,7 @@ def run_naive_rate(profile, port: str, seconds: float, latency_ms: float) -> tup
     which it completed a cycle of every servo."""
     handler = LatencyPort(port, max(latency_ms, 1.0))
     handler.openPort()
-    config = DynamixelConfig.from_profile(profile)
-    handler.setBaudRate(config.baud)
-    ph = sdk.PacketHandler(float(config.protocol))
-    ids = [j.id for j in profile.joints]
-    if config.protocol == 1:
-        read, write, present, goal, value = ph.read2ByteTxRx, ph.write2ByteTxRx, 36, 30, 512
-    else:
-        read, write, present, goal, value = ph.read4ByteTxRx, ph.write4ByteTxRx, 132, 116, 2048
+    ids, read, write, present, goal, value = naive_sdk(profile, handler)
     updates = cycles = 0
     start = time.monotonic()
     while time.monotonic() - start < seconds:

@@ -27,10 +27,8 @@ import argparse
 import base64
 import json
 import os
-import signal
 import socket
 import statistics
-import subprocess
 import sys
 import threading
 import time
@@ -38,7 +36,6 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.sync.client import connect
 
 from climbd.daemon.contract import messages as m
@@ -46,8 +43,11 @@ from climbd.daemon.contract import profile as profiles
 from climbd.daemon.runtime import scene
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from support.foxglove_ws import SUBPROTOCOLS, Proc  # noqa: E402  (the tests' own)
+from support.scene_decode import proto_class  # noqa: E402
+
 PROFILE = ROOT / "robots" / "widowx.toml"
-SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 TICK = os.sysconf("SC_CLK_TCK")
 CONDITIONS = ("alone", "raw sub", "viewer")
 
@@ -66,45 +66,6 @@ def cpu_seconds(pid: int) -> float:
 
 def load() -> str:
     return Path("/proc/loadavg").read_text().split(" ", 1)[0]
-
-
-class Proc:
-    """A ``climbd`` subprocess; its output (stdout and stderr) read on a thread, line by line."""
-
-    def __init__(self, *args: str) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "climbd.daemon.cli", *args],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        for line in self.proc.stdout:
-            self.lines.append(line)
-
-    def wait_for(self, text: str, timeout: float = 30.0) -> str:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            for line in list(self.lines):
-                if text in line:
-                    return line
-            if self.proc.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise RuntimeError(f"{text!r} not printed; output:\n{''.join(self.lines)}")
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
 
 
 def session(connect_to: list[str], listen: list[str] = ()) -> zenoh.Session:
@@ -170,7 +131,9 @@ def wait_until(predicate, timeout: float, what: str) -> None:
 
 
 def view_port(view: Proc) -> int:
-    return int(view.wait_for("to Foxglove on ws://").split("ws://127.0.0.1:")[1].split()[0])
+    return int(
+        view.wait_for("to Foxglove on ws://", timeout=30.0).split("ws://127.0.0.1:")[1].split()[0]
+    )
 
 
 # --- (a) CPU of the control role ------------------------------------------------------------
@@ -182,7 +145,7 @@ def cpu_rounds(rounds: int, window: float) -> dict[str, dict[str, list[float]]]:
     robot = Proc("run", "--profile", str(PROFILE), "--driver", "fake", "--listen", ep, "--quiet")
     out = {c: {"robot": [], "view": []} for c in CONDITIONS}
     try:
-        robot.wait_for("control role")
+        robot.wait_for("control role", timeout=30.0)
         time.sleep(3.0)  # standing up, start-up transients
         pid = robot.proc.pid
         for k in range(rounds):
@@ -197,7 +160,7 @@ def cpu_rounds(rounds: int, window: float) -> dict[str, dict[str, list[float]]]:
                 elif condition == "viewer":
                     view = Proc("view", "--robot", "widowx", "--connect", ep, "--port", "0")
                     client = Client(view_port(view))
-                    view.wait_for("robot 'widowx' heard")
+                    view.wait_for("robot 'widowx' heard", timeout=30.0)
                     wait_until(lambda c=client: c.received > 60, 20, "the view's messages")
                     extra += [client.close, view.stop]
                 time.sleep(0.5)  # settle: connection set-up out of the window
@@ -215,13 +178,6 @@ def cpu_rounds(rounds: int, window: float) -> dict[str, dict[str, list[float]]]:
 
 
 # --- (b) latency: joint state stamp → WebSocket send ----------------------------------------
-
-
-def proto_class(name: str, descriptor_set: bytes) -> type:
-    pool = descriptor_pool.DescriptorPool()
-    for f in descriptor_pb2.FileDescriptorSet.FromString(descriptor_set).file:
-        pool.Add(f)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
 
 
 class Stamps:
@@ -318,7 +274,7 @@ def latency_rounds(rounds: int, seconds: float) -> dict[str, list[list[float]]]:
     try:
         thread.start()
         client = Client(view_port(view), on_view, only="/tf")
-        view.wait_for("robot 'benchview' heard")
+        view.wait_for("robot 'benchview' heard", timeout=30.0)
         wait_until(lambda: len(current["view"]) > 30, 20, "transforms from the view")
         time.sleep(1.0)
         for _ in range(rounds):

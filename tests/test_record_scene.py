@@ -17,12 +17,10 @@ import time
 from pathlib import Path
 
 import jsonschema
-import numpy as np
 import pytest
-import zenoh
 from conftest import free_port
 from mcap.reader import make_reader
-from support.foxglove_ws import Proc, check_payloads, foxglove_client
+from support.foxglove_ws import MAPS, MapPublisher, Proc, check_payloads, foxglove_client
 from support.recording import climbd, wait_line
 from support.scene_decode import in_frame, proto_dict, tree
 
@@ -33,22 +31,6 @@ from climbd.daemon.contract import profile as profiles
 from climbd.daemon.runtime import scene
 
 ROOT = Path(__file__).resolve().parent.parent
-
-MAPS = [
-    m.JoistMap(joists=[m.MappedJoist(id=1, confidence=0.7, seen=2, age=0.0, heading=0.0,
-                                     offset=0.5, height=0.1,
-                                     endpoints=[[0.5, -0.3, 0.0], [0.5, 0.3, 0.0]])]),
-    m.HoldMap(holds=[m.MappedHold(id=1, confidence=0.3, seen=1, age=0.0,
-                                  position=[0.3, 0.0, 0.0])]),
-    m.StairMap(steps=[m.MappedStair(id=1, confidence=1.0, seen=1, age=0.0, height=0.15,
-                                    rise=0.15, depth=0.3,
-                                    edge=[[0.4, 0.3, 0.15], [0.4, -0.3, 0.15]])]),
-    m.TrussMembers(members=[m.TrussMember(p0=[1, 0, 0], p1=[1, 0, 1], radius=0.03,
-                                          axis=[0, 0, 1], id=1)],
-                   nodes=[m.TrussNode(position=[1, 0, 1], members=[1])]),
-    m.ElevationGrid(rows=4, cols=4, resolution=0.05, heights=np.zeros(16, "<f4").tobytes()),
-]  # fmt: skip
-"""One of each map the scene draws, as the perception role's world model publishes them."""
 
 
 def test_transforms_follow_the_joints_at_the_scene_rate_and_maps_on_arrival() -> None:
@@ -67,14 +49,6 @@ def test_transforms_follow_the_joints_at_the_scene_rate_and_maps_on_arrival() ->
     assert "/mode" not in topics
 
 
-def publish_maps(endpoint: str) -> zenoh.Session:
-    """A Zenoh peer listening on ``endpoint``, for the maps (the robot's peers do not route)."""
-    cfg = zenoh.Config()
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    return zenoh.open(cfg)
-
-
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     """A 4 s ``climbd record --scene`` of the fake-driver WidowX and one of each map; the
@@ -85,7 +59,7 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
         "run", "--profile", "robots/widowx.toml", "--driver", "fake", "--listen", endpoint,
         "--quiet",
     )  # fmt: skip
-    maps = publish_maps(maps_ep)
+    maps = MapPublisher(maps_ep, period=0.25)
     rec = None
     try:
         wait_line(robot, "control role")
@@ -93,12 +67,7 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
             "record", "--robot", "widowx", "--connect", endpoint, "--connect", maps_ep,
             "--scene", "--duration", "4", "-o", str(out),
         )  # fmt: skip
-        end = time.monotonic() + 60
-        while rec.poll() is None and time.monotonic() < end:
-            for msg in MAPS:
-                maps.put(m.key("widowx", type(msg)), m.encode(msg))
-            time.sleep(0.25)
-        stdout, stderr = rec.communicate(timeout=30)
+        stdout, stderr = rec.communicate(timeout=60)
     finally:
         maps.close()
         for proc in (rec, robot):

@@ -14,7 +14,6 @@ import asyncio
 import base64
 import json
 import math
-import threading
 import time
 import zlib
 from pathlib import Path
@@ -24,9 +23,8 @@ import jsonschema
 import msgspec
 import numpy as np
 import pytest
-import zenoh
 from conftest import free_port
-from support.foxglove_ws import Proc, check_payloads, foxglove_client
+from support.foxglove_ws import MapPublisher, Proc, check_payloads, foxglove_client
 from support.scene_decode import decoded, in_frame, tree
 
 from climbd.daemon.cli.view import Latest, Presence, Viewer
@@ -340,47 +338,6 @@ def test_presence_says_when_the_robot_is_not_heard_goes_silent_and_comes_back() 
 
 
 # --- end to end -----------------------------------------------------------------------------
-
-
-MAPS = [
-    m.JoistMap(joists=[m.MappedJoist(id=1, confidence=0.7, seen=2, age=0.0, heading=0.0,
-                                     offset=0.5, height=0.1,
-                                     endpoints=[[0.5, -0.3, 0.0], [0.5, 0.3, 0.0]])]),
-    m.HoldMap(holds=[m.MappedHold(id=1, confidence=0.3, seen=1, age=0.0,
-                                  position=[0.3, 0.0, 0.0])]),
-    m.StairMap(steps=[m.MappedStair(id=1, confidence=1.0, seen=1, age=0.0, height=0.15,
-                                    rise=0.15, depth=0.3,
-                                    edge=[[0.4, 0.3, 0.15], [0.4, -0.3, 0.15]])]),
-    m.TrussMembers(members=[m.TrussMember(p0=[1, 0, 0], p1=[1, 0, 1], radius=0.03,
-                                          axis=[0, 0, 1], id=1)],
-                   nodes=[m.TrussNode(position=[1, 0, 1], members=[1])]),
-    m.ElevationGrid(rows=4, cols=4, resolution=0.05, heights=np.zeros(16, "<f4").tobytes()),
-]  # fmt: skip
-"""One of each map the view draws, as the perception role's world model publishes them."""
-
-
-class MapPublisher:
-    """A Zenoh peer listening on ``endpoint`` that publishes MAPS twice a second until closed."""
-
-    def __init__(self, endpoint: str) -> None:
-        cfg = zenoh.Config()
-        cfg.insert_json5("scouting/multicast/enabled", "false")
-        cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
-        self.session = zenoh.open(cfg)
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            for msg in MAPS:
-                self.session.put(m.key("widowx", type(msg)), m.encode(msg))
-            self.stop.wait(0.5)
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(5)
-        self.session.close()
 
 
 def test_view_serves_a_live_robot_to_a_foxglove_client(endpoint: str) -> None:

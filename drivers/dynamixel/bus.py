@@ -260,8 +260,6 @@ class DynamixelBus:
         """Servos read on their own after a sync read that did not come back whole."""
         self._tick = 0.0
         self._bus_free = 0.0
-        self._written_wire = 0.0
-        """Wire time (s) of the last sync write: a request sent behind it waits for it."""
         self._frame = 0.0
         self._hold = 0.0
         """How long (s) the adapter holds a reply: measured at open, followed as replies come."""
@@ -456,24 +454,25 @@ class DynamixelBus:
 
     # --- per-cycle I/O ----------------------------------------------------------------------
 
-    def _sync_write(self, item: Item, values: np.ndarray, only: np.ndarray | None = None) -> None:
-        """One SYNC WRITE (no reply); between ticks' reads it goes out without a flush."""
+    def _sync_write(self, item: Item, values: np.ndarray, only: np.ndarray | None = None) -> float:
+        """One SYNC WRITE (no reply); between ticks' reads it goes out without a flush.
+        Returns its wire time (s): 0 when every servo is lost and nothing went."""
         port = self._pipe if self._served else self.port
         group = sdk.GroupSyncWrite(port, self.ph, item.address, item.size)
         raw = little_endian_bytes(values, item.size)
         chosen = [True] * len(self.ids) if only is None else only.tolist()
         if not any(chosen):  # every servo lost: nothing to send (an empty sync write is refused)
-            return
+            return 0.0
         for k, ident in enumerate(self.ids):
             if chosen[k]:
                 group.addParam(ident, list(raw[k * item.size : (k + 1) * item.size]))
         result = group.txPacket()
-        self._written_wire = (8 + len(group.param)) * 10.0 / self.baud
         if result != sdk.COMM_SUCCESS:
             raise DriverError(
                 f"{self._where()}: sync write of address {item.address} failed: "
                 f"{self.ph.getTxRxResult(result)}"
             )
+        return (8 + len(group.param)) * 10.0 / self.baud
 
     def read(self) -> JointState:
         """Present position, velocity, effort of every joint; lost joints keep their last value.
@@ -935,14 +934,14 @@ class DynamixelBus:
             bad = [self.names[k] for k in np.flatnonzero(~np.isfinite(q))]
             raise DriverError(f"{self._where()}: non-finite goal for {', '.join(bad)}")
         with self._device("write"):
-            self._sync_write(self.model.goal_position, self.map.goal_ticks(q), ~self.lost)
+            wire = self._sync_write(self.model.goal_position, self.map.goal_ticks(q), ~self.lost)
         if self._served:  # the first request rides behind the goals: no reply stands between
             now = time.monotonic()
             self.read_schedule.error = np.abs(q - self.position)
             self.read_schedule.wrote(now)
             with self._device("read after write"):
                 end = self._tick + 1.0 / self.profile.rate_hz - IDLE_MARGIN
-                self._send_next(now, end, self._written_wire)
+                self._send_next(now, end, wire)
 
     def torque(self, on: bool) -> None:
         """Torque on (goal = present position first, so nothing jumps) or off, all joints."""

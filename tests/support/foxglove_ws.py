@@ -16,8 +16,11 @@ import time
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import websockets
+import zenoh
 
+from climbd.daemon.contract import messages as m
 from support.scene_decode import proto_dict
 
 ROOT = Path(__file__).resolve().parent.parent.parent
@@ -149,3 +152,46 @@ def check_payloads(
                 jsonschema.validate(msg, schema)
         out[channel["topic"]] = decoded_all
     return out
+
+
+MAPS = [
+    m.JoistMap(joists=[m.MappedJoist(id=1, confidence=0.7, seen=2, age=0.0, heading=0.0,
+                                     offset=0.5, height=0.1,
+                                     endpoints=[[0.5, -0.3, 0.0], [0.5, 0.3, 0.0]])]),
+    m.HoldMap(holds=[m.MappedHold(id=1, confidence=0.3, seen=1, age=0.0,
+                                  position=[0.3, 0.0, 0.0])]),
+    m.StairMap(steps=[m.MappedStair(id=1, confidence=1.0, seen=1, age=0.0, height=0.15,
+                                    rise=0.15, depth=0.3,
+                                    edge=[[0.4, 0.3, 0.15], [0.4, -0.3, 0.15]])]),
+    m.TrussMembers(members=[m.TrussMember(p0=[1, 0, 0], p1=[1, 0, 1], radius=0.03,
+                                          axis=[0, 0, 1], id=1)],
+                   nodes=[m.TrussNode(position=[1, 0, 1], members=[1])]),
+    m.ElevationGrid(rows=4, cols=4, resolution=0.05, heights=np.zeros(16, "<f4").tobytes()),
+]  # fmt: skip
+"""One of each map the view draws, as the perception role's world model publishes them."""
+
+
+class MapPublisher:
+    """A Zenoh peer listening on ``endpoint`` that publishes MAPS every ``period`` s until
+    closed (the robot's own peers do not route a third party's maps)."""
+
+    def __init__(self, endpoint: str, period: float = 0.5) -> None:
+        self.period = period
+        cfg = zenoh.Config()
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+        cfg.insert_json5("listen/endpoints", json.dumps([endpoint]))
+        self.session = zenoh.open(cfg)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            for msg in MAPS:
+                self.session.put(m.key("widowx", type(msg)), m.encode(msg))
+            self.stop.wait(self.period)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5)
+        self.session.close()
