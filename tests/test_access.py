@@ -10,10 +10,10 @@ from conftest import free_port
 from support.auth_roles import auth_profile, control_health
 from support.zenoh_roles import Observer, Proc
 
-from climbd.daemon.cli.certs import generate
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import EStop, Mode, ModeState
 from climbd.daemon.runtime.access import AccessError
+from climbd.daemon.runtime.certificates import generate
 from climbd.daemon.runtime.network import Endpoints, zenoh_config
 
 GRID = "features/grid"
@@ -116,7 +116,7 @@ def test_auth_setups_that_cannot_work_name_the_field(tmp_path, robots) -> None:
     )
     profile = profiles.load(tls)
     with pytest.raises(AccessError, match=r"network.roles.control: endpoints \['tcp/"):
-        zenoh_config(profile, "control", Endpoints(["tcp/127.0.0.1:7447"], []))
+        zenoh_config(profile, "control", Endpoints(["tcp/0.0.0.0:7447"], []))
     with pytest.raises(AccessError, match=r"network.auth: file not found: .*ca.pem"):
         zenoh_config(profile, "control", Endpoints(["tls/127.0.0.1:7447"], []))
     empty = auth_profile(tmp_path, robots, "", "tcp/127.0.0.1:1")

@@ -1,158 +1,50 @@
 """``climbd certs``: a certificate authority and one certificate per role or operator, for mTLS.
 
-Zenoh's mutual TLS checks every peer's certificate against the CA, and its access control
-matches the certificate's common name (CN) against the profile's ``network.auth.rights``
-(and ``commanders``).
-So each role (``control``, ``perception``) and each operator laptop gets its own certificate
-whose CN names it. Keys are ECDSA P-256 in PKCS#8 PEM; certificates serve as server and client.
+``climbd certs NAME… -o DIR`` issues certificates whose CN names each role or operator (the
+identities of ``network.auth.rights``). ``climbd certs --profile P`` makes a profile that
+listens beyond this computer safe: certificates for its roles and operator beside it, and an
+``[network.auth]`` table with its endpoints moved to ``tls/`` (docs/access.md).
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime
-import ipaddress
 import os
-from dataclasses import dataclass
+import re
+import sys
 from pathlib import Path
 
-DEFAULT_SANS = ("localhost", "127.0.0.1")
+from climbd.daemon.contract import profile as profiles
+from climbd.daemon.runtime.access import (
+    AccessError,
+    certificate_dir,
+    check_network,
+    endpoint_hosts,
+    identities,
+)
+from climbd.daemon.runtime.certificates import DEFAULT_SANS, OPERATOR, generate, missing
 
-
-@dataclass(frozen=True)
-class Issued:
-    """Paths of one issued certificate and its private key."""
-
-    name: str
-    certificate: Path
-    private_key: Path
-
-
-def _write_key(path: Path, key) -> None:
-    from cryptography.hazmat.primitives import serialization
-
-    pem = key.private_bytes(
-        serialization.Encoding.PEM,
-        serialization.PrivateFormat.PKCS8,
-        serialization.NoEncryption(),
-    )
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(pem)
-
-
-def _write_cert(path: Path, cert) -> None:
-    from cryptography.hazmat.primitives import serialization
-
-    path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-
-
-def _san(names: list[str]):
-    from cryptography import x509
-
-    entries = []
-    for n in names:
-        try:
-            entries.append(x509.IPAddress(ipaddress.ip_address(n)))
-        except ValueError:
-            entries.append(x509.DNSName(n))
-    return x509.SubjectAlternativeName(entries)
-
-
-def generate(
-    out: Path, names: list[str], sans: list[str] | tuple[str, ...] = DEFAULT_SANS, days: int = 825
-) -> tuple[Issued, list[Issued]]:
-    """Write ``ca.pem``/``ca.key`` (reused when present) and ``<name>.pem``/``<name>.key`` per name.
-
-    ``sans`` are the host names and IP addresses peers dial (TLS checks them on connect).
-    """
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes
-    from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.hazmat.primitives.serialization import load_pem_private_key
-    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
-
-    if not names:
-        raise ValueError("climbd certs: give at least one role or operator name")
-    bad = [n for n in names if not n or "/" in n or n == "ca"]
-    if bad:
-        raise ValueError(f"climbd certs: invalid certificate names {bad} (no '/', not 'ca')")
-    out.mkdir(parents=True, exist_ok=True)
-    now = datetime.datetime.now(datetime.timezone.utc)
-    ca_cert_path, ca_key_path = out / "ca.pem", out / "ca.key"
-    if ca_cert_path.exists() and ca_key_path.exists():
-        ca_key = load_pem_private_key(ca_key_path.read_bytes(), password=None)
-        ca_cert = x509.load_pem_x509_certificate(ca_cert_path.read_bytes())
-    else:
-        ca_key = ec.generate_private_key(ec.SECP256R1())
-        ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "climbd CA")])
-        ca_cert = (
-            x509.CertificateBuilder()
-            .subject_name(ca_name)
-            .issuer_name(ca_name)
-            .public_key(ca_key.public_key())
-            .serial_number(x509.random_serial_number())
-            .not_valid_before(now - datetime.timedelta(minutes=5))
-            .not_valid_after(now + datetime.timedelta(days=days))
-            .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-            .add_extension(
-                x509.KeyUsage(
-                    digital_signature=True,
-                    content_commitment=False,
-                    key_encipherment=False,
-                    data_encipherment=False,
-                    key_agreement=False,
-                    key_cert_sign=True,
-                    crl_sign=True,
-                    encipher_only=False,
-                    decipher_only=False,
-                ),
-                critical=True,
-            )
-            .add_extension(
-                x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), critical=False
-            )
-            .sign(ca_key, hashes.SHA256())
-        )
-        _write_key(ca_key_path, ca_key)
-        _write_cert(ca_cert_path, ca_cert)
-    issued = []
-    for name in names:
-        key = ec.generate_private_key(ec.SECP256R1())
-        cert = (
-            x509.CertificateBuilder()
-            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)]))
-            .issuer_name(ca_cert.subject)
-            .public_key(key.public_key())
-            .serial_number(x509.random_serial_number())
-            .not_valid_before(now - datetime.timedelta(minutes=5))
-            .not_valid_after(now + datetime.timedelta(days=days))
-            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(_san(list(sans)), critical=False)
-            .add_extension(
-                x509.ExtendedKeyUsage(
-                    [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
-                ),
-                critical=False,
-            )
-            .add_extension(
-                x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()),
-                critical=False,
-            )
-            .sign(ca_key, hashes.SHA256())
-        )
-        cert_path, key_path = out / f"{name}.pem", out / f"{name}.key"
-        _write_key(key_path, key)
-        _write_cert(cert_path, cert)
-        issued.append(Issued(name, cert_path, key_path))
-    return Issued("ca", ca_cert_path, ca_key_path), issued
+AUTH_TABLE = """
+[network.auth]  # written by `climbd certs --profile`: mutual TLS, docs/access.md
+tls_root_ca = "{out}/ca.pem"
+tls_certificate = "{out}/{{role}}.pem"
+tls_private_key = "{out}/{{role}}.key"
+create_certificates = true
+commanders = ["{operator}"]
+"""
+PLAIN_ENDPOINT = re.compile(r"""(["'])tcp/""")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "names", nargs="+", help="roles and operators, e.g. control perception alice"
+        "names", nargs="*", help="roles and operators, e.g. control perception alice"
     )
-    parser.add_argument("-o", "--out", default="certs", help="directory to write (default: certs)")
+    parser.add_argument("-o", "--out", help="directory to write (default: certs, or the profile's)")
+    parser.add_argument(
+        "--profile",
+        help="make this profile safe: certificates for its roles and operators, and its "
+        "[network.auth] table if it has none",
+    )
     parser.add_argument(
         "--san",
         action="append",
@@ -161,13 +53,60 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--days", type=int, default=825, help="validity in days (default 825)")
 
 
-def main(args: argparse.Namespace) -> int:
-    try:
-        ca, issued = generate(Path(args.out), args.names, args.san or DEFAULT_SANS, args.days)
-    except ValueError as e:
-        print(e)
-        return 2
+def secured_text(text: str, out: str) -> str:
+    """``text`` of a profile with its plain ``tcp/`` endpoints made ``tls/`` and an
+    ``[network.auth]`` table for certificates in ``out`` (relative to the profile) appended."""
+    text = PLAIN_ENDPOINT.sub(r"\1tls/", text)
+    return text.rstrip("\n") + "\n" + AUTH_TABLE.format(out=out, operator=OPERATOR)
+
+
+def secure_profile(path: Path, out: Path | None, sans: list[str], days: int) -> int:
+    """Give the profile at ``path`` mutual TLS (see the module docstring); 0 when it is safe."""
+    profile = profiles.load(path)
+    auth = profile.network.auth
+    if auth is not None and not auth.tls_root_ca:
+        check_network(profile)
+        print(f"{path}: authenticates by user and password already (network.auth.user)")
+        return 0
+    if auth is None:
+        out = out or path.parent / "certs"
+        relative = os.path.relpath(out.resolve(), path.parent.resolve())
+        text = secured_text(path.read_text(), Path(relative).as_posix())
+        trial = path.with_name(f".{path.name}.climbd-certs")
+        trial.write_text(text)
+        try:
+            profile = profiles.load(trial)
+            check_network(profile)
+        except (profiles.ProfileError, AccessError) as e:
+            trial.unlink()
+            print(f"error: {e} (the profile was left as it was)", file=sys.stderr)
+            return 1
+        os.replace(trial, path)
+        profile = profiles.load(path)
+        print(f"{path}: network.auth added (mutual TLS, certificates in {out}), endpoints tls/")
+    out = certificate_dir(profile)
+    names = missing(out, dict.fromkeys([*identities(profile.network.auth), OPERATOR]))
+    if names:
+        ca, issued = generate(out, names, endpoint_hosts(profile, names=sans), days)
+        report(ca, issued)
+    print(f"{path}: ok; operators connect with --tls {out}/ca.pem {out}/NAME.pem {out}/NAME.key")
+    return 0
+
+
+def report(ca, issued) -> None:
     print(f"CA          {ca.certificate}")
     for i in issued:
         print(f"{i.name:<11} {i.certificate}  {i.private_key}")
+
+
+def main(args: argparse.Namespace) -> int:
+    out = Path(args.out) if args.out else None
+    try:
+        if args.profile:
+            return secure_profile(Path(args.profile), out, args.san or [], args.days)
+        ca, issued = generate(out or Path("certs"), args.names, args.san or DEFAULT_SANS, args.days)
+    except (ValueError, OSError, AccessError) as e:  # ProfileError and TOML errors are ValueErrors
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    report(ca, issued)
     return 0

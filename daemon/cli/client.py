@@ -12,6 +12,7 @@ import zenoh
 
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.runtime.access import AccessError, client_credentials
+from climbd.daemon.runtime.certificates import DEFAULT_DIR, default_credentials
 from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
 
 
@@ -21,13 +22,15 @@ def add_credential_arguments(parser) -> None:
         "--tls",
         nargs=3,
         metavar=("CA", "CERT", "KEY"),
-        help="mutual TLS: CA certificate, this operator's certificate and key (climbd certs)",
+        help="mutual TLS: CA certificate, this operator's certificate and key (climbd certs; "
+        f"default: {DEFAULT_DIR}/ca.pem, operator.pem, operator.key when present)",
     )
     parser.add_argument("--user", help="Zenoh user name (password from $CLIMBD_PASSWORD)")
 
 
 def client_config(args, role: str) -> zenoh.Config:
-    """Zenoh config of an operator tool: its --connect endpoints and --tls/--user credentials."""
+    """Zenoh config of an operator tool: its --connect endpoints and --tls/--user credentials,
+    or without either the operator's certificate in DEFAULT_DIR when it is there."""
     cfg = zenoh_config(None, role, Endpoints([], list(args.connect)))
     user = None
     if args.user:
@@ -35,7 +38,10 @@ def client_config(args, role: str) -> zenoh.Config:
         if password is None:
             raise AccessError("--user needs the password in $CLIMBD_PASSWORD")
         user = (args.user, password)
-    client_credentials(cfg, tuple(args.tls) if args.tls else None, user)
+    tls = tuple(args.tls) if args.tls else None
+    if tls is None and user is None:
+        tls = default_credentials()
+    client_credentials(cfg, tls, user)
     return cfg
 
 

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from climbd.daemon.contract import profile as profiles
+from climbd.daemon.runtime.access import AccessError, check_network
 
 ROOT = Path(__file__).resolve().parents[2]
 """The climbd package root: systemd/ and docs/ are shipped beside daemon/."""
@@ -89,7 +90,8 @@ def main(args: argparse.Namespace) -> int:
     path = Path(args.profile).resolve()
     try:
         profile = profiles.load(path)
-    except profiles.ProfileError as e:
+        check_network(profile)
+    except (profiles.ProfileError, AccessError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     roles = ROLES if args.role == "all" else (args.role,)

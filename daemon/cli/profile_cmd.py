@@ -8,6 +8,7 @@ import sys
 from climbd.daemon.algorithms.world import world_config
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.plugins import PluginError
+from climbd.daemon.runtime.access import AccessError, check_network
 from climbd.daemon.runtime.loader import check_driver, load_class, make_config
 
 
@@ -39,7 +40,8 @@ def main(args: argparse.Namespace) -> int:
             check_driver(p)
             check_plugins(p)
             world_config(p)
-        except (profiles.ProfileError, PluginError) as e:
+            check_network(p)
+        except (profiles.ProfileError, PluginError, AccessError) as e:
             print(f"error: {e}", file=sys.stderr)
             failed += 1
             continue

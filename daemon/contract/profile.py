@@ -258,6 +258,9 @@ class AuthConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     commanders: list[str] = []
     rights: dict[str, list[Right]] = {}
     telemetry_listen: list[str] = []
+    create_certificates: bool = False
+    """With TLS: a role that listens creates the CA and every named identity's certificate
+    that is missing, on its first run (as an SSH server creates its host keys)."""
 
 
 class NetworkConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

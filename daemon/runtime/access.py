@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, get_args
 
 from climbd.daemon.contract.messages import Message, encode
 from climbd.daemon.contract.profile import AuthConfig, Profile, Right
+from climbd.daemon.runtime.certificates import first_run, is_loopback, subject_names
 
 if TYPE_CHECKING:  # the CLI parser imports this module: zenoh loads only when used
     import zenoh
@@ -65,12 +66,104 @@ class AccessError(ValueError):
     """An auth setup that cannot work; the message names the profile field or the file."""
 
 
-def _path(profile: Profile, value: str, role: str) -> str:
+def _resolve(profile: Profile, value: str, role: str) -> Path:
+    """A ``network.auth`` path: ``{role}`` expanded, ``~`` the user's home, else relative to
+    the profile file."""
     base = Path(profile.source).parent if profile.source else Path.cwd()
-    path = base / value.format(role=role)
+    return base / Path(value.format(role=role)).expanduser()
+
+
+def _path(profile: Profile, value: str, role: str) -> str:
+    path = _resolve(profile, value, role)
     if not path.is_file():
-        raise AccessError(f"{profile.source}: network.auth: file not found: {path}")
+        hint = ""
+        if profile.network.auth is not None and profile.network.auth.create_certificates:
+            hint = (
+                f"; the control role creates it on its first run: copy ca.pem, {role}.pem and "
+                f"{role}.key from {path.parent} on the control computer"
+            )
+        raise AccessError(f"{profile.source}: network.auth: file not found: {path}{hint}")
     return str(path)
+
+
+def certificate_dir(profile: Profile) -> Path:
+    """Where ``create_certificates`` writes: the one directory of ``ca.pem``, ``{role}.pem``
+    and ``{role}.key``, as ``climbd certs`` names them (AccessError naming the field if not)."""
+    auth = profile.network.auth
+    assert auth is not None
+    out = _resolve(profile, auth.tls_root_ca, "control").parent
+    expected = {
+        "tls_root_ca": (auth.tls_root_ca, "ca.pem"),
+        "tls_certificate": (auth.tls_certificate, "{role}.pem"),
+        "tls_private_key": (auth.tls_private_key, "{role}.key"),
+    }
+    for field, (value, name) in expected.items():
+        if _resolve(profile, value, "{role}") != out / name:
+            raise AccessError(
+                f"{profile.source}: network.auth.{field}: climbd certs writes {out / name} "
+                "(in the directory of tls_root_ca); name that file"
+            )
+    return out
+
+
+def identities(auth: AuthConfig) -> list[str]:
+    """Every identity the profile names: its roles and the names with rights."""
+    return list(dict.fromkeys([*ROLES, *identity_rights(auth)]))
+
+
+def endpoint_hosts(
+    profile: Profile, endpoints: Iterable[str] = (), names: Iterable[str] = ()
+) -> list[str]:
+    """The names a certificate must carry: the hosts of the profile's roles' endpoints and of
+    ``endpoints``, and ``names``."""
+    found = [e for ep in profile.network.roles.values() for e in (*ep.listen, *ep.connect)]
+    return subject_names([*found, *endpoints], names)
+
+
+def check_exposure(profile: Profile, where: str, listen: list[str]) -> None:
+    """Refuse listening beyond this computer without ``network.auth``: anyone on the network
+    could command the robot. The error names ``where`` and the command that fixes it."""
+    if profile.network.auth is not None:
+        return
+    beyond = [e for e in listen if not is_loopback(e)]
+    if beyond:
+        raise AccessError(
+            f"{profile.source}: {where}: {beyond} can be reached beyond this computer and the "
+            "profile has no network.auth, so anyone on the network could command the robot; "
+            f"fix: climbd certs --profile {profile.source} (or listen on loopback only)"
+        )
+
+
+def plain_loopback(listen: list[str], connect: list[str]) -> bool:
+    """Endpoints that are all loopback and none TLS: only this computer reaches them."""
+    endpoints = listen + connect
+    secure = [e for e in endpoints if e.split("/", 1)[0] in SECURE_PROTOCOLS]
+    return bool(endpoints) and not secure and all(is_loopback(e) for e in endpoints)
+
+
+def check_network(profile: Profile) -> None:
+    """What ``profile check`` and ``climbd install`` refuse before a role starts: a role
+    listening beyond this computer without auth, and plain endpoints under TLS."""
+    auth = profile.network.auth
+    for role, ep in profile.network.roles.items():
+        check_exposure(profile, f"network.roles.{role}.listen", list(ep.listen))
+        if auth is not None and _uses_tls(auth):
+            _check_secure(profile, role, [*ep.listen, *ep.connect])
+    if auth is not None and auth.create_certificates:
+        certificate_dir(profile)
+
+
+def _uses_tls(auth: AuthConfig) -> bool:
+    return bool(auth.tls_certificate or auth.tls_private_key or auth.tls_root_ca)
+
+
+def _check_secure(profile: Profile, role: str, endpoints: list[str]) -> None:
+    plain = [e for e in endpoints if e.split("/", 1)[0] not in SECURE_PROTOCOLS]
+    if plain:
+        raise AccessError(
+            f"{profile.source}: network.roles.{role}: endpoints {plain} are not tls/ or quic/ "
+            "but network.auth asks for TLS (serve read-only peers with auth.telemetry_listen)"
+        )
 
 
 def tls_settings(ca: str, certificate: str, private_key: str) -> dict:
@@ -196,19 +289,21 @@ def apply_auth(
     auth = profile.network.auth
     if auth is None:
         return
-    tls = bool(auth.tls_certificate or auth.tls_private_key or auth.tls_root_ca)
+    tls = _uses_tls(auth)
     if not tls and not auth.user:
         raise AccessError(
             f"{profile.source}: network.auth: give tls_root_ca/tls_certificate/tls_private_key "
             "or user/password/credentials_file"
         )
     if tls:
-        plain = [e for e in listen + connect if e.split("/", 1)[0] not in SECURE_PROTOCOLS]
-        if plain:
-            raise AccessError(
-                f"{profile.source}: network.roles.{role}: endpoints {plain} are not tls/ or quic/ "
-                "but network.auth asks for TLS (serve read-only peers with auth.telemetry_listen)"
-            )
+        _check_secure(profile, role, listen + connect)
+        if auth.create_certificates and listen:
+            out = certificate_dir(profile)
+            try:
+                first_run(out, identities(auth), endpoint_hosts(profile, listen + connect))
+            except OSError as e:
+                where = f"{profile.source}: network.auth.create_certificates"
+                raise AccessError(f"{where}: {e}") from None
         settings = tls_settings(
             _path(profile, auth.tls_root_ca, role),
             _path(profile, auth.tls_certificate, role),

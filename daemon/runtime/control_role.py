@@ -32,7 +32,7 @@ from climbd.daemon.contract.hardware import (
 from climbd.daemon.contract.plugins import GaitPlugin, PluginError
 from climbd.daemon.contract.profile import Profile, ProfileError
 from climbd.daemon.runtime import sdnotify
-from climbd.daemon.runtime.access import TelemetryGate
+from climbd.daemon.runtime.access import AccessError, TelemetryGate
 from climbd.daemon.runtime.loader import instantiate, load_class
 from climbd.daemon.runtime.loop import Clock, MonotonicClock
 from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
@@ -58,6 +58,8 @@ def role_network(
         endpoints = Endpoints(args.listen or [], args.connect or [])
     try:
         return Network(profile.name, zenoh_config(profile, role, endpoints), aio)
+    except AccessError as e:
+        raise StartupError(str(e)) from None
     except Exception as e:  # zenoh raises ZError for a bad endpoint or a port in use
         raise StartupError(f"zenoh: {e}") from None
 

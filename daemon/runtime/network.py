@@ -38,7 +38,7 @@ from climbd.daemon.contract.messages import (
     key,
 )
 from climbd.daemon.contract.profile import Profile
-from climbd.daemon.runtime.access import apply_auth
+from climbd.daemon.runtime.access import apply_auth, check_exposure, plain_loopback
 from climbd.daemon.runtime.counting import Tally
 
 log = logging.getLogger("climbd.bus")
@@ -75,13 +75,16 @@ def zenoh_config(
 
     ``endpoints`` overrides the profile's for this role (tests pick free loopback ports).
     With ``network.auth`` the session admits only authenticated peers, each to its rights
-    (daemon/runtime/access.py); raises access.AccessError naming the field when that cannot work.
+    (daemon/runtime/access.py); raises access.AccessError naming the field when that cannot work,
+    or when the role would listen beyond this computer without auth. Plain loopback endpoints
+    given instead of a TLS profile's run without TLS (only this computer reaches them).
     """
     net = profile.network if profile is not None else None
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode or (net.mode if net else "peer")))
     multicast = net.multicast_scouting if net else False
     cfg.insert_json5("scouting/multicast/enabled", json.dumps(multicast))
+    given = endpoints is not None
     if endpoints is None:
         role_ep = net.roles.get(role) if net else None
         endpoints = Endpoints(
@@ -89,8 +92,23 @@ def zenoh_config(
         )
     cfg.insert_json5("listen/endpoints", json.dumps(endpoints.listen))
     cfg.insert_json5("connect/endpoints", json.dumps(endpoints.connect))
-    if net is not None and net.auth is not None:
-        apply_auth(cfg, profile, role, endpoints.listen, endpoints.connect)
+    if profile is None:
+        return cfg
+    check_exposure(
+        profile, "--listen" if given else f"network.roles.{role}.listen", endpoints.listen
+    )
+    auth = profile.network.auth
+    if auth is None:
+        return cfg
+    if given and not auth.user and plain_loopback(endpoints.listen, endpoints.connect):
+        log.warning(
+            "%s: network.auth (TLS) not applied: the endpoints given (%s) are plain loopback, "
+            "reachable from this computer only",
+            profile.source,
+            ", ".join(endpoints.listen + endpoints.connect),
+        )
+        return cfg
+    apply_auth(cfg, profile, role, endpoints.listen, endpoints.connect)
     return cfg
 
 

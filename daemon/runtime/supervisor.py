@@ -23,6 +23,7 @@ import sys
 from dataclasses import dataclass, field
 
 from climbd.daemon.runtime import sdnotify
+from climbd.daemon.runtime.network import Endpoints, zenoh_config
 
 log = logging.getLogger("climbd.supervisor")
 
@@ -92,7 +93,8 @@ def role_argv(args: argparse.Namespace, role: str, listen: list[str], connect: l
 
 
 def plan(profile, args: argparse.Namespace) -> list[Child]:
-    """Control listens where --listen or the profile says; perception dials it on loopback."""
+    """Control listens where --listen or the profile says; perception dials it on loopback.
+    A network setup the control role would refuse (auth, exposure) is a ValueError here."""
     control = profile.network.roles.get("control")
     listen = list(args.listen or (control.listen if control else []))
     if not listen:
@@ -100,8 +102,10 @@ def plan(profile, args: argparse.Namespace) -> list[Child]:
             f"{profile.source}: network.roles.control.listen: --role all links the roles "
             "through the control role's listen endpoints; give one (or --listen)"
         )
+    connect = list(args.connect or [])
+    zenoh_config(profile, "control", Endpoints(listen, connect))  # AccessError before any start
     return [
-        Child("control", role_argv(args, "control", listen, list(args.connect or []))),
+        Child("control", role_argv(args, "control", listen, connect)),
         Child("perception", role_argv(args, "perception", [], [loopback(e) for e in listen])),
     ]
 
