@@ -20,6 +20,7 @@ import enum
 import math
 import zlib
 from dataclasses import dataclass
+from typing import Annotated
 
 import msgspec
 import numpy as np
@@ -45,6 +46,7 @@ from climbd.daemon.algorithms.terrain import (
 from climbd.daemon.algorithms.tracks import TrackConfig
 from climbd.daemon.contract.hardware import DepthFrame
 from climbd.daemon.contract.messages import (
+    MAX_PREVIEW_PIXELS,
     TERRAIN_LAYERS,
     BodyState,
     Feature,
@@ -54,7 +56,7 @@ from climbd.daemon.contract.messages import (
     TerrainMap,
 )
 from climbd.daemon.contract.profile import Profile, ProfileError, merge_tables
-from climbd.daemon.contract.units import Positive
+from climbd.daemon.contract.units import NonNegative, Positive
 
 ZLIB_LEVEL = 1
 """Fast compression: the layers are mostly NaN or smooth, level 1 takes most of the gain."""
@@ -63,8 +65,9 @@ ZLIB_LEVEL = 1
 class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """The map's extent, cells and fusion (elevation), its terrain filter chain, the depth
     decimation it fuses at, the level-ground check of each frame, the camera range features are
-    expected within, its publish period (s), and the tracking of each feature map. A profile's
-    ``[world]`` table overrides them."""
+    expected within, its publish period (s), the tracking of each feature map, and the depth
+    preview the perception role sends viewers (``DepthPreview``). A profile's ``[world]``
+    table overrides them."""
 
     elevation: ElevationConfig = msgspec.field(
         default_factory=lambda: ElevationConfig(z_min=-1.0, z_max=0.6)
@@ -80,6 +83,12 @@ class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     view_range: Positive = 2.0
     """m: a feature farther than this from the camera is not expected in a frame (no miss)."""
     publish_period: Positive = 0.5
+    preview_period: NonNegative = 0.5
+    """s between the perception role's depth previews (``state/depth``, for ``climbd view``);
+    0: none sent."""
+    preview_points: Annotated[int, msgspec.Meta(ge=1, le=MAX_PREVIEW_PIXELS)] = 4800
+    """Most pixels of a depth preview: the frame at the smallest integer stride that fits
+    (80 × 60 of a 640 × 480 frame, stride 8)."""
     holds: TrackConfig = msgspec.field(default_factory=hold_tracking)
     joists: TrackConfig = msgspec.field(default_factory=joist_tracking)
     stairs: TrackConfig = msgspec.field(default_factory=stair_tracking)

@@ -17,7 +17,8 @@ with the Foxglove SDK in Foxglove's well-known schemas (daemon/runtime/scene.py)
                                            path from where it is to its target
     /grasp       foxglove.SceneUpdate      perception's graspable points, when it publishes them
     /depth       foxglove.PointCloud       each camera's depth in its optical frame, when the
-                                           robot publishes depth (the twin's sim/depth in a
+                                           robot publishes depth (the perception role's
+                                           state/depth preview, or the twin's sim/depth in a
                                            --sim run), at --cloud-rate of --cloud-points at most
     /truth/joists /truth/stairs /truth/holds /truth/truss
                  foxglove.SceneUpdate      the twin world's true maps, in translucent blue
@@ -50,7 +51,7 @@ from foxglove import channels as ch
 from climbd.daemon.cli.client import add_credential_arguments, find_profile, open_client
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.hardware import Intrinsics
-from climbd.daemon.contract.messages import DepthImage, Health, Message
+from climbd.daemon.contract.messages import DepthImage, DepthPreview, Health, Message
 from climbd.daemon.runtime import scene
 from climbd.drivers.realsense.models import model
 from climbd.drivers.sim.truth import truth
@@ -148,8 +149,8 @@ class Latest:
     def put(self, msg: Message) -> None:
         if isinstance(msg, Health):
             kind = (Health, msg.role)
-        elif isinstance(msg, DepthImage):
-            kind = (DepthImage, msg.camera)
+        elif isinstance(msg, (DepthImage, DepthPreview)):
+            kind = (type(msg), msg.camera)
         else:
             kind = type(msg)
         now = time.monotonic()
@@ -261,6 +262,7 @@ def main(args: argparse.Namespace) -> int:
     viewer = Viewer(
         robot_scene,
         context,
+        clouds=clouds,
         intrinsics=camera_intrinsics(robot_scene.profile) if clouds else None,
         cloud_period=1.0 / args.cloud_rate if clouds else math.inf,
         cloud_points=args.cloud_points,
@@ -290,7 +292,7 @@ def main(args: argparse.Namespace) -> int:
         if net is None:
             return 2
         latest = Latest()
-        for message in SUBSCRIBED + ((DepthImage,) if clouds else ()):
+        for message in SUBSCRIBED + ((DepthPreview, DepthImage) if clouds else ()):
             net.subscribe(message, latest.put)
         presence = Presence(args.robot, where, args.silent_after, time.monotonic())
         period = 1.0 / args.rate

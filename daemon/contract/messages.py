@@ -43,6 +43,13 @@ MAX_GRID_BYTES = 8 * 1024 * 1024
 MAX_DEPTH_BYTES = 2 * 1280 * 960
 """Bytes of a DepthImage's uint16 depth: a 1280 × 960 frame."""
 
+MAX_PREVIEW_PIXELS = 320 * 240
+"""Pixels of a DepthPreview: a 640 × 480 frame at every second pixel, 16 times the default
+preview (``[world] preview_points``)."""
+
+MAX_PREVIEW_BYTES = 2 * MAX_PREVIEW_PIXELS
+"""Bytes of a DepthPreview's uint16 depth."""
+
 Name = Annotated[str, msgspec.Meta(max_length=MAX_NAME)]
 Text = Annotated[str, msgspec.Meta(max_length=MAX_TEXT)]
 Names = Annotated[list[Name], msgspec.Meta(max_length=MAX_ENTRIES)]
@@ -644,6 +651,31 @@ class DepthImage(Message):
     depth: Annotated[bytes, msgspec.Meta(max_length=MAX_DEPTH_BYTES)] = b""
 
 
+class DepthPreview(Message):
+    """A perception role's depth frame, decimated for viewers (``climbd view`` draws it as a
+    point cloud in the camera's optical frame): every ``stride``-th pixel of every
+    ``stride``-th row of the frame, so that ``width`` × ``height`` ≤ ``[world]
+    preview_points``; uint16 little-endian, row-major, × ``depth_scale`` = m, 0 no return.
+    ``fx``, ``fy``, ``cx``, ``cy`` (pixels) are the decimated image's own pinhole intrinsics
+    (the frame's divided by ``stride``): a point is ((u − cx)·z/fx, (v − cy)·z/fy, z) at
+    pixel (u, v), optical frame x right, y down, z forward. ``frame_stamp`` is the depth
+    frame's stamp (the control role's clock, as BodyState's); ``stamp`` when it was sent."""
+
+    TOPIC: ClassVar[str] = "state/depth"
+    RATE: ClassVar[str] = "every [world] preview_period (0.5 s), from the perception role"
+    camera: Name = ""
+    frame_stamp: float = 0.0
+    width: int = 0
+    height: int = 0
+    stride: int = 1
+    depth_scale: float = 0.001
+    fx: float = 0.0
+    fy: float = 0.0
+    cx: float = 0.0
+    cy: float = 0.0
+    depth: Annotated[bytes, msgspec.Meta(max_length=MAX_PREVIEW_BYTES)] = b""
+
+
 class SimTruth(Message):
     """The twin world's ground truth (``climbd run --sim``): its joists, stair steps, holds and
     truss as the world model's maps would hold them if perception were perfect (every item of
@@ -684,6 +716,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     Stability,
     StairStep,
     DepthImage,
+    DepthPreview,
     TrussMembers,
     Stairs,
     StairMap,

@@ -6,10 +6,11 @@ BodyState; a frame outside it is refused with a counted reason), runs the profil
 plugins on it and publishes their features, then folds the frame and the features into the world
 model (``algorithms.world``: terrain, holds, joists in the odometry frame; a frame it does not
 fuse, such as one whose ground is not level, is counted by reason beside the pose refusals) and
-publishes its maps every ``publish_period``, refused frames or not. Each plugin, and the world
-model, is kept going by loader.Restarting: an error loses that frame's result for it (counted),
-one failing frame after frame is restarted with back-off, and one that cannot be kept going
-ends the role with exit status 1 so that its supervisor (or systemd) restarts it. The asyncio
+publishes its maps every ``publish_period``, refused frames or not, and a decimated copy of the
+frame for viewers (``DepthPreview``) every ``preview_period``, posed or not. Each plugin, and
+the world model, is kept going by loader.Restarting: an error loses that frame's result for it
+(counted), one failing frame after frame is restarted with back-off, and one that cannot be kept
+going ends the role with exit status 1 so that its supervisor (or systemd) restarts it. The asyncio
 main thread owns the bus: BodyState into the pose history, Health (plugin status and errors,
 dropped and refused frames) at 2 Hz, the ``perception`` liveliness token, signals.
 """
@@ -28,6 +29,8 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
+
+import numpy as np
 
 from climbd.daemon.algorithms.pose_history import PoseHistory, PoseRefused, Refusal
 from climbd.daemon.algorithms.world import Unfusable, Unfused, WorldModel, world_config
@@ -58,6 +61,50 @@ restart in a row; one failing right after its third restart ends the role."""
 GAVE_UP = 1
 """Exit status when a plugin cannot be kept going: the supervisor or systemd restarts the role
 (2, a setup to fix, would stop the supervisor)."""
+
+
+def preview_stride(width: int, height: int, max_points: int) -> int:
+    """The smallest integer stride at which every stride-th pixel of every stride-th row of a
+    ``width`` × ``height`` image is at most ``max_points`` pixels."""
+    step = max(1, math.ceil(math.sqrt(width * height / max(1, max_points))))
+    while math.ceil(width / step) * math.ceil(height / step) > max_points:
+        step += 1
+    return step
+
+
+def depth_preview(frame: DepthFrame, camera: str, max_points: int) -> m.DepthPreview | None:
+    """``frame`` decimated by an integer stride (``preview_stride``, keeping its aspect) to at
+    most ``max_points`` pixels, with the decimated image's intrinsics, for a viewer; None for a
+    frame that is not raw uint16 depth of its intrinsics' size or whose depth scale or
+    intrinsics are not usable (the world model counts those). Copies a few thousand pixels:
+    cheap enough for the worker thread on every preview."""
+    k = frame.intrinsics
+    depth = frame.depth
+    if not isinstance(depth, np.ndarray) or depth.dtype != np.uint16 or depth.ndim != 2:
+        return None
+    if depth.shape != (k.height, k.width) or k.width < 1 or k.height < 1:
+        return None
+    scale = float(frame.depth_scale)
+    if not (math.isfinite(scale) and scale > 0):
+        return None
+    if not all(math.isfinite(v) for v in (k.fx, k.fy, k.ppx, k.ppy)) or k.fx <= 0 or k.fy <= 0:
+        return None
+    step = preview_stride(k.width, k.height, max_points)
+    small = depth[::step, ::step]
+    return m.DepthPreview(
+        stamp=time.monotonic(),
+        camera=camera,
+        frame_stamp=float(frame.timestamp),
+        width=small.shape[1],
+        height=small.shape[0],
+        stride=step,
+        depth_scale=scale,
+        fx=k.fx / step,
+        fy=k.fy / step,
+        cx=k.ppx / step,
+        cy=k.ppy / step,
+        depth=small.astype("<u2").tobytes(),
+    )
 
 
 Feed = tuple[type[m.Message], Callable[[Any], None]]
@@ -126,6 +173,9 @@ class PerceptionRole:
         config = world_config(profile)
         self.world = Restarting("world", lambda: WorldModel(config), self.plugin_failed, policy)
         self._next_map = -math.inf
+        self._next_preview = -math.inf
+        self.preview = (config.preview_period, config.preview_points)
+        """Seconds between depth previews (0: none) and their most pixels (``[world]``)."""
         self._stop = threading.Event()
 
     def _work(
@@ -141,6 +191,22 @@ class PerceptionRole:
             frame = capture.latest(timeout=0.2)
             if frame is not None:
                 self.perceive(frame, plugins, publish)
+                self._publish_preview(frame, publish)
+
+    def _publish_preview(self, frame: DepthFrame, publish: Callable[[m.Message], None]) -> None:
+        """Publish the frame decimated for viewers (``DepthPreview``) if a preview period has
+        passed since the last, on frame stamps as the maps; after the frame's features and
+        maps, and whether or not it had a pose (the preview is in the camera's own frame)."""
+        period, points = self.preview
+        stamp = frame.timestamp
+        if not period > 0 or not (
+            stamp >= self._next_preview or stamp < self._next_preview - 2 * period
+        ):
+            return
+        self._next_preview = stamp + period
+        preview = depth_preview(frame, self.camera_name, points)
+        if preview is not None:
+            publish(preview)
 
     def perceive(
         self,

@@ -30,7 +30,9 @@ target. Perception's graspable points (``GraspablePoints``, body frame at their 
 pose) as small spheres in ``odom`` on ``/grasp``.
 
 Depth (``PointCloud``): a depth image deprojected in its camera's optical frame, decimated on
-a pixel grid to a number of points, at a set rate.
+a pixel grid to a number of points, at a set rate: a perception role's ``DepthPreview``
+(``state/depth``, a real robot's or the twin's camera) with the intrinsics it carries, or the
+twin's ``DepthImage`` (``sim/depth``) with the profile camera's nominal ones.
 
 JSON, for an operator to read or plot: ``/mode`` and ``/health`` as the robot sends them,
 ``/loop`` the control role's loop statistics as a flat message (``Loop``: a Plot panel plots
@@ -58,6 +60,7 @@ from climbd.daemon.contract.messages import (
     TERRAIN_LAYERS,
     BodyState,
     DepthImage,
+    DepthPreview,
     ElevationGrid,
     FootTargets,
     GraspablePoints,
@@ -591,7 +594,7 @@ CLOUD_FIELDS = [
 
 
 def depth_cloud(
-    image: DepthImage, intrinsics: Intrinsics, max_points: int, now: int
+    image: DepthImage | DepthPreview, intrinsics: Intrinsics, max_points: int, now: int
 ) -> fg.PointCloud | None:
     """A depth image as a point cloud in its camera's optical frame (x right, y down, z
     forward), decimated on a pixel grid coarse enough to keep at most ``max_points`` pixels
@@ -621,6 +624,15 @@ def depth_cloud(
         fields=CLOUD_FIELDS,
         data=points.tobytes(),
     )
+
+
+def preview_intrinsics(preview: DepthPreview) -> Intrinsics:
+    """The pinhole intrinsics a depth preview carries (of its decimated image); ValueError
+    for ones no point can be deprojected with."""
+    fx, fy, cx, cy = preview.fx, preview.fy, preview.cx, preview.cy
+    if not all(math.isfinite(v) for v in (fx, fy, cx, cy)) or fx <= 0 or fy <= 0:
+        raise ValueError(f"intrinsics fx {fx} fy {fy} cx {cx} cy {cy}")
+    return Intrinsics(preview.width, preview.height, fx, fy, cx, cy)
 
 
 # --- JSON channels --------------------------------------------------------------------------
@@ -764,8 +776,8 @@ OPTIONAL_TOPICS: dict[str, type] = {
     **{topic: fg.SceneUpdate for topic in TRUTH.values()},
 }
 """Topics drawn only in some runs (the world model's terrain once it has one, the gait's plan
-while a gait steps, graspable points of a
-climber's perception, the twin's ``sim/depth`` and ``sim/truth`` in a ``--sim`` run, a twin
+while a gait steps, graspable points of a climber's perception, depth from a perception role's
+``state/depth`` or the twin's ``sim/depth``, the twin's ``sim/truth`` in a ``--sim`` run, a twin
 world's truth given to the view): a view advertises each, and a recording declares it, when its
 first message is drawn."""
 
@@ -810,8 +822,12 @@ class SceneStream:
     while foot targets come (cleared when the robot leaves ACTIVE); maps, mode, e-stop, health
     and loop statistics on arrival; graspable points at most once per ``grasp_period``; the
     twin's truth on arrival of ``sim/truth``, or, given as ``truth``, with the geometry until
-    a ``sim/truth`` arrives. A message that cannot be drawn is left out and ``refused`` is told
-    once per topic, so one odd message never stops the scene.
+    a ``sim/truth`` arrives; with ``clouds`` (by default: when given ``intrinsics``), each
+    camera's depth at most once per ``cloud_period`` and of ``cloud_points`` at most, from a
+    ``DepthPreview`` with its own intrinsics or a ``DepthImage`` with ``intrinsics``' (the
+    twin's full frame; once one is heard, that camera's previews are not drawn). A
+    message that cannot be drawn is left out and ``refused`` is told once per topic, so one
+    odd message never stops the scene.
     """
 
     def __init__(
@@ -825,14 +841,19 @@ class SceneStream:
         cloud_points: int = 20_000,
         truth: Sequence[Message] = (),
         grasp_period: float = 0.5,
+        clouds: bool | None = None,
     ) -> None:
         self.truth = [msg for msg in truth if type(msg) in TRUTH]
         self.robot = robot
         self.intrinsics = intrinsics
+        self.clouds = intrinsics is not None if clouds is None else clouds
         self.cloud_period = cloud_period
         self.cloud_points = cloud_points
         self.grasp_period = grasp_period
         self._cloud_at: dict[str, float] = {}
+        self._full: set[str] = set()
+        """Cameras heard as a twin's DepthImage of a known size: their previews (the same
+        frames, fewer pixels) are not drawn."""
         self._grasp_at = -math.inf
         self.refused = refused
         self.tf_period = tf_period
@@ -886,7 +907,14 @@ class SceneStream:
                 self._truth_heard = True
                 self.truth = truth_maps(msg)
                 out += self._draw_truth(now_ns)
-            elif kind is DepthImage and self.intrinsics is not None:
+            elif kind in (DepthImage, DepthPreview) and self.clouds:
+                if kind is DepthImage:
+                    if self.intrinsics is None:
+                        continue
+                    if self.intrinsics(msg.camera, msg.width, msg.height) is not None:
+                        self._full.add(msg.camera)
+                elif msg.camera in self._full:
+                    continue  # the twin's full frame of this camera is drawn instead
                 if now - self._cloud_at.get(msg.camera, -math.inf) < self.cloud_period:
                     continue
                 self._cloud_at[msg.camera] = now
@@ -928,8 +956,11 @@ class SceneStream:
                 out.append((TRUTH[type(msg)], drawn))
         return out
 
-    def _cloud(self, image: DepthImage, now_ns: int) -> fg.PointCloud:
-        intrinsics = self.intrinsics(image.camera, image.width, image.height)
+    def _cloud(self, image: DepthImage | DepthPreview, now_ns: int) -> fg.PointCloud:
+        if isinstance(image, DepthPreview):
+            intrinsics = preview_intrinsics(image)
+        else:
+            intrinsics = self.intrinsics(image.camera, image.width, image.height)
         if intrinsics is None:
             raise ValueError(f"no camera {image.camera!r} of {image.width}x{image.height}")
         cloud = depth_cloud(image, intrinsics, self.cloud_points, now_ns)
