@@ -13,8 +13,11 @@
 the baseline. - Campaign: runs tests/test_campaign.py and tabulates fault × robot → outcome.
 
 ``--write`` replaces the ``## bench/soak.py`` section of BENCHMARKS.md with this run's tables.
+- E-stop drills (both soaks, ``--estop-every`` s): ``climbd estop`` engages the walking
+  daemon's e-stop as a separate process; counted (engaged, confirmed, seen, lost) and timed
+  (launch → the soak's ModeState ESTOP); then reset by the session holder and walked on.
 Usage: ``python bench/soak.py [--minutes 5] [--sample 30] [--twin [--perception] [--window 300]]
-[--fuzz 10000] [--campaign] [--write]``
+[--estop-every 60] [--fuzz 10000] [--campaign] [--write]``
 """
 
 from __future__ import annotations
@@ -62,8 +65,182 @@ def daemon(endpoint: str, *extra: str) -> subprocess.Popen:
     )
 
 
-def soak(minutes: float, sample: float) -> tuple[list[str], dict]:
+ESTOP_LOST_AFTER = 2.0
+"""Seconds within which the soak must see ModeState ESTOP once ``climbd estop`` has exited 0
+(it waits that long for its own confirmation, so a drill it confirmed is lost only when the
+soak's subscriber does not hear what the CLI heard); a drill's launch → seen latency includes
+the CLI's start-up (~1 s of imports and a Zenoh session), so is reported, and its share
+within ESTOP_LOST_AFTER of the launch beside it."""
+
+
+class EstopDrills:
+    """E-stop drills on a walking daemon, as an operator does them: every ``every`` seconds
+    ``climbd estop --robot widowx --connect <endpoint>`` engages the e-stop as a separate
+    process (confirmed by the robot's ModeState, exit 0); the soak's own subscriber times
+    launch → ModeState ESTOP; then the e-stop is reset by the session holder, the soak's teleop
+    client (``TeleopClient.reset``), or, when it holds no session (the twin's --activate
+    autonomy), by ``climbd estop --reset``, which claims, resets and releases. A drill is lost
+    when the CLI exits non-zero or the soak does not see ESTOP within ESTOP_LOST_AFTER of the
+    CLI's exit. A drill waits for the robot to be ACTIVE (at most ``every`` more seconds)."""
+
+    def __init__(self, bus, endpoint: str, every: float) -> None:
+        from climbd.daemon.contract.messages import ModeState
+
+        self.endpoint = endpoint
+        self.every = every
+        self.next_at = time.monotonic() + every
+        self.engaged = self.confirmed = self.seen = self.lost = 0
+        self.resets: dict[str, int] = {}
+        self.latencies: list[float] = []
+        self.failures: list[str] = []
+        self.cli_seconds: list[float] = []
+        self.cli_confirmed: list[float] = []
+        self.skipped = 0
+        self._launched: float | None = None
+        self._seen_at: float | None = None
+        self._event = threading.Event()
+        bus.subscribe(ModeState, self._on_mode)
+
+    def _on_mode(self, state) -> None:
+        """The first ModeState ESTOP after a launch (on Zenoh's thread)."""
+        if state.mode.value == "ESTOP" and self._launched is not None and self._seen_at is None:
+            self._seen_at = time.monotonic()
+            self._event.set()
+
+    def _cli(self, *extra: str, timeout: float = 30.0) -> subprocess.CompletedProcess:
+        argv = [sys.executable, "-m", "climbd.daemon.cli", "estop", "--robot", "widowx"]
+        argv += ["--connect", self.endpoint, *extra]
+        try:
+            return subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired as e:
+            return subprocess.CompletedProcess(argv, -9, e.stdout or "", f"timed out: {e}")
+
+    def due(self, state) -> bool:
+        """Whether a drill is due, ``state`` the latest ModeState: one waits for ACTIVE up to
+        ``every`` seconds; a robot still latched (a failed reset) is not drilled (skipped)."""
+        now = time.monotonic()
+        if now < self.next_at:
+            return False
+        mode = state.mode.value if state is not None else ""
+        if mode in ("ESTOP", "FAULT"):
+            self.skipped += 1
+            self.next_at = now + 5.0
+            return False
+        return mode == "ACTIVE" or now >= self.next_at + self.every
+
+    def drill(self, client, at: float) -> None:
+        """Engage, time it, count it, reset it (``client``: the soak's TeleopClient)."""
+        from climbd.daemon.cli.confirm import Unconfirmed
+
+        self.engaged += 1
+        n = self.engaged
+        self._seen_at, self._event = None, threading.Event()
+        self._launched = launched = time.monotonic()
+        done = self._cli("--reason", f"soak drill {n}")
+        exited = time.monotonic()
+        self.cli_seconds.append(exited - launched)
+        ok = done.returncode == 0
+        self.confirmed += ok
+        if ok and "confirmed in " in done.stdout:
+            with contextlib.suppress(ValueError):
+                self.cli_confirmed.append(float(done.stdout.split("confirmed in ")[1].split()[0]))
+        self._event.wait(max(0.0, exited + ESTOP_LOST_AFTER - time.monotonic()))
+        seen_at, self._launched = self._seen_at, None
+        if seen_at is not None:
+            self.seen += 1
+            self.latencies.append(seen_at - launched)
+        in_time = seen_at is not None and seen_at <= exited + ESTOP_LOST_AFTER
+        if not (ok and in_time):
+            self.lost += 1
+            why = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
+            seen = f"seen after {seen_at - launched:.2f} s" if seen_at else "never seen"
+            self.failures.append(
+                f"drill {n} at {at:.0f} s: CLI exit {done.returncode} ({why[0]}), ESTOP {seen}"
+            )
+        if client.claimed:  # the session holder resets, as the operator at the keyboard does
+            client.claim()  # again: a session lost to late heartbeats would refuse the reset
+            try:
+                client.reset()
+                self.resets["session holder"] = self.resets.get("session holder", 0) + 1
+            except Unconfirmed as e:
+                key = f"failed: {failure_key(e)}"
+                self.resets[key] = self.resets.get(key, 0) + 1
+        else:
+            out = self._cli("--reset", "--reason", f"soak drill {n}")
+            key = "estop --reset" if out.returncode == 0 else f"failed: {out.stderr.strip()}"
+            self.resets[key] = self.resets.get(key, 0) + 1
+        self.next_at = time.monotonic() + self.every
+
+    def notes(self) -> list[str]:
+        """The drill's lines below a table."""
+        import numpy as np
+
+        if not self.engaged:
+            return ["E-stop drills: none (the run was shorter than --estop-every)."]
+        lat = np.array(self.latencies) * 1e3
+        stats = (
+            f"p50 {np.percentile(lat, 50):.0f} ms, p99 {np.percentile(lat, 99):.0f} ms, "
+            f"max {lat.max():.0f} ms"
+            if len(lat)
+            else "n/a"
+        )
+        fast = sum(t <= ESTOP_LOST_AFTER for t in self.latencies)
+        own = (
+            f"{np.median(self.cli_confirmed) * 1e3:.0f} ms / {max(self.cli_confirmed) * 1e3:.0f} ms"
+            if self.cli_confirmed
+            else "n/a"
+        )
+        return [
+            f"E-stop drills (`climbd estop --robot widowx --connect <endpoint>` as a separate "
+            f"process every {self.every:g} s, once ACTIVE): {self.engaged} engaged, "
+            f"{self.confirmed} confirmed by the CLI (exit 0), {self.seen} seen by the soak's "
+            f"subscriber, **{self.lost} lost** (goal 0: {'met' if self.lost == 0 else 'NOT met'}; "
+            f"lost: CLI exit ≠ 0 or ESTOP not seen within {ESTOP_LOST_AFTER:g} s of its exit). "
+            f"Launch → ModeState ESTOP seen by the soak: {stats}, {fast} of {len(lat)} within "
+            f"{ESTOP_LOST_AFTER:g} s of the launch (the launch includes the CLI's start-up: "
+            f"its run time median {np.median(self.cli_seconds):.2f} s; its own send → confirm "
+            f"median / max {own}). Resets: {self.resets}"
+            + (f"; drills skipped, robot still latched: {self.skipped}" if self.skipped else "")
+            + "."
+            + (f" Lost: {'; '.join(self.failures[:5])}." if self.failures else "")
+        ]
+
+
+MEMORY_GOAL = 1.05
+"""Issue #33: resident memory at the end of a soak over that at its start, per process."""
+
+
+def memory_note(ratios: dict[str, float]) -> str:
+    """The memory line: end/start RSS per process against MEMORY_GOAL."""
+    cells = ", ".join(
+        f"{k} {v:.3f} ({'met' if v <= MEMORY_GOAL else 'NOT met'})" for k, v in ratios.items()
+    )
+    return f"Memory end/start (RSS, per process; goal ≤ {MEMORY_GOAL:g}): {cells or 'n/a'}."
+
+
+def failure_key(e: Exception) -> str:
+    """An Unconfirmed reset as counted: its kind and message, numbers and ids blanked."""
+    import re
+
+    text = re.sub(r"[0-9a-f]{32}", "<session>", str(e))
+    return f"{type(e).__name__}: {re.sub(r'[0-9.]+ ms', 'N ms', text)[:100]}"
+
+
+def reason_key(reason: str) -> str:
+    """A mode's reason as counted: a drill's e-stop and a reset by one session or another are
+    one key each, not one per CLI process or session id."""
+    if reason.startswith("e-stop by ") and "soak drill" in reason:
+        return "e-stop drill"
+    if reason.startswith("reset by "):
+        return "reset by <session>"
+    if reason.startswith("joint state older than "):
+        return reason.split(":")[0]  # the joints and their ages differ every time
+    return reason
+
+
+def soak(minutes: float, sample: float, estop_every: float = 0.0) -> tuple[list[str], dict]:
     """Run the walking and idle daemons; a markdown table and a summary of the run."""
+    from climbd.daemon.cli.confirm import Unconfirmed
     from climbd.daemon.cli.teleop import TeleopClient
     from climbd.daemon.contract.messages import Health, Mode
     from climbd.daemon.runtime.network import Endpoints, Network, zenoh_config
@@ -86,17 +263,35 @@ def soak(minutes: float, sample: float) -> tuple[list[str], dict]:
     time.sleep(4.0)  # both stood up (2 s stand)
     operator = TeleopClient(buses[0], "soak", heartbeat_hz=20.0, rate_hz=10.0)
     operator.start()
+    drills = EstopDrills(buses[0], eps["walk"], estop_every) if estop_every > 0 else None
     rows, holds, active, polls = [], {}, 0, 0
     start = next_sample = time.monotonic()
     try:
         while time.monotonic() - start < seconds:
             state = operator.mode
-            if state is None or state.mode != Mode.ACTIVE:
-                if state is not None and state.mode == Mode.HOLD and polls:
-                    holds[state.reason] = holds.get(state.reason, 0) + 1
+            if drills is not None and operator.claimed and drills.due(state):
+                drills.drill(operator, time.monotonic() - start)
+                state = operator.mode
+            if state is not None and state.mode in (Mode.ESTOP, Mode.FAULT):
+                key = f"{state.mode.value}: {reason_key(state.reason)}"
+                holds[key] = holds.get(key, 0) + 1
+                operator.claim()  # again: a session lost to late heartbeats refuses the reset
+                try:
+                    operator.reset()
+                except Unconfirmed as e:  # refused or late: retried at the next poll
+                    key = f"reset failed: {failure_key(e)}"
+                    holds[key] = holds.get(key, 0) + 1
+            elif state is not None and state.mode == Mode.STAND:
+                pass  # standing up (after an e-stop reset to OFF): HOLD follows, then ACTIVE
+            elif state is None or state.mode != Mode.ACTIVE:
+                if state is not None and state.mode in (Mode.HOLD, Mode.OFF) and polls:
+                    key = reason_key(state.reason)
+                    key = key if state.mode == Mode.HOLD else f"OFF: {key}"
+                    holds[key] = holds.get(key, 0) + 1
                 operator.claim()  # a session lost with a late heartbeat is claimed again
                 time.sleep(0.1)
-                operator.request(Mode.ACTIVE)
+                off = state is not None and state.mode == Mode.OFF  # reset with torque off
+                operator.request(Mode.STAND if off else Mode.ACTIVE)
                 operator.set_motion(vx=0.05)
             else:
                 active += 1
@@ -140,10 +335,12 @@ def soak(minutes: float, sample: float) -> tuple[list[str], dict]:
     summary = {
         "growth_walk": last[2] - first[2],
         "growth_idle": last[3] - first[3],
+        "memory": {"walking": last[2] / first[2], "idle": last[3] / first[3]},
         "span": last[0] - first[0],
         "active": 100 * active / max(1, polls),
         "holds": holds,
         "codes": codes,
+        "drills": drills.notes() if drills is not None else [],
     }
     return table, summary
 
@@ -242,6 +439,7 @@ class SoakOperator:
         self.client = client
         self.motion = motion
         self.recoveries: dict[str, int] = {}
+        self.reset_failures: dict[str, int] = {}
         self._seen = -1.0
 
     def poll(self, recorder: TwinRecorder) -> None:
@@ -255,11 +453,17 @@ class SoakOperator:
             return
         if since != self._seen:
             self._seen = since
-            key = f"{mode} ({reason})"
+            key = f"{mode} ({reason_key(reason)})"
             self.recoveries[key] = self.recoveries.get(key, 0) + 1
         if mode in (Mode.FAULT.value, Mode.ESTOP.value):
-            with contextlib.suppress(Unconfirmed):  # refused or late: the next poll retries
+            # claimed (again) first, as `climbd estop --reset` does: a session lost meanwhile
+            # (late heartbeats expire it, silently in FAULT) would have every reset refused
+            self.client.claim()
+            try:
                 self.client.reset()
+            except Unconfirmed as e:  # refused or late: the next poll retries
+                key = failure_key(e)
+                self.reset_failures[key] = self.reset_failures.get(key, 0) + 1
             return
         self.client.claim()  # a session lost to a late heartbeat is claimed again
         time.sleep(0.1)
@@ -267,7 +471,9 @@ class SoakOperator:
         self.client.set_motion(**self.motion)
 
 
-def twin_soak(minutes: float, window: float, perception: bool) -> tuple[list[str], dict]:
+def twin_soak(
+    minutes: float, window: float, perception: bool, estop_every: float = 0.0
+) -> tuple[list[str], dict]:
     """Walk the WidowX in the real-time twin for ``minutes``; a table per ``window`` seconds."""
     from climbd.daemon.cli.teleop import TeleopClient
 
@@ -294,9 +500,12 @@ def twin_soak(minutes: float, window: float, perception: bool) -> tuple[list[str
         client.start()
         stack.callback(client.close)
         operator = SoakOperator(client, motion)
+        drills = EstopDrills(bus, endpoint, estop_every) if estop_every > 0 else None
         time.sleep(3.0)  # the twin drops the robot onto the floor
         start = next_rss = time.monotonic()
         while time.monotonic() - start < minutes * 60 and proc.poll() is None:
+            if drills is not None and drills.due(client.mode):
+                drills.drill(client, time.monotonic() - start)
             operator.poll(recorder)
             if time.monotonic() >= next_rss:
                 next_rss += 5.0
@@ -308,9 +517,15 @@ def twin_soak(minutes: float, window: float, perception: bool) -> tuple[list[str
     log = (tmp / "climbd.log").read_text()
     sim_line = next((ln for ln in log.splitlines() if ln.startswith("sim: ")), "no sim summary")
     rows = _twin_windows(recorder, rss, start, window)
+    warm = [m for t, m in rss if t < start + window] or [m for _, m in rss[:1]]
     summary = {
+        "memory": {r: rss[-1][1][r] / warm[-1][r] for r in warm[-1] if r in rss[-1][1]}
+        if rss
+        else {},
+        "drills": drills.notes() if drills is not None else [],
         "code": code,
         "recoveries": operator.recoveries or "none",
+        "reset_failures": operator.reset_failures or "none",
         "restarts": {r: len(p) - 1 for r, p in pids.items()},
         "modes": [(round(t - start), m, r) for t, m, r in recorder.modes],
         "sim": sim_line,
@@ -409,74 +624,110 @@ def twin_notes(s: dict) -> list[str]:
         f"Mode changes (s from the start): {changes}{f', … {more} more' if more > 0 else ''}.",
         f"Operator recoveries (state left → count): {s['recoveries']}; role restarts: "
         f"{s['restarts']}; exit code {s['code']}; tracebacks in the daemon's log: "
-        f"{len(s['tracebacks'])} {sorted(set(s['tracebacks']))}.",
+        f"{len(s['tracebacks'])} {sorted(set(s['tracebacks']))}; resets not confirmed: "
+        f"{s['reset_failures']}.",
         f"Twin: {s['sim']}",
+        memory_note(s["memory"]) + " Start: the end of the first window (after warm-up).",
+        *s["drills"],
     ]
 
 
 def fuzz(n: int) -> list[str]:
-    """``n`` inputs per decoder and for the profile parser; throughput beside msgspec's own."""
+    """``n`` inputs per decoder (msgpack on the bus, JSON in recordings), for the profile parser
+    and for the point cloud reader; throughput beside msgspec's own untyped decode."""
     import msgspec
-    from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
-    from support.fuzzing import check_profile, check_profile_text, edited_profile, profile_edits
+    from support.fuzzing import (
+        check_cloud,
+        check_decoder,
+        check_json_decoder,
+        check_profile,
+        check_profile_bytes,
+        check_profile_text,
+        cloud_files,
+        edited_profile,
+        json_payloads,
+        payloads,
+        profile_bytes,
+        profile_edits,
+    )
 
+    from climbd.daemon.cli.record import from_json
     from climbd.daemon.contract.messages import ALL_MESSAGES, decode
 
-    cfg = settings(
-        max_examples=n, deadline=None, database=None, suppress_health_check=list(HealthCheck)
-    )
     rows = [
         "| target | inputs | failures | ours µs/input | msgspec untyped µs/input | ratio |",
         "|---|---|---|---|---|---|",
     ]
     for message in ALL_MESSAGES:
-        seen = _fuzz_decoder(message, cfg)
-        ours = _per_input(seen, lambda p, message=message: decode(p, message))
-        base = _per_input(seen, msgspec.msgpack.decode)
-        rows.append(
-            f"| {message.__name__} decoder | {len(seen)} | 0 | {ours:.2f} | {base:.2f} | "
-            f"{ours / base:.2f} |"
-        )
-    count = [0]
-
-    @cfg
-    @given(profile_edits)
-    def profiles(edits) -> None:
-        count[0] += 1
-        check_profile(edited_profile(edits))
-
-    profiles()
-    rows.append(f"| profile parser (edited stock profile) | {count[0]} | 0 | | | |")
-    count[0] = 0
+        for what, strategy, check, ours_fn, base_fn in (
+            ("decoder", payloads(message), check_decoder, decode, None),
+            ("JSON decoder (recordings)", json_payloads(message), check_json_decoder, from_json, 1),
+        ):
+            seen, failed = _fuzz_target(n, strategy, lambda p, m=message, c=check: c(m, p))
+            ours = _per_input(seen, lambda p, m=message, f=ours_fn: f(p, m))
+            base = _per_input(seen, msgspec.json.decode if base_fn else msgspec.msgpack.decode)
+            rows.append(
+                f"| {message.__name__} {what} | {len(seen)} | {failed} | {ours:.2f} | "
+                f"{base:.2f} | {ours / base:.2f} |"
+            )
+    seen, failed = _fuzz_target(n, profile_edits, lambda e: check_profile(edited_profile(e)))
+    rows.append(f"| profile parser (edited stock profile) | {len(seen)} | {failed} | | | |")
     with tempfile.TemporaryDirectory() as d:
-
-        @cfg
-        @given(st.text(max_size=400))
-        def texts(text: str) -> None:
-            count[0] += 1
-            check_profile_text(Path(d) / "fuzz.toml", text)
-
-        texts()
-    rows.append(f"| profile parser (any file text) | {count[0]} | 0 | | | |")
+        tmp = Path(d)
+        for what, strategy, check in (
+            ("any file text", st.text(max_size=400), check_profile_text),
+            ("file bytes: non-UTF-8, cut, BOMs", profile_bytes, check_profile_bytes),
+        ):
+            seen, failed = _fuzz_target(n, strategy, lambda x, c=check: c(tmp / "fuzz.toml", x))
+            rows.append(f"| profile parser ({what}) | {len(seen)} | {failed} | | | |")
+        seen, failed = _fuzz_target(n, cloud_files, lambda f: check_cloud(tmp, *f))
+        rows.append(
+            f"| point cloud reader (.pcd/.ply/.npy cut, mutated, lying headers, non-UTF-8) "
+            f"| {len(seen)} | {failed} | | | |"
+        )
     return rows
 
 
-def _fuzz_decoder(message, cfg) -> list[bytes]:
-    """Run the decoder property on ``message``; the inputs hypothesis generated."""
-    from hypothesis import given
-    from support.fuzzing import check_decoder, payloads
+def _fuzz_target(n: int, strategy, check) -> tuple[list, str]:
+    """Run ``check`` on ``n`` inputs of ``strategy``: the inputs generated, and the failures
+    ("0", or how many, with the first one's exception and where in climbd it was raised).
+    A failure is counted, not raised, so every target gets its ``n`` inputs."""
+    from hypothesis import HealthCheck, given, settings
 
-    seen: list[bytes] = []
+    cfg = settings(
+        max_examples=n, deadline=None, database=None, suppress_health_check=list(HealthCheck)
+    )
+    seen: list = []
+    failures: list[BaseException] = []
 
     @cfg
-    @given(payloads(message))
-    def run(payload: bytes) -> None:
-        seen.append(payload)
-        check_decoder(message, payload)
+    @given(strategy)
+    def run(value) -> None:
+        seen.append(value)
+        try:
+            check(value)
+        except Exception as e:  # noqa: BLE001 - a failure is tabulated, not raised
+            failures.append(e)
 
     run()
-    return seen
+    if not failures:
+        return seen, "0"
+    kinds: dict[str, int] = {}
+    for e in failures:
+        kinds[type(e).__name__] = kinds.get(type(e).__name__, 0) + 1
+    e = failures[0]
+    where = next((f" in {f.name} ({Path(f.filename).name}:{f.lineno})" for f in _frames(e)), "")
+    counts = ", ".join(f"{k} ×{v}" for k, v in kinds.items())
+    return seen, f"**{len(failures)}** ({counts}; first{where}: {str(e)[:80]})"
+
+
+def _frames(e: BaseException) -> list:
+    """The traceback's frames of climbd's own code, innermost first."""
+    import traceback
+
+    frames = traceback.extract_tb(e.__traceback__)
+    return [f for f in reversed(frames) if "/daemon/" in f.filename]
 
 
 def _per_input(inputs: list[bytes], fn) -> float:
@@ -580,6 +831,12 @@ def main() -> int:
         "--perception", action="store_true", help="twin soak: the perception role too"
     )
     parser.add_argument("--window", type=float, default=300.0, help="twin soak: table window (s)")
+    parser.add_argument(
+        "--estop-every",
+        type=float,
+        default=60.0,
+        help="soaks: seconds between e-stop drills with `climbd estop` (0: none)",
+    )
     parser.add_argument("--fuzz", type=int, default=10_000, help="inputs per target (0: none)")
     parser.add_argument("--campaign", action="store_true", help="run the fault campaign")
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
@@ -600,7 +857,11 @@ def main() -> int:
                 "",
                 f"Command: {run}. Baseline: msgspec's untyped decode of the same inputs. "
                 "A failure is any exception other than the ones the bus catches "
-                "(decoders) or ProfileError (profiles).",
+                "(msgpack decoders), the recording reader catches (JSON decoders: "
+                "msgspec.DecodeError/ValidationError), ProfileError (profiles) or "
+                "CloudFileError (point clouds). Inputs are bytes as well as text: "
+                "invalid UTF-8, truncated payloads, huge declared lengths, deep nesting "
+                "(tests/support/fuzzing.py).",
                 "",
                 *rows,
             ]
@@ -608,14 +869,14 @@ def main() -> int:
         print(parts[title], flush=True)
     if args.minutes and args.twin:
         title = twin_title(args)
-        table, s = twin_soak(args.minutes, args.window, args.perception)
+        table, s = twin_soak(args.minutes, args.window, args.perception, args.estop_every)
         parts[title] = "\n".join(
             [f"### {title}", "", twin_intro(run, args), "", *table, "", *twin_notes(s)]
         )
         print(parts[title], flush=True)
     elif args.minutes:
         title = f"Soak ({args.minutes:g} min, WidowX, fake joint bus, tripod at 0.05 m/s)"
-        table, s = soak(args.minutes, args.sample)
+        table, s = soak(args.minutes, args.sample, args.estop_every)
         parts[title] = "\n".join(
             [
                 f"### {title}",
@@ -629,6 +890,8 @@ def main() -> int:
                 f"{s['growth_walk']:+.1f} MiB, idle baseline {s['growth_idle']:+.1f} MiB; "
                 f"ACTIVE {s['active']:.1f} % of the time; HOLDs re-activated by the operator: "
                 f"{s['holds'] or 'none'}; exit codes {s['codes']}.",
+                memory_note(s["memory"]) + " Start: the first sample (after warm-up).",
+                *s["drills"],
             ]
         )
         print(parts[title], flush=True)

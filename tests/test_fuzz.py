@@ -1,4 +1,5 @@
-"""Fuzzing of every message decoder and of the profile parser (a few hundred inputs each here;
+"""Fuzzing of every message decoder (the bus's msgpack and the recordings' JSON), the profile
+parser and the point-cloud readers, with text and raw bytes (a few hundred inputs each here;
 ``bench/soak.py --fuzz 10000`` runs ten thousand each)."""
 
 from __future__ import annotations
@@ -10,11 +11,17 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from support.fuzzing import (
+    check_cloud,
     check_decoder,
+    check_json_decoder,
     check_profile,
+    check_profile_bytes,
     check_profile_text,
+    cloud_files,
     edited_profile,
+    json_payloads,
     payloads,
+    profile_bytes,
 )
 from support.fuzzing import profile_edits as edits_strategy
 
@@ -31,6 +38,30 @@ def test_decoder_returns_the_type_or_an_error_the_bus_catches(message) -> None:
         check_decoder(message, payload)
 
     run()
+
+
+@pytest.mark.parametrize("message", ALL_MESSAGES, ids=lambda t: t.__name__)
+def test_recorded_json_decodes_to_the_type_or_a_decode_error(message) -> None:
+    @settings(FAST, max_examples=40)
+    @given(json_payloads(message))
+    def run(payload: bytes) -> None:
+        check_json_decoder(message, payload)
+
+    run()
+
+
+@FAST
+@given(profile_bytes)
+def test_any_profile_bytes_load_or_are_a_profile_error(data: bytes) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        check_profile_bytes(Path(d) / "fuzz.toml", data)
+
+
+@FAST
+@given(cloud_files)
+def test_any_cloud_file_reads_or_is_a_named_error(case: tuple[str, bytes]) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        check_cloud(Path(d), *case)
 
 
 @FAST

@@ -160,8 +160,12 @@ def restore_nan(value, info):
 
 
 def from_json(data: bytes, message: type):
-    """Decode one recorded JSON payload as ``message`` (NaN restored, schema checked)."""
-    obj = msgspec.json.decode(data)
+    """Decode one recorded JSON payload as ``message`` (NaN restored, schema checked); JSON
+    nested past Python's recursion limit is a DecodeError like any other malformed payload."""
+    try:
+        obj = msgspec.json.decode(data)
+    except RecursionError:
+        raise msgspec.DecodeError("JSON nested too deeply") from None
     return msgspec.convert(restore_nan(obj, msgspec.inspect.type_info(message)), message)
 
 
