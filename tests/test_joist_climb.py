@@ -86,11 +86,13 @@ def run(joists: list[JoistSpec], goal: float | None, seconds: float = 120.0, **c
         ground = world_feet(b.pose, height, feet)
         knee = world_feet(b.pose, height, knees(kin, feet))
         femur = world_feet(b.pose, height, kin.mount.copy())
-        links = [femur + (knee - femur) * a for a in np.linspace(0, 1, 6)]
-        links += [knee + (ground - knee) * a for a in np.linspace(0, 1, 8)]
+        links = np.concatenate(
+            [femur + (knee - femur) * a for a in np.linspace(0, 1, 6)]
+            + [knee + (ground - knee) * a for a in np.linspace(0, 1, 8)]
+        )
         for spec in joists:
             out.foot_clearance = min(out.foot_clearance, joist_distance(spec, ground).min())
-            out.clearance = min(out.clearance, min(joist_distance(spec, p).min() for p in links))
+            out.clearance = min(out.clearance, joist_distance(spec, links).min())
         down = stance | (feet[:, 2] <= -height + 0.01)
         if not down.all():
             margin = support_margin(ground[down, :2][None], b.pose[None, :2])[0]
