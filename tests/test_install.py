@@ -55,6 +55,7 @@ def test_units_are_rendered_for_this_machine(tmp_path: Path) -> None:
     assert "--role perception" in perception
     rules = (tmp_path / "udev" / "99-climbd.rules").read_text()
     assert 'ATTR{latency_timer}="1"' in rules and 'SYMLINK+="dynamixel"' in rules
+    assert "first start creates them" in res.stdout and f"~ being {tmp_path}" in res.stdout
 
 
 def execstart(unit: str) -> list[str]:

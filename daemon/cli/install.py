@@ -134,6 +134,13 @@ def main(args: argparse.Namespace) -> int:
         )
         return 1
     units = " ".join(name.removesuffix(".service") for name in files if name.endswith(".service"))
+    auth = profile.network.auth
+    if auth is not None and auth.create_certificates:
+        print(
+            "certificates: the control role's first start creates them where the profile's "
+            f"network.auth names them ({auth.tls_root_ca}, ~ being {args.workdir}, the home of "
+            f"{args.user}); its journal says how operators get theirs (docs/access.md)"
+        )
     print(
         "next:\n"
         f"  useradd --system --home {args.workdir} --create-home "
