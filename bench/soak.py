@@ -632,9 +632,10 @@ def twin_notes(s: dict) -> list[str]:
     ]
 
 
-def fuzz(n: int) -> list[str]:
+def fuzz(n: int, only: list[str] | None = None) -> list[str]:
     """``n`` inputs per decoder (msgpack on the bus, JSON in recordings), for the profile parser
-    and for the point cloud reader; throughput beside msgspec's own untyped decode."""
+    and for the point cloud reader; throughput beside msgspec's own untyped decode. ``only``
+    (message names) fuzzes those messages' decoders alone, e.g. to re-check one after a fix."""
     import msgspec
     from hypothesis import strategies as st
     from support.fuzzing import (
@@ -660,6 +661,8 @@ def fuzz(n: int) -> list[str]:
         "|---|---|---|---|---|---|",
     ]
     for message in ALL_MESSAGES:
+        if only and message.__name__ not in only:
+            continue
         for what, strategy, check, ours_fn, base_fn in (
             ("decoder", payloads(message), check_decoder, decode, None),
             ("JSON decoder (recordings)", json_payloads(message), check_json_decoder, from_json, 1),
@@ -671,6 +674,8 @@ def fuzz(n: int) -> list[str]:
                 f"| {message.__name__} {what} | {len(seen)} | {failed} | {ours:.2f} | "
                 f"{base:.2f} | {ours / base:.2f} |"
             )
+    if only:
+        return rows
     seen, failed = _fuzz_target(n, profile_edits, lambda e: check_profile(edited_profile(e)))
     rows.append(f"| profile parser (edited stock profile) | {len(seen)} | {failed} | | | |")
     with tempfile.TemporaryDirectory() as d:
@@ -838,6 +843,9 @@ def main() -> int:
         help="soaks: seconds between e-stop drills with `climbd estop` (0: none)",
     )
     parser.add_argument("--fuzz", type=int, default=10_000, help="inputs per target (0: none)")
+    parser.add_argument(
+        "--fuzz-only", action="append", metavar="MESSAGE", help="fuzz only these decoders"
+    )
     parser.add_argument("--campaign", action="store_true", help="run the fault campaign")
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
     args = parser.parse_args()
@@ -850,7 +858,7 @@ def main() -> int:
         print(parts[title], flush=True)
     if args.fuzz:
         title = f"Fuzzing ({args.fuzz} inputs per target)"
-        rows = fuzz(args.fuzz)
+        rows = fuzz(args.fuzz, args.fuzz_only)
         parts[title] = "\n".join(
             [
                 f"### {title}",

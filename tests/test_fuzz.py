@@ -7,6 +7,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
+import msgspec
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -25,7 +26,7 @@ from support.fuzzing import (
 )
 from support.fuzzing import profile_edits as edits_strategy
 
-from climbd.daemon.contract.messages import ALL_MESSAGES
+from climbd.daemon.contract.messages import ALL_MESSAGES, decode
 
 FAST = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -38,6 +39,34 @@ def test_decoder_returns_the_type_or_an_error_the_bus_catches(message) -> None:
         check_decoder(message, payload)
 
     run()
+
+
+def into_struct(message: type) -> bytes | None:
+    """The msgpack head of a payload of ``message`` down to a nested struct (a field that is
+    one, may be one, or is a list of them), where a value is expected; None without one."""
+    for f in msgspec.inspect.type_info(message).fields:
+        kinds = f.type.types if isinstance(f.type, msgspec.inspect.UnionType) else (f.type,)
+        for kind in kinds:
+            head = b"\x81" + msgspec.msgpack.encode(f.encode_name)
+            if isinstance(kind, msgspec.inspect.StructType):
+                return head
+            if isinstance(kind, msgspec.inspect.ListType) and isinstance(
+                kind.item_type, msgspec.inspect.StructType
+            ):
+                return head + b"\x91"
+    return None
+
+
+NESTING = [t for t in ALL_MESSAGES if into_struct(t) is not None]
+
+
+@pytest.mark.parametrize("message", NESTING, ids=lambda t: t.__name__)
+def test_a_deeply_nested_unknown_key_is_a_decode_error(message) -> None:
+    """msgspec recurses to skip an unknown key's value inside a nested struct: 20,000 nested
+    maps raised RecursionError past the bus (bench/soak.py's 10,000-input fuzz of Health)."""
+    payload = into_struct(message) + b"\x81\xa1k" * 20_000 + b"\xc0"
+    with pytest.raises((msgspec.DecodeError, msgspec.ValidationError)):  # the bus's refusals
+        decode(payload, message)
 
 
 @pytest.mark.parametrize("message", ALL_MESSAGES, ids=lambda t: t.__name__)

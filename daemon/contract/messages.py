@@ -748,8 +748,10 @@ _decoders: dict[type, msgspec.msgpack.Decoder] = {}
 def decode(payload: bytes, message: type[Message]) -> Message:
     """Decode ``message``; raises msgspec.DecodeError/ValidationError or SchemaMismatch.
 
-    msgspec raises UnicodeDecodeError for a map key that is not UTF-8; it becomes a DecodeError
-    here so every garbage payload is refused the same way (found by tests/test_fuzz.py).
+    msgspec raises UnicodeDecodeError for a map key that is not UTF-8, and RecursionError for
+    a value under an unknown key nested past the recursion limit (skipping it recurses); both
+    become a DecodeError here so every garbage payload is refused the same way (found by
+    tests/test_fuzz.py and bench/soak.py's fuzz).
     """
     decoder = _decoders.get(message)
     if decoder is None:
@@ -758,6 +760,8 @@ def decode(payload: bytes, message: type[Message]) -> Message:
         value = decoder.decode(payload)
     except UnicodeDecodeError as e:
         raise msgspec.DecodeError(f"{message.__name__}: invalid UTF-8 in a string: {e}") from None
+    except RecursionError:
+        raise msgspec.DecodeError(f"{message.__name__}: nested too deeply") from None
     if value.schema != SCHEMA_VERSION:
         raise SchemaMismatch(
             f"{message.__name__}: schema {value.schema}, this climbd speaks {SCHEMA_VERSION}"
