@@ -137,8 +137,7 @@ def check_exposure(profile: Profile, where: str, listen: list[str]) -> None:
 def plain_loopback(listen: list[str], connect: list[str]) -> bool:
     """Endpoints that are all loopback and none TLS: only this computer reaches them."""
     endpoints = listen + connect
-    secure = [e for e in endpoints if e.split("/", 1)[0] in SECURE_PROTOCOLS]
-    return bool(endpoints) and not secure and all(is_loopback(e) for e in endpoints)
+    return bool(endpoints) and all(not _secure(e) and is_loopback(e) for e in endpoints)
 
 
 def check_network(profile: Profile) -> None:
@@ -153,12 +152,17 @@ def check_network(profile: Profile) -> None:
         certificate_dir(profile)
 
 
+def _secure(endpoint: str) -> bool:
+    """Whether ``endpoint``'s protocol encrypts and authenticates (TLS)."""
+    return endpoint.split("/", 1)[0] in SECURE_PROTOCOLS
+
+
 def _uses_tls(auth: AuthConfig) -> bool:
     return bool(auth.tls_certificate or auth.tls_private_key or auth.tls_root_ca)
 
 
 def _check_secure(profile: Profile, role: str, endpoints: list[str]) -> None:
-    plain = [e for e in endpoints if e.split("/", 1)[0] not in SECURE_PROTOCOLS]
+    plain = [e for e in endpoints if not _secure(e)]
     if plain:
         raise AccessError(
             f"{profile.source}: network.roles.{role}: endpoints {plain} are not tls/ or quic/ "
