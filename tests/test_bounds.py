@@ -95,6 +95,7 @@ def widowx_with(tmp_path: Path, old: str, new: str) -> Path:
         ("lower = -1.8000", "lower = -inf", "limits: expected finite lower < upper"),
         ("fps = 30", "fps = 100000", "$.cameras[0].fps: expected 1..300 frames/s"),
         ("width = 640", "width = 100000", "$.cameras[0].width: expected 16..1280 pixels"),
+        ("foot_radius = 0.01004", "foot_radius = 0.0", "$.foot_radius: expected 0.001..0.1 m"),
     ],
 )
 def test_a_profile_value_out_of_bounds_is_refused_with_its_path(tmp_path, old, new, fragment):

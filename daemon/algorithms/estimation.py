@@ -214,6 +214,25 @@ def foot_link_rotations(kin: Kinematics, q: np.ndarray) -> list[Rows]:
     return links
 
 
+def roll_feet(
+    anchors: np.ndarray,
+    legs: Sequence[int],
+    rot: np.ndarray,
+    links: list[Rows],
+    previous: list[Rows],
+    radius: float,
+) -> None:
+    """Move the anchors (odometry frame) of stance feet ``legs`` rolling on a rounded foot of
+    ``radius``: rolling without slip moves the centre, which FK gives, by r·(dθ × up), dθ the
+    foot link's turn from ``previous`` to ``links`` (body frame), turned by ``rot`` into the
+    world. Over a stride the foot pitches back by its angle of travel, and the centre with it."""
+    r = rot.tolist()
+    for leg in legs:
+        turn = log_so3([[dot(a, b) for b in previous[leg]] for a in links[leg]]).tolist()
+        anchors[leg, 0] += radius * dot(r[1], turn)
+        anchors[leg, 1] -= radius * dot(r[0], turn)
+
+
 class SupportTorques:
     """Gravity feed-forward: eq. 5 inverted, tau = J^T F - sum_i J_i^T m_i g, with each stance
     foot pushing down (world frame) with its share of the robot's weight (share by ``load``).
@@ -401,18 +420,6 @@ class StateEstimator:
         """Global positions of feet that just took the load, from the current estimate."""
         self.anchors[legs] = self.pos + feet[legs] @ self.rot.T
 
-    def _roll(self, legs: np.ndarray, links: list[Rows]) -> None:
-        """Move the anchors of rolling stance feet: the centre moves by dθ × (r·up), dθ the
-        foot link's turn since the last step (body frame, R·log(L Lprevᵀ) in the world)."""
-        r = self.config.foot_radius
-        rot = self.rot.tolist()
-        for leg in legs.tolist():
-            new, old = links[leg], self._links[leg]
-            turn = log_so3([[dot(a, b) for b in old] for a in new]).tolist()
-            x, y = dot(rot[0], turn), dot(rot[1], turn)
-            self.anchors[leg, 0] += r * y
-            self.anchors[leg, 1] -= r * x
-
     def _footing(
         self, stance: np.ndarray, feet: np.ndarray, forces: list[Vector]
     ) -> tuple[list[int], list[int]]:
@@ -473,7 +480,9 @@ class StateEstimator:
         if self.config.foot_radius > 0.0:
             links = foot_link_rotations(self.kin, q)
             if self.stance_group >= 0:
-                self._roll(self._members[self.stance_group], links)
+                legs_down = self._members[self.stance_group].tolist()
+                r = self.config.foot_radius
+                roll_feet(self.anchors, legs_down, self.rot, links, self._links, r)
             self._links = links
         support = [-dot(f, up) for f in forces]
         support = [0.0 if math.isnan(s) else s for s in support]

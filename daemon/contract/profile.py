@@ -49,6 +49,8 @@ STAND_TOLERANCE = (0.001, 0.5)
 STATE_AGE = (0.001, 1.0)
 """Seconds a joint's state may age before it is a fault: beyond a second a leg moves blind."""
 
+FOOT_RADIUS = (0.001, 0.1)
+"""m: a foot's rounded tip, from a 1 mm point to a 10 cm ball."""
 CAMERA_FPS = (1, 300)
 """Frames per second of a depth camera's stream."""
 
@@ -287,6 +289,10 @@ class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     mass: float
     rate_hz: float
     legs: list[Leg]
+    foot_radius: float | None = None
+    """m: radius of the feet's rounded tips. A stance foot rolls on it and its centre, which FK
+    gives, travels with the body; the odometry follows the roll. Unset: a point foot to the
+    odometry; the twin then makes the feet 4 % of a leg's span."""
     bus: JointBusConfig = msgspec.field(default_factory=JointBusConfig)
     cameras: list[CameraConfig] = []
     safety: SafetyConfig = msgspec.field(default_factory=SafetyConfig)
@@ -455,6 +461,8 @@ def validate(profile: Profile) -> Profile:
             f"expected 0..90 degrees, found {tilt}",
         )
     _check_range(profile.bus.max_state_age, STATE_AGE, src, "$.bus.max_state_age", "s")
+    if profile.foot_radius is not None:
+        _check_range(profile.foot_radius, FOOT_RADIUS, src, "$.foot_radius", "m")
     _check(
         profile.bus.health_rate_hz > 0,
         src,

@@ -167,7 +167,9 @@ class Controller:
         self._alignment: AlignedFeature | None = None
         self.body = BodyState()
         self.estimator = estimator
-        self.odometry = LegOdometry(self.kinematics) if estimator is None else None
+        self.odometry = (
+            LegOdometry(self.kinematics, profile.foot_radius or 0.0) if estimator is None else None
+        )
         self.stance = np.ones(len(profile.legs), bool)
         self._stance_changed = False
         self._odometry_every = max(1, round(profile.rate_hz / ODOMETRY_RATE_HZ))
@@ -528,7 +530,7 @@ class Controller:
         try:
             if mode == Mode.ACTIVE:
                 world = self._world(t)
-                stale = [k for k in self.gait.plugin.needs if k not in world]
+                stale = self.missing(world)
                 if stale:
                     self.safety.hold(t, f"{self.gait.name} needs {', '.join(stale)}: stale")
                     return motion.joint_step(q)
@@ -595,6 +597,14 @@ class Controller:
         if timed is None or t - timed.at > self.profile.safety.command_timeout:
             return None
         return timed.message
+
+    def missing(self, world: dict[str, Message]) -> list[str]:
+        """The gait's needed features that ``world`` (``_world``'s fresh ones) lacks."""
+        return [k for k in self.gait.plugin.needs if k not in world] if self.gait else []
+
+    def awaiting(self, t: float) -> list[str]:
+        """The gait's needed features not fresh at ``t``: ACTIVE would hold on them at once."""
+        return self.missing(self._world(t))
 
     def _world(self, t: float) -> dict[str, Message]:
         """Features younger than the profile's limit; older ones count as absent."""

@@ -227,7 +227,7 @@ class ControlRole:
         if not args.no_stand:
             safety.request(m.Mode.STAND, clock.now(), reason="start-up")
         sdnotify.notify("READY=1")
-        await self._supervise(stop, loop, safety, sdnotify.watchdog_period())
+        await self._supervise(stop, loop, safety, controller, sdnotify.watchdog_period())
         if sim is not None:
             sim.end_of_run()
         await self._safe_stop(controller, safety, loop, clock)
@@ -254,16 +254,21 @@ class ControlRole:
         if profile.bus.kind != "torque":
             return None, (sim.imu() if sim is not None else None)
         if sim is None:
-            return StateEstimator(profile, EstimatorConfig()), None
+            config = EstimatorConfig(foot_radius=profile.foot_radius or 0.0)
+            return StateEstimator(profile, config), None
         config, pos, quat = sim.estimator_start()
         return StateEstimator(profile, config, pos, quat), sim.imu()
 
-    async def _supervise(self, stop: asyncio.Event, loop, safety, watchdog: float | None) -> None:
-        """Print statistics, ping the watchdog while ticks advance, await stop; modes are logged."""
+    async def _supervise(
+        self, stop: asyncio.Event, loop, safety, controller, watchdog: float | None
+    ) -> None:
+        """Print statistics, ping the watchdog while ticks advance, await stop; modes are logged.
+        ``--activate`` activates once the stand is complete and the gait's features are fresh
+        (perception may start after the stand: activated before, the gait would hold at once)."""
         aio = asyncio.get_running_loop()
         clock = self.clock
         end = clock.now() + self.args.duration if self.args.duration else None
-        activate = self.args.activate
+        activate, waiting = self.args.activate, False
         last_ticks, last_stats, last_ping = -1, aio.time(), aio.time()
         while not stop.is_set():
             now = aio.time()
@@ -280,8 +285,13 @@ class ControlRole:
                     flush=True,
                 )
             if activate and safety.mode == m.Mode.HOLD and safety.reason == "stand complete":
-                activate = False
-                safety.request(m.Mode.ACTIVE, clock.now(), reason="autonomy (--activate)")
+                awaited = controller.awaiting(clock.now())
+                if not awaited:
+                    activate = False
+                    safety.request(m.Mode.ACTIVE, clock.now(), reason="autonomy (--activate)")
+                elif not waiting:
+                    waiting = True
+                    log.info("--activate: standing until %s arrive", ", ".join(awaited))
             if end is not None and clock.now() >= end:
                 break
             with contextlib.suppress(asyncio.TimeoutError):

@@ -285,7 +285,8 @@ def _add_robot(
     hz = 0.15 * max(half)
     masses = _link_masses(profile, motors, torque)
     span = max(sum(leg.links) for leg in profile.legs)
-    r_link, r_foot = 0.045 * span, 0.04 * span
+    r_link = 0.045 * span
+    r_foot = 0.04 * span if profile.foot_radius is None else profile.foot_radius
     base = ET.SubElement(worldbody, "body", name="base", pos="0 0 1")
     ET.SubElement(base, "freejoint", name="base")
     ET.SubElement(
