@@ -50,6 +50,11 @@ class Walk:
     """m: the standard deviation of the horizontal position the odometry published at the end
     of the walk (from its covariance's diagonal)."""
     sigma_yaw_deg: float
+    slide: float = 0.0
+    """m: how far the stance moved over the ground (the twin's foot centres): the mean
+    displacement of the feet the gait had down and touching at two samples CHUNK apart, summed
+    over the walk as a vector. Leg odometry assumes it is nil; it cannot see what all stance
+    feet do together."""
 
     @property
     def distance(self) -> float:
@@ -85,8 +90,11 @@ def _relative(twin: Twin, start: tuple[np.ndarray, float]) -> tuple[np.ndarray, 
     return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]]), yaw(quat) - h0
 
 
-def dynamixel_walk(robot: str, gait: str, vx: float, seconds: float) -> Walk:
-    """``robot`` walks ``gait`` at ``vx`` for ``seconds`` through DynamixelBus on the twin."""
+def dynamixel_walk(
+    robot: str, gait: str, vx: float, seconds: float, config: dict | None = None
+) -> Walk:
+    """``robot`` walks ``gait`` (its ``config``) at ``vx`` for ``seconds`` through
+    DynamixelBus on the twin."""
     profile = profiles.load(ROOT / "robots" / f"{robot}.toml")
     world = World(name="flat", floor=Floor(size=12.0), gravity=GRAVITY.get(robot, EARTH))
     twin = Twin(profile, world, stepped=True, bus=True)
@@ -98,7 +106,7 @@ def dynamixel_walk(robot: str, gait: str, vx: float, seconds: float) -> Walk:
     try:
         twin.driver_sent = lambda: bus.sent
         clock = SteppedClock(on_advance=lambda t0, t1: twin.advance_to(t1))
-        plugin = instantiate("climbd.gaits", gait, {}, profile, f"walk {gait}")
+        plugin = instantiate("climbd.gaits", gait, config or {}, profile, f"walk {gait}")
         stack = control_stack(
             profile, bus, clock, plugin, imu=SimpleNamespace(read=twin.imu_sample)
         )
@@ -148,9 +156,16 @@ def _walk(
     teleop()
     assert safety.request(Mode.ACTIVE, clock.now(), SESSION), safety.reason
     end = clock.now() + seconds
+    slide = np.zeros(2)
+    feet, down = twin.foot_positions(), np.zeros(len(controller.stance), bool)
     while clock.now() < end and safety.mode == Mode.ACTIVE:
         loop.run(max_ticks=loop.ticks + round(CHUNK * rate))
         teleop()
+        now, held = twin.foot_positions(), twin.foot_contacts() & np.asarray(controller.stance)
+        both = held & down
+        if both.any():
+            slide += (now[both, :2] - feet[both, :2]).mean(axis=0)
+        feet, down = now, held
     assert safety.mode == Mode.ACTIVE, safety.reason
     true_xy, true_yaw = _relative(twin, start)
     body = controller.body
@@ -169,4 +184,5 @@ def _walk(
         commanded=vx * seconds,
         sigma_xy=math.sqrt(var[0] + var[1]),
         sigma_yaw_deg=math.degrees(math.sqrt(var[5])),
+        slide=float(np.linalg.norm(slide)),
     )
