@@ -13,11 +13,6 @@ With an IMU (optional), the rotation is the gyro's integral, its tilt pulled tow
 accelerometer's gravity direction while the body is still and its heading pulled slowly toward
 the stance feet's: a complementary filter, so feet that slip or land late no longer turn the
 estimate (1-2 deg over a joist crossing without it) and the position is fitted on that rotation.
-
-A rounded foot rolls as its leg sweeps through stance, and its centre (what FK gives) travels
-with the body by the foot's radius times the link's turn: 4.4 % of the distance for HubRobo's
-crawl in the twin (bench/odometry.py), all stance feet together, so no slip test sees it. The
-anchors of registered feet roll with them (``roll_feet``, as paper 004's estimator does).
 Pure: arrays in, BodyState out.
 """
 
@@ -29,12 +24,9 @@ import numpy as np
 
 from climbd.daemon.algorithms.estimation import (
     EstimationError,
-    Rows,
     exp_so3,
-    foot_link_rotations,
     log_so3,
     quaternion,
-    roll_feet,
     stance_pose,
 )
 from climbd.daemon.algorithms.kinematics import Kinematics
@@ -81,13 +73,9 @@ TILT_SIGMA = math.radians(1.0)
 class LegOdometry:
     """Dead reckoning of the body in the odometry frame (origin: the start pose)."""
 
-    def __init__(
-        self, kinematics: Kinematics, foot_radius: float = 0.0, heading_time: float = HEADING_TIME
-    ) -> None:
+    def __init__(self, kinematics: Kinematics, heading_time: float = HEADING_TIME) -> None:
         self.kinematics = kinematics
-        self.foot_radius = foot_radius
         self.heading_time = heading_time
-        self._links: list[Rows] = []
         self.attitude: np.ndarray | None = None
         """The IMU's rotation (body to odometry frame), once a gyro sample has come."""
         self.gyro_bias = np.zeros(3)
@@ -191,12 +179,6 @@ class LegOdometry:
         dt = t - self._last[0] if self._last is not None else 0.0
         if gyro is not None:
             self._turn(gyro, accel, dt)
-        if self.foot_radius > 0.0:
-            links = foot_link_rotations(self.kinematics, q)
-            if self._links:
-                down = np.flatnonzero(~np.isnan(self.anchor[:, 0])).tolist()
-                roll_feet(self.anchor, down, self.rot, links, self._links, self.foot_radius)
-            self._links = links
         legs_rot = self._legs_rot
         self._stance_since[stance & ~self._stance] = t
         self._stance = stance.copy()

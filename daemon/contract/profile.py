@@ -291,8 +291,8 @@ class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     legs: list[Leg]
     foot_radius: float | None = None
     """m: radius of the feet's rounded tips. A stance foot rolls on it and its centre, which FK
-    gives, travels with the body; the odometry follows the roll. Unset: a point foot to the
-    odometry; the twin then makes the feet 4 % of a leg's span."""
+    gives, travels with the body; the torque robots' estimator follows the roll. Unset: a point
+    foot to the estimator; the twin then makes the feet 4 % of a leg's span."""
     bus: JointBusConfig = msgspec.field(default_factory=JointBusConfig)
     cameras: list[CameraConfig] = []
     safety: SafetyConfig = msgspec.field(default_factory=SafetyConfig)

@@ -51,10 +51,10 @@ class Walk:
     of the walk (from its covariance's diagonal)."""
     sigma_yaw_deg: float
     slide: float = 0.0
-    """m: how far the stance moved over the ground (the twin's foot centres): the mean
-    displacement of the feet the gait had down and touching at two samples CHUNK apart, summed
-    over the walk as a vector. Leg odometry assumes it is nil; it cannot see what all stance
-    feet do together."""
+    """m: how far the stance moved over the ground (the twin's foot centres): the median
+    displacement of the feet the gait had down and touching at two samples CHUNK apart (a foot
+    still settling after touchdown is one of three or more), summed over the walk as a vector.
+    Leg odometry assumes it is nil; it cannot see what the stance feet do together."""
 
     @property
     def distance(self) -> float:
@@ -164,7 +164,7 @@ def _walk(
         now, held = twin.foot_positions(), twin.foot_contacts() & np.asarray(controller.stance)
         both = held & down
         if both.any():
-            slide += (now[both, :2] - feet[both, :2]).mean(axis=0)
+            slide += np.median(now[both, :2] - feet[both, :2], axis=0)
         feet, down = now, held
     assert safety.mode == Mode.ACTIVE, safety.reason
     true_xy, true_yaw = _relative(twin, start)
