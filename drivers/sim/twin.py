@@ -692,6 +692,12 @@ class Twin:
         with self.lock:
             return self.data.site_xpos[self.robot.foot_sites].copy()
 
+    def foot_orientations(self) -> np.ndarray:
+        """Foot balls' rotations (world frame, 3×3 each), one per leg: with the centres, how far
+        a foot rolled and how far it slid."""
+        with self.lock:
+            return self.data.geom_xmat[self.robot.foot_geoms].reshape(-1, 3, 3).copy()
+
     def foot_contacts(self) -> np.ndarray:
         """Whether each foot touches the world now."""
         feet = self.robot.foot_geoms

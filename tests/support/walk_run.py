@@ -16,6 +16,7 @@ from types import SimpleNamespace
 import numpy as np
 from conftest import ROOT
 
+from climbd.daemon.algorithms.estimation import log_so3
 from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.geometry import yaw
@@ -51,10 +52,10 @@ class Walk:
     of the walk (from its covariance's diagonal)."""
     sigma_yaw_deg: float
     slide: float = 0.0
-    """m: how far the stance moved over the ground (the twin's foot centres): the median
-    displacement of the feet the gait had down and touching at two samples CHUNK apart (a foot
-    still settling after touchdown is one of three or more), summed over the walk as a vector.
-    Leg odometry assumes it is nil; it cannot see what the stance feet do together."""
+    """m: how far the stance slid over the ground in truth: per pair of samples CHUNK apart,
+    the median over the feet the gait had down and touching at both of each foot ball's slip
+    (its centre's displacement less the roll r·(dθ × up)), summed over the walk as a vector.
+    Leg odometry assumes it is nil; what the stance feet do together it cannot see."""
 
     @property
     def distance(self) -> float:
@@ -131,6 +132,13 @@ def qingzhui_walk(vx: float, seconds: float) -> Walk:
         rig.close()
 
 
+def _slip(moved: np.ndarray, turn: np.ndarray, twin: Twin) -> np.ndarray:
+    """How far (x, y) a foot ball slid: its centre moved ``moved`` while it turned by ``turn``
+    (world frame); rolling without slip moves the centre by r·(dθ × up)."""
+    wx, wy, _ = log_so3(turn)
+    return moved[:2] - twin.robot.foot_radius * np.array([wy, -wx])
+
+
 def _walk(
     robot: str, twin: Twin, stack, clock: SteppedClock, rate: float, vx: float, seconds: float
 ) -> Walk:
@@ -157,15 +165,18 @@ def _walk(
     assert safety.request(Mode.ACTIVE, clock.now(), SESSION), safety.reason
     end = clock.now() + seconds
     slide = np.zeros(2)
-    feet, down = twin.foot_positions(), np.zeros(len(controller.stance), bool)
+    feet, turns = twin.foot_positions(), twin.foot_orientations()
+    down = np.zeros(len(feet), bool)
     while clock.now() < end and safety.mode == Mode.ACTIVE:
         loop.run(max_ticks=loop.ticks + round(CHUNK * rate))
         teleop()
         now, held = twin.foot_positions(), twin.foot_contacts() & np.asarray(controller.stance)
-        both = held & down
-        if both.any():
-            slide += np.median(now[both, :2] - feet[both, :2], axis=0)
-        feet, down = now, held
+        now_turns = twin.foot_orientations()
+        both = np.flatnonzero(held & down)
+        if both.size:
+            slips = [_slip(now[k] - feet[k], now_turns[k] @ turns[k].T, twin) for k in both]
+            slide += np.median(slips, axis=0)
+        feet, turns, down = now, now_turns, held
     assert safety.mode == Mode.ACTIVE, safety.reason
     true_xy, true_yaw = _relative(twin, start)
     body = controller.body
