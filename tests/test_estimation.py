@@ -4,6 +4,8 @@ IMU fusion (filter 1) and ICP drift correction (filter 2)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from conftest import ROOT
@@ -16,6 +18,7 @@ from climbd.daemon.algorithms.estimation import (
     SupportTorques,
     exp_so3,
     log_so3,
+    roll_feet,
     stance_pose,
     tripod_groups,
 )
@@ -327,3 +330,18 @@ def test_a_tripod_the_gait_lifted_does_not_take_the_stance() -> None:
     assert np.linalg.norm(track, axis=1).max() < 0.001
     unscheduled, _ = _stand(EstimatorConfig(), 300, load)
     assert unscheduled.switches == 3
+
+
+@pytest.mark.parametrize("body_yaw", [0.0, math.pi / 2])
+def test_a_ball_foot_rolls_its_radius_times_its_turn(body_yaw: float) -> None:
+    """A wheel of radius r turned by dθ about a horizontal axis advances r·dθ at right angles to
+    it (its top leads); turned about the vertical it spins in place. Foot 0 pitches 0.1 rad about
+    the body's y axis, foot 1 yaws 0.3 rad; the body is yawed by ``body_yaw``."""
+    r, pitch = 0.012, 0.1
+    anchors = np.zeros((2, 3))
+    previous = [tuple(map(tuple, np.eye(3)))] * 2
+    links = [tuple(map(tuple, exp_so3([0.0, pitch, 0.0]))), tuple(map(tuple, exp_so3([0, 0, 0.3])))]
+    body = exp_so3([0.0, 0.0, body_yaw])
+    roll_feet(anchors, [0, 1], body, links, previous, r)
+    assert np.allclose(anchors[0], r * pitch * body[:, 0], atol=1e-12)
+    assert np.allclose(anchors[1], 0.0, atol=1e-12)

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from climbd.daemon.algorithms.estimation import roll_feet
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.odometry import HEADING_DRIFT, POSITION_DRIFT, LegOdometry
 from climbd.daemon.contract import profile as profiles
@@ -62,26 +61,6 @@ def test_too_few_stance_feet_keep_the_last_pose(robots) -> None:
     odo.update(q, np.ones(6, bool), 0.0)
     body = odo.update(q, np.array([1, 1, 0, 0, 0, 0], bool), 0.01)
     assert np.allclose(body.position, 0.0, atol=1e-12)
-
-
-def rot_y(pitch: float) -> np.ndarray:
-    c, s = math.cos(pitch), math.sin(pitch)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-@pytest.mark.parametrize("body_yaw", [0.0, math.pi / 2])
-def test_a_ball_foot_rolls_its_radius_times_its_turn(body_yaw: float) -> None:
-    """A wheel of radius r turned by dθ about a horizontal axis advances r·dθ at right angles to
-    it (its top leads); turned about the vertical it spins in place. Foot 0 pitches 0.1 rad about
-    the body's y axis, foot 1 yaws 0.3 rad; the body is yawed by ``body_yaw``."""
-    r, pitch = 0.012, 0.1
-    anchors = np.zeros((2, 3))
-    previous = [tuple(map(tuple, np.eye(3)))] * 2
-    links = [tuple(map(tuple, rot_y(pitch))), tuple(map(tuple, rot_z(0.3)))]
-    roll_feet(anchors, [0, 1], rot_z(body_yaw), links, previous, r)
-    ahead = rot_z(body_yaw) @ np.array([1.0, 0.0, 0.0])
-    assert np.allclose(anchors[0], r * pitch * ahead, atol=1e-12)
-    assert np.allclose(anchors[1], 0.0, atol=1e-12)
 
 
 def test_a_lagging_foot_is_registered_where_it_lands(robots) -> None:

@@ -51,6 +51,7 @@ STATE_AGE = (0.001, 1.0)
 
 FOOT_RADIUS = (0.001, 0.1)
 """m: a foot's rounded tip, from a 1 mm point to a 10 cm ball."""
+
 CAMERA_FPS = (1, 300)
 """Frames per second of a depth camera's stream."""
 
