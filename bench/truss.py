@@ -10,8 +10,11 @@ merged cloud (the scaffold keeps its whole cloud). On the same points, in the sa
 Prints time per scene (median of ``--repeat``; wall and the process's CPU time, which a
 loaded shared machine inflates less), the peer/ours time ratio, the load average around the
 run, and the paper's metrics; writes a figure like the paper's Figs. 9-11 to bench/out/truss.png.
+``--gap-rule paper absolute`` models each scene once per rule of step 7 (the paper's relative
+(G_max / G_min) * ε, ε from ``--gap-epsilon``; ours, an absolute gap), on the same points.
 
     .venv/bin/python bench/truss.py [--repeat 5] [--peer-iterations 300] [--no-scaffold]
+        [--gap-rule paper absolute] [--gap-epsilon 1e-5]
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import pyransac3d
 
 from climbd.drivers.sim import truss_scene as ts
 from climbd.plugins.perception.truss import TrussConfig, TrussModeller
+from climbd.plugins.perception.truss.completion import GapRule
 from climbd.plugins.perception.truss.evaluate import Accuracy, evaluate
 
 POINTS = 100_000
@@ -147,6 +151,14 @@ def figure(results: list, path: Path) -> None:
     fig.savefig(path, dpi=80)
 
 
+def modellers(rules: list[GapRule], epsilon: float, seed: int) -> dict[GapRule, TrussModeller]:
+    """One modeller per gap rule of step 7, otherwise configured alike."""
+    return {
+        rule: TrussModeller(TrussConfig(seed=seed, gap_rule=rule, gap_epsilon=epsilon))
+        for rule in rules
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5, help="timed runs of ours per scene")
@@ -158,10 +170,23 @@ def main() -> None:
         action="store_true",
         help="skip the 18-member scaffold (pyransac3d takes minutes on its 507k points)",
     )
+    parser.add_argument(
+        "--gap-rule",
+        nargs="+",
+        choices=["absolute", "paper"],
+        default=["absolute"],
+        help="step 7's gap rule(s) to model with, each on the same points",
+    )
+    parser.add_argument(
+        "--gap-epsilon",
+        type=float,
+        default=TrussConfig().gap_epsilon,
+        help="the paper rule's ε (m)",
+    )
     args = parser.parse_args()
 
     rng = np.random.default_rng(args.seed)
-    modeller = TrussModeller(TrussConfig(seed=args.seed))
+    by_rule = modellers(args.gap_rule, args.gap_epsilon, args.seed)
     lines = [
         "| truss | method | ms/scene | CPU ms/scene | found | false | length err % "
         "| length err mm | midpoint err mm | axis err deg |",
@@ -175,23 +200,28 @@ def main() -> None:
             cloud = cloud[rng.choice(len(cloud), points, replace=False)]
         name = f"{name}, {len(cloud) // 1000}k points"
         truth = [(t.p0, t.p1, t.radius) for t in scene.members]
-        modeller.model(cloud)  # warm-up
         count = len(truth)
-        ours_s, ours_cpu, model = timed(lambda cloud=cloud: modeller.model(cloud), args.repeat)
         peer_s, peer_cpu, peer = timed(
             lambda cloud=cloud, n=count: peer_model(cloud, n, args.peer_iterations), 1
         )
-        initial = evaluate([(m.p0, m.p1) for m in model.initial], truth)
-        completed = evaluate([(m.p0, m.p1) for m in model.members], truth)
-        lines.append(row(name, "ours, RANSAC only (initial model)", None, initial, len(truth)))
-        lines.append(
-            row(name, "ours, sliding box (TEM)", (ours_s, ours_cpu), completed, len(truth))
-        )
-        lines.append(row(name, "pyransac3d", (peer_s, peer_cpu), evaluate(peer, truth), len(truth)))
-        ratios.append((name, peer_s / ours_s, peer_cpu / ours_cpu))
-        plotted.append((name, initial, completed))
+        for rule, modeller in by_rule.items():
+            modeller.model(cloud)  # warm-up
+            ours_s, ours_cpu, model = timed(lambda m=modeller, c=cloud: m.model(c), args.repeat)
+            initial = evaluate([(m.p0, m.p1) for m in model.initial], truth)
+            completed = evaluate([(m.p0, m.p1) for m in model.members], truth)
+            tag = f"gap rule: {rule}"
+            lines.append(
+                row(name, f"ours, RANSAC only (initial model, {tag})", None, initial, count)
+            )
+            lines.append(
+                row(name, f"ours, sliding box (TEM, {tag})", (ours_s, ours_cpu), completed, count)
+            )
+            ratios.append((f"{name}, {tag}", peer_s / ours_s, peer_cpu / ours_cpu))
+            if rule == args.gap_rule[0]:
+                plotted.append((name, initial, completed))
+        lines.append(row(name, "pyransac3d", (peer_s, peer_cpu), evaluate(peer, truth), count))
     print(f"load average after: {load_average()}")
-    print(f"median of {args.repeat} runs (ours), 1 run (peer)\n")
+    print(f"median of {args.repeat} runs (ours), 1 run (peer); paper ε = {args.gap_epsilon}\n")
     print("\n".join(lines))
     print()
     for name, ratio, cpu_ratio in ratios:

@@ -1,10 +1,16 @@
 """The paper's completion: sliding bounding boxes (eq. 2), projection on the axis (eq. 3), the
 gap rule for new end points (steps 1-8, Algorithm 1), and merging split pieces of one member.
+
+The gap rule of step 7 comes in two forms (``GapRule``): the paper's relative threshold
+G_j >= (G_max / G_min) * ε, and ours (the default), an absolute threshold in metres. Ours
+differs because the paper's ratio hangs on G_min, the smallest gap between two projections,
+which on a dense cloud is near zero and varies from box to box.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -47,9 +53,16 @@ def _box_coordinates(points: np.ndarray, cylinder: Cylinder) -> np.ndarray:
     return np.column_stack([w @ cylinder.axis, w @ u, w @ v])
 
 
+GapRule = Literal["paper", "absolute"]
+"""Step 7's threshold: the paper's (G_max / G_min) * ε, or ours, an absolute gap (m)."""
+
+
 def gap_reach(distances: np.ndarray, gap: float) -> tuple[float, bool]:
-    """Steps 2-7: from the end e, walk the points projected on the axis in order of their
+    """Steps 2-7, ours: from the end e, walk the points projected on the axis in order of their
     distance D_j to e; the member stops before the first gap G_j >= ``gap`` (G_0 = D_min).
+
+    An absolute threshold, not the paper's relative (G_max / G_min) * ε of step 7: a gap in
+    metres means the same in every box, whatever its smallest gap.
 
     Returns the distance from e to the new end point and whether no such gap was found.
     """
@@ -63,12 +76,43 @@ def gap_reach(distances: np.ndarray, gap: float) -> tuple[float, bool]:
     return (float(d[first - 1]) if first > 0 else 0.0), False
 
 
+def paper_gap_reach(distances: np.ndarray, epsilon: float) -> tuple[float, bool]:
+    """Steps 2-7 as the paper writes them: sort the projections P_j by D_j = |P_j, e|, take the
+    gaps G_j = |P_j, P_{j+1}| between neighbours (step 5; none between e and the first point),
+    and mark P_j as the new end e at the first G_j >= (G_max / G_min) * ε (step 7).
+
+    Algorithm 1 line 17 reads "e = G_j"; we take it as e = P_j, the point before the gap, at
+    the first such gap, as ours (neither text says which if several qualify). Only ε <= G_min
+    lets any gap qualify, and G_min = 0 (two equal projections) none. Returns the distance
+    from e to the new end point (D_max if no gap qualifies) and whether none did.
+    """
+    d = np.sort(distances)
+    gaps = np.diff(d)
+    if len(gaps) == 0 or gaps.min() == 0:
+        return (float(d[-1]) if len(d) else 0.0), True
+    big = np.flatnonzero(gaps >= gaps.max() / gaps.min() * epsilon)
+    if len(big) == 0:
+        return float(d[-1]), True
+    return float(d[big[0]]), False
+
+
+def end_reach(
+    distances: np.ndarray, *, rule: GapRule, gap: float, epsilon: float
+) -> tuple[float, bool]:
+    """Step 7 by ``rule``: the paper's relative threshold (``epsilon``) or ours (``gap``)."""
+    if rule == "paper":
+        return paper_gap_reach(distances, epsilon)
+    return gap_reach(distances, gap)
+
+
 def complete(
     segment: Segment,
     points: np.ndarray,
     *,
     slide_lambda: float,
     gap: float,
+    gap_rule: GapRule,
+    gap_epsilon: float,
     margin: float,
     max_slides: int,
 ) -> Member:
@@ -77,7 +121,8 @@ def complete(
     The box Θ spans the segment's points, padded by ``margin``; each new box Θ_new has the same
     cross-section and ``slide_lambda`` times the segment's length (eq. 2, λ ≈ 2.5), starting at
     the end it slides from. Points in Θ_new are projected on the axis (eq. 3) and the gap rule
-    places the new end; if the points run on to the far face of Θ_new, it slides again.
+    places the new end (step 7, by ``gap_rule``); if no gap stops it and the points run on to
+    within ``gap`` of the far face of Θ_new, it slides again (ours, for either rule).
     """
     cylinder = segment.cylinder
     local = _box_coordinates(points, cylinder)
@@ -93,7 +138,9 @@ def complete(
             depth = slide_lambda * length
             distances = (t_section - e) * sign
             inside = (distances > 0) & (distances <= depth)
-            reach, open_ended = gap_reach(distances[inside], gap)
+            reach, open_ended = end_reach(
+                distances[inside], rule=gap_rule, gap=gap, epsilon=gap_epsilon
+            )
             ends[sign] = e + sign * reach
             if not open_ended or depth - reach >= gap:
                 break

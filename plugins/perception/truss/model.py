@@ -9,6 +9,7 @@ final refit of each member on all its surface points.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import get_args
 
 import msgspec
 import numpy as np
@@ -16,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from climbd.plugins.perception.truss.cloud import ball_normals, voxel_downsample, voxel_normals
 from climbd.plugins.perception.truss.completion import (
+    GapRule,
     Member,
     complete,
     from_segment,
@@ -34,7 +36,11 @@ from climbd.plugins.perception.truss.planes import accept_plane, find_planes, pl
 
 class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Truss modelling parameters (m, deg). ``slide_lambda`` is the paper's λ ≈ 2.5 (eq. 2);
-    ``gap`` is the gap-rule threshold of step 7; the rest are ours, for a Kinect-2-like cloud.
+    ``gap_rule`` picks step 7's threshold: "absolute" (ours) stops at a gap of ``gap`` (m);
+    "paper" at G_j >= (G_max / G_min) * ``gap_epsilon`` (the paper's ε, whose value it does not
+    give; 1e-5 m lets the rule act in about a third of the boxes of our test scenes);
+    ``gap`` also bounds how near the far face of a box the points must run for it to slide
+    again. The rest are ours, for a Kinect-2-like cloud.
     ``linker`` is the size of the linkers members end in, for a space frame (its members end
     at the nodes); 0 for tubes that end free and run through their couplers (scaffolds).
     ``track_gate``: a member re-modelled with both ends within this of one of the last model
@@ -67,6 +73,8 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_segments: int = 64
     slide_lambda: float = 2.5
     gap: float = 0.12
+    gap_rule: GapRule = "absolute"
+    gap_epsilon: float = 1e-5
     linker: float = 0.0
     box_margin: float = 0.01
     max_slides: int = 3
@@ -89,10 +97,14 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
             raise ValueError(
                 f"truss: slide_lambda must be >= 1 (paper: about 2.5), got {self.slide_lambda}"
             )
+        if self.gap_rule not in get_args(GapRule):
+            raise ValueError(
+                f"truss: gap_rule must be one of {get_args(GapRule)}, got {self.gap_rule!r}"
+            )
         if self.linker < 0:
             raise ValueError(f"truss: linker must be >= 0 (0: members end free), got {self.linker}")
         names = ("voxel", "gap", "cylinder_distance", "plane_distance", "segment_gap")
-        for name in (*names, "track_gate", "node_radius"):
+        for name in (*names, "gap_epsilon", "track_gate", "node_radius"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"truss: {name} must be > 0, got {getattr(self, name)}")
 
@@ -228,6 +240,8 @@ class TrussModeller:
                 points,
                 slide_lambda=c.slide_lambda,
                 gap=c.gap,
+                gap_rule=c.gap_rule,
+                gap_epsilon=c.gap_epsilon,
                 margin=c.box_margin,
                 max_slides=c.max_slides,
             )
