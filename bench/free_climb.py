@@ -8,11 +8,13 @@ gives the non-periodic / periodic ratio of the base's travel up the slope (twin 
 least TSM of the grippers that held (twin truth), slips, grips that never engaged, and the
 planner's own (kinematic) travel beside the twin's, the base's mean advance per swing beside
 the room the three stance legs leave it (how far up the slope it could go with them in reach
-and TSM >= 0), how far a beam search (beam 400) that knows when the run ends gets on the same
-map (kinematic: the most a better choice of swings could reach), and the
-CPU time of the non-periodic plans (worker thread) beside that of the runner's ticks (control
-thread, which no longer plans). Figure
-(paper Figs. 7 and 8): base x and TSM over time for both gaits, every seed. Goal: ratio ≥ 2
+and TSM >= 0), the same figures for the non-periodic gait with the paper's own limb rule
+(``limb_rule = "paper"``: the limb with the most graspable options ahead, its longest feasible
+stride, §3.1-3.3) as a third gait, how far a beam search (beam 400) that knows when the run
+ends gets on the same map (kinematic: the most a better choice of swings could reach), and the
+CPU time of the non-periodic plans (worker thread; search and paper rule) beside that of the
+runner's ticks (control thread, which no longer plans). Figure (paper Figs. 7 and 8): base x
+and TSM over time for the three gaits, every seed. Goal: ratio ≥ 2 (search / periodic)
 on the mean over ≥ 5 seeds (the protocol: seeds 0-7, fixed before
 looking at results; the ratio of mean distances over all of them), TSM never below 0, no slips.
 
@@ -27,6 +29,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -79,10 +82,19 @@ class Run:
     plans: ThreadCpu
 
 
-def run(periodic: bool, seed: int, seconds: float) -> Run:
-    """Climb map ``seed`` with one gait for ``seconds`` in the twin."""
+GAITS = {"np": (False, "search"), "p": (True, "search"), "paper": (False, "paper")}
+"""The gaits compared: (periodic, limb_rule) by column label (non-periodic search, periodic
+baseline, non-periodic with the paper's own limb rule)."""
+NAMES = {"np": "non-periodic", "p": "periodic", "paper": "paper rule"}
+
+
+def run(periodic: bool, seed: int, seconds: float, limb_rule: str = "search") -> Run:
+    """Climb map ``seed`` with one gait (``limb_rule`` for the non-periodic one) for
+    ``seconds`` in the twin."""
     t0 = time.perf_counter()
     climb = SlopeClimb(periodic, seed)
+    climb.config = msgspec.structs.replace(climb.config, limb_rule=limb_rule)
+    climb.planner.config = climb.config  # before any plan: the runner shares this planner
     ticks, plans = ThreadCpu(), ThreadCpu()
     feet = climb.runner.feet.copy()
     climb.runner.tick = ticks.wrap(climb.runner.tick)
@@ -148,19 +160,17 @@ def search_reach(seed: int, swings: int, beam: int = 400) -> float:
     return best - float(start @ GOAL)
 
 
-def plot(logs: dict[bool, list[ClimbLog]], path: Path) -> None:
-    """Base x and TSM over time for both gaits (paper 001 Figs. 7 and 8)."""
+def plot(logs: dict[str, list[ClimbLog]], path: Path) -> None:
+    """Base x and TSM over time for the three gaits (paper 001 Figs. 7 and 8)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (ax_x, ax_tsm) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
-    for periodic, colour, label in (
-        (False, "tab:red", "non-periodic"),
-        (True, "tab:blue", "periodic"),
-    ):
-        for k, log in enumerate(logs[periodic]):
+    for gait, colour in (("np", "tab:red"), ("p", "tab:blue"), ("paper", "tab:green")):
+        label = NAMES[gait]
+        for k, log in enumerate(logs[gait]):
             x = np.asarray(log.x) - log.x[0]
             ax_x.plot(log.t, x, color=colour, lw=0.8, label=label if k == 0 else None)
             ax_tsm.plot(log.t, log.tsm, color=colour, lw=0.6, label=label if k == 0 else None)
@@ -175,59 +185,78 @@ def plot(logs: dict[bool, list[ClimbLog]], path: Path) -> None:
     fig.savefig(path, dpi=80)
 
 
+def triple(values: dict[str, float], fmt: str) -> str:
+    """``values`` of the three gaits as "np / p / paper" with ``fmt``."""
+    return " / ".join(format(values[g], fmt) for g in GAITS)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--seconds", type=float, default=45.0)
     parser.add_argument("--plot", type=Path, default=ROOT / "docs" / "img" / "free_climb.png")
     args = parser.parse_args()
-    logs: dict[bool, list[ClimbLog]] = {False: [], True: []}
-    swings: dict[bool, list[np.ndarray]] = {False: [], True: []}
+    logs: dict[str, list[ClimbLog]] = {g: [] for g in GAITS}
+    swings: dict[str, list[np.ndarray]] = {g: [] for g in GAITS}
     reaches: list[tuple[float, float]] = []
     print(
-        "| seed | non-periodic (m) | periodic (m) | ratio | planned np / p (m)"
-        " | base per swing np / p (cm) | room per swing np / p (cm)"
-        " | least TSM np / p (m) | slips np / p | missed grips np / p | periodic waits"
-        " | wall s np / p | search (m) | np plan CPU median / max (ms) | np tick CPU max (ms) |"
+        "| seed | non-periodic (m) | periodic (m) | paper rule (m) | ratio np / paper to p"
+        " | planned np / p / paper (m) | base per swing np / p / paper (cm)"
+        " | room per swing np / p / paper (cm) | least TSM np / p / paper (m)"
+        " | slips np / p / paper | missed grips np / p / paper | periodic waits"
+        " | wall s np / p / paper | search (m) | plan CPU median / max np, paper (ms)"
+        " | tick CPU max np / paper (ms) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     worst_plan = worst_tick = 0.0
     for seed in range(args.seeds):
-        free, per = run(False, seed, args.seconds), run(True, seed, args.seconds)
-        plan_ms, tick_ms = 1e3 * np.asarray(free.plans.samples), 1e3 * max(free.ticks.samples)
-        worst_plan, worst_tick = max(worst_plan, plan_ms.max()), max(worst_tick, tick_ms)
-        for periodic, one in ((False, free), (True, per)):
-            logs[periodic].append(one.log)
-            swings[periodic].append(one.swings)
-        f, p = free.log, per.log
-        ratio = f.distance / p.distance if p.distance > 0 else float("inf")
+        runs = {g: run(periodic, seed, args.seconds, rule) for g, (periodic, rule) in GAITS.items()}
+        plan_ms = {g: 1e3 * np.asarray(runs[g].plans.samples) for g in ("np", "paper")}
+        tick_ms = {g: 1e3 * max(runs[g].ticks.samples) for g in ("np", "paper")}
+        worst_plan = max(worst_plan, plan_ms["np"].max())
+        worst_tick = max(worst_tick, tick_ms["np"])
+        for g, one in runs.items():
+            logs[g].append(one.log)
+            swings[g].append(one.swings)
+        dist = {g: one.log.distance for g, one in runs.items()}
+        ratio = " / ".join(
+            f"{dist[g] / dist['p']:.2f}" if dist["p"] > 0 else "inf" for g in ("np", "paper")
+        )
         reach = search_reach(seed, int(args.seconds // ClimbConfig().swing_period))
-        reaches.append((reach, per.planned))
-        fs, ps = 100 * free.swings.mean(axis=0), 100 * per.swings.mean(axis=0)
+        reaches.append((reach, runs["p"].planned))
+        per_swing = {g: 100 * one.swings.mean(axis=0) for g, one in runs.items()}
+        cpu = ", ".join(
+            f"{np.median(plan_ms[g]):.0f} / {plan_ms[g].max():.0f}" for g in ("np", "paper")
+        )
         print(
-            f"| {seed} | {f.distance:.3f} | {p.distance:.3f} | {ratio:.2f} "
-            f"| {free.planned:.3f} / {per.planned:.3f} | {fs[0]:.1f} / {ps[0]:.1f} "
-            f"| {fs[1]:.1f} / {ps[1]:.1f} | {min(f.tsm):.3f} / {min(p.tsm):.3f} "
-            f"| {f.slips} / {p.slips} | {f.missed} / {p.missed} | {p.waits} "
-            f"| {free.wall:.0f} / {per.wall:.0f} | {reach:.3f} "
-            f"| {np.median(plan_ms):.0f} / {plan_ms.max():.0f} | {tick_ms:.1f} |",
+            f"| {seed} | {dist['np']:.3f} | {dist['p']:.3f} | {dist['paper']:.3f} | {ratio} "
+            f"| {triple({g: one.planned for g, one in runs.items()}, '.3f')} "
+            f"| {triple({g: v[0] for g, v in per_swing.items()}, '.1f')} "
+            f"| {triple({g: v[1] for g, v in per_swing.items()}, '.1f')} "
+            f"| {triple({g: min(one.log.tsm) for g, one in runs.items()}, '.3f')} "
+            f"| {triple({g: one.log.slips for g, one in runs.items()}, 'd')} "
+            f"| {triple({g: one.log.missed for g, one in runs.items()}, 'd')} "
+            f"| {runs['p'].log.waits} "
+            f"| {triple({g: one.wall for g, one in runs.items()}, '.0f')} | {reach:.3f} "
+            f"| {cpu} | {tick_ms['np']:.1f} / {tick_ms['paper']:.1f} |",
             flush=True,
         )
-    free_mean = np.mean([log.distance for log in logs[False]])
-    per_mean = np.mean([log.distance for log in logs[True]])
+    mean = {g: float(np.mean([log.distance for log in logs[g]])) for g in GAITS}
     least = min(min(log.tsm) for gait in logs.values() for log in gait)
     slips = sum(log.slips for gait in logs.values() for log in gait)
-    fs, ps = (100 * np.vstack(swings[periodic]).mean(axis=0) for periodic in (False, True))
+    rows = {g: 100 * np.vstack(swings[g]).mean(axis=0) for g in GAITS}
     print(
-        f"| mean | {free_mean:.3f} | {per_mean:.3f} | {free_mean / per_mean:.2f} | "
-        f"| {fs[0]:.1f} / {ps[0]:.1f} | {fs[1]:.1f} / {ps[1]:.1f} | {least:.3f} "
+        f"| mean | {mean['np']:.3f} | {mean['p']:.3f} | {mean['paper']:.3f} "
+        f"| {mean['np'] / mean['p']:.2f} / {mean['paper'] / mean['p']:.2f} "
+        f"| | {triple({g: v[0] for g, v in rows.items()}, '.1f')} "
+        f"| {triple({g: v[1] for g, v in rows.items()}, '.1f')} | {least:.3f} "
         f"| {slips} total | | | | | | |"
     )
-    for periodic, name in ((False, "non-periodic"), (True, "periodic")):
-        rows = np.vstack(swings[periodic])
+    for g in GAITS:
+        rows = np.vstack(swings[g])
         print(
-            f"\n{name}: base advance per swing {100 * rows[:, 0].mean():.1f} cm mean, room for "
-            f"the stance legs {100 * rows[:, 1].mean():.1f} cm mean (least "
+            f"\n{NAMES[g]}: base advance per swing {100 * rows[:, 0].mean():.1f} cm mean, room "
+            f"for the stance legs {100 * rows[:, 1].mean():.1f} cm mean (least "
             f"{100 * rows[:, 1].min():.1f} cm); advance > room in "
             f"{int((rows[:, 0] > rows[:, 1] + 1e-9).sum())} of {len(rows)} swings"
         )
@@ -240,10 +269,12 @@ def main() -> None:
         f"\nsearch knowing the end (beam 400): {reach:.3f} m mean, "
         f"{reach / per_plan:.2f}x the periodic gait's planned {per_plan:.3f} m"
     )
+    free_mean, per_mean = mean["np"], mean["p"]
     verdict = "met" if free_mean >= 2 * per_mean and least >= 0 and slips == 0 else "NOT met"
     print(
         f"\ngoal (mean ratio >= 2, TSM >= 0, no slips): {verdict}; "
-        f"ratio {free_mean / per_mean:.2f}, least TSM {least:.3f} m, slips {slips}"
+        f"ratio {free_mean / per_mean:.2f}, least TSM {least:.3f} m, slips {slips}; "
+        f"paper rule / periodic {mean['paper'] / per_mean:.2f}"
     )
     plot(logs, args.plot)
     print(f"figure: {args.plot}")

@@ -90,16 +90,20 @@ def mapped(holds: np.ndarray, origin: np.ndarray) -> HoldMap:
     )
 
 
-def climb(tile: np.ndarray, periodic: bool, seed: int, seconds: float = SECONDS):
-    """A kinematic climb on map ``seed`` of the detected tile. The planners are deterministic,
-    so runs are shared between tests: read them, do not change them."""
+def climb(
+    tile: np.ndarray, periodic: bool, seed: int, seconds: float = SECONDS, limb_rule="search"
+):
+    """A kinematic climb on map ``seed`` of the detected tile (the non-periodic gait choosing
+    its limbs by ``limb_rule``). The planners are deterministic, so runs are shared between
+    tests: read them, do not change them."""
     assert tile is detected_tile()
-    return shared_climb(periodic, seed, seconds)
+    return shared_climb(periodic, seed, seconds, limb_rule)
 
 
 @functools.cache
-def shared_climb(periodic: bool, seed: int, seconds: float):
-    planner = ClimbPlanner(KIN, CFG, periodic)
+def shared_climb(periodic: bool, seed: int, seconds: float, limb_rule: str = "search"):
+    config = msgspec.structs.replace(CFG, limb_rule=limb_rule)
+    planner = ClimbPlanner(KIN, config, periodic)
     feet = start_feet()
     runner = ClimbRunner(planner, feet, planner.base_for(feet), PlanAhead(planner, wait=True))
     holds = hold_map(detected_tile(), seed)
@@ -135,9 +139,11 @@ def test_tile_map_keeps_the_detection_and_varies_by_seed(tile):
     np.testing.assert_allclose(dist(first), dist(own), atol=1e-9)
 
 
-@pytest.mark.parametrize("periodic", [False, True])
-def test_climb_keeps_grip_rules_tsm_and_reach(tile, periodic):
-    planner, runner, holds, ticks = climb(tile, periodic, seed=0)
+@pytest.mark.parametrize(
+    ("periodic", "limb_rule"), [(False, "search"), (True, "search"), (False, "paper")]
+)
+def test_climb_keeps_grip_rules_tsm_and_reach(tile, periodic, limb_rule):
+    planner, runner, holds, ticks = climb(tile, periodic, seed=0, limb_rule=limb_rule)
     for tick in ticks:
         assert tick.tsm >= 0.0
         assert sum(not g for g in tick.grip) <= 1  # release only while the three others hold
@@ -191,6 +197,44 @@ def test_regrip_when_no_stride_ahead_is_feasible():
     step = planner.plan(feet, base, holds)
     assert step is not None and step.regrip and step.limb in (0, 3)
     np.testing.assert_allclose(step.target, behind[[0, 3].index(step.limb)])
+
+
+def test_paper_rule_swings_the_limb_with_most_options_ahead_to_its_longest_stride():
+    """Paper 001 §3.1-3.3 by hand, from the standing stance: rr has two holds ahead within its
+    stride (+3 cm, +6 cm), one beyond ``max_stride`` (+12 cm, outside its region) and one
+    behind; rf one ahead (+8 cm, the longest stride of all), lr one ahead, lf none. Counts ahead
+    1, 2, 1, 0: rr swings, to +6 cm (its longest feasible stride, not rf's longer one), along the
+    0.02 m cubic swing, the base ending over the new diagonals' crossing."""
+    feet = start_feet()
+    rf, rr, lr, _ = feet
+    ahead = [rr + [0.03, 0.0, 0.0], rr + [0.06, 0.01, 0.0], rr + [0.12, 0.0, 0.0]]
+    holds = np.vstack((feet, ahead, [rr - [0.04, 0.0, 0.0], rf + [0.08, 0, 0], lr + [0.04, 0, 0]]))
+    planner = ClimbPlanner(KIN, msgspec.structs.replace(CFG, limb_rule="paper"), periodic=False)
+    base = planner.base_for(feet)
+    options = planner.options(feet, base, holds)
+    np.testing.assert_array_equal(planner.ahead_counts(feet, options), [1, 2, 1, 0])
+    assert all(planner.feasible(feet, base, k, h) for k, o in enumerate(options) for h in o)
+    step = planner.plan(feet, base, holds)
+    assert step.limb == 1 and not step.regrip
+    np.testing.assert_allclose(step.target, ahead[1])
+    after = feet.copy()
+    after[1] = ahead[1]
+    np.testing.assert_allclose(step.base_end, planner.base_for(after))
+    assert planner.pose(step, 0.5)[0][2] == pytest.approx(CFG.swing_height)
+    search = ClimbPlanner(KIN, CFG, periodic=False).plan(feet, base, holds)
+    assert (search.limb, search.stride) != (step.limb, step.stride)  # the rules differ here
+
+
+def test_paper_rule_climbs_with_tsm_above_zero(tile):
+    """The paper's rule on the maps the search climbs: it never stops, keeps TSM >= 0 (the
+    grip, reach and diagonal rules: ``test_climb_keeps_grip_rules_tsm_and_reach``) and climbs."""
+    start = ClimbPlanner(KIN, CFG, False).base_for(start_feet())[0]
+    for seed in (0, 1):
+        planner, runner, _, ticks = climb(tile, False, seed, limb_rule="paper")
+        assert len(runner.steps) == int(np.ceil(SECONDS / CFG.swing_period))
+        assert not any(s.wait for s in runner.steps) and not planner.passed
+        assert min(t.tsm for t in ticks) >= 0.0
+        assert ticks[-1].base[0] - start > 0.05  # 0.077 m and 0.095 m in 45 s
 
 
 def test_periodic_gait_follows_its_fixed_order(tile):
@@ -299,6 +343,9 @@ def test_config_rejects_unknown_fields():
     for field in ("horizon", "beam"):
         with pytest.raises(msgspec.ValidationError, match=field):
             msgspec.convert({field: 0}, ClimbConfig)
+    with pytest.raises(msgspec.ValidationError, match="limb_rule"):
+        msgspec.convert({"limb_rule": "count"}, ClimbConfig)
+    assert ClimbConfig().limb_rule == "search"
 
 
 def test_control_role_publishes_stability_while_climbing(tile):
