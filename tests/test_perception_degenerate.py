@@ -26,6 +26,7 @@ from climbd.daemon.contract.messages import (
     Joists,
     Message,
     Stairs,
+    TrussGrasps,
     TrussMembers,
 )
 from climbd.daemon.contract.plugins import PerceptionPlugin
@@ -41,6 +42,7 @@ EMPTY: dict[type[Message], Callable[[Message, int], bool]] = {
     Joists: lambda m, _: m.joists == [],
     Stairs: lambda m, _: m.steps == [],
     TrussMembers: lambda m, _: m.members == [],
+    TrussGrasps: lambda m, _: m.grasps == [],
 }
 """How each feature type says "nothing found" of an input with ``valid`` points in range."""
 
@@ -131,12 +133,15 @@ CLOUDS = {
 PAIRS = plugin_profiles()
 
 
-def assert_empty(plugin: PerceptionPlugin, message: Message | None, valid: int) -> None:
-    """None, or one of the plugin's feature types holding nothing (given ``valid`` points)."""
-    if message is None:
-        return
-    assert type(message) in plugin.publishes
-    assert EMPTY[type(message)](message, valid), message
+def assert_empty(
+    plugin: PerceptionPlugin, result: Message | tuple[Message, ...] | None, valid: int
+) -> None:
+    """None, or the plugin's feature types (one or a tuple) holding nothing (given ``valid``
+    points)."""
+    for message in result if isinstance(result, tuple) else (result,):
+        if message is not None:
+            assert type(message) in plugin.publishes
+            assert EMPTY[type(message)](message, valid), message
 
 
 def in_range(points: np.ndarray) -> int:

@@ -250,5 +250,5 @@ class CloudPerception(PerceptionPlugin):
     """A perception plugin that works on points: ``process`` projects the frame's valid pixels
     to body-frame points and hands them to ``process_cloud``."""
 
-    def process(self, frame: DepthFrame, body: BodyState) -> Message | None:
+    def process(self, frame: DepthFrame, body: BodyState) -> Message | tuple[Message, ...] | None:
         return self.process_cloud(frame_to_points(frame), body, frame.timestamp)

@@ -1,5 +1,5 @@
 """The world model's feature maps: holds, joists and stair steps tracked across frames in the
-odometry frame.
+odometry frame; the truss's grasp targets join the holds.
 
 A perception plugin reports what one frame showed, in the body frame at the frame's time; the
 feature carries that pose (``frame_position``, ``frame_orientation``), so here it is placed in
@@ -30,6 +30,7 @@ from climbd.daemon.contract.messages import (
     Stair,
     StairMap,
     Stairs,
+    TrussGrasps,
 )
 
 JOIST_MEMORY = 4.0
@@ -137,6 +138,13 @@ class HoldTracks:
         in_view = None if cone is None else (lambda ts: cone.contains(_estimates(ts)))
         self.tracker.update(list(points), [confidence] * len(points), seen.frame_stamp, in_view)
 
+    def offer(self, grasps: TrussGrasps, cone: ViewCone | None, confidence: float = 0.5) -> None:
+        """Fold the truss's grasp targets in as holds (``grasp_holds``), so a gripper-equipped
+        limb may take a member as a hold."""
+        points = grasp_holds(grasps)
+        in_view = None if cone is None else (lambda ts: cone.contains(_estimates(ts)))
+        self.tracker.update(list(points), [confidence] * len(points), grasps.frame_stamp, in_view)
+
     def message(self, stamp: float, now: float) -> HoldMap:
         return HoldMap(
             stamp=stamp,
@@ -152,6 +160,12 @@ class HoldTracks:
                 for t in self.tracker.tracks
             ],
         )
+
+
+def grasp_holds(grasps: TrussGrasps) -> np.ndarray:
+    """The truss's grasp targets as hold positions (N x 3, odometry frame, heights kept): each
+    its point on the member's axis, where the gripper's centre closes."""
+    return np.array([g.position for g in grasps.grasps], float).reshape(-1, 3)
 
 
 def _estimates(tracks: list[Track]) -> np.ndarray:

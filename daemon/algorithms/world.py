@@ -54,6 +54,7 @@ from climbd.daemon.contract.messages import (
     Joists,
     Stairs,
     TerrainMap,
+    TrussGrasps,
 )
 from climbd.daemon.contract.profile import Profile, ProfileError, merge_tables
 from climbd.daemon.contract.units import NonNegative, Positive
@@ -335,6 +336,8 @@ class WorldModel:
             self.holds.update(feature, self._cone)
         elif isinstance(feature, Stairs):
             self.stairs.update(feature, self._cone)
+        elif isinstance(feature, TrussGrasps):
+            self.holds.offer(feature, self._cone)
 
     def messages(self, stamp: float) -> list[Feature]:
         """The maps to publish (nothing before the first frame)."""

@@ -527,9 +527,11 @@ class Stability(Message):
 
 
 class TrussMember(msgspec.Struct, kw_only=True):
-    """A cylindrical truss member (paper 003): end points (m), radius (m), unit axis p0 -> p1;
-    confidence is the fraction of its length covered by points; ``id`` stays the member's
-    across model updates (0: not tracked)."""
+    """A cylindrical truss member (paper 003): the tube extent p0, p1 (m, where the tube's
+    surface ends), radius (m), unit axis p0 -> p1; confidence is the fraction of its length
+    covered by points; ``id`` stays the member's across model updates (0: not tracked).
+    ``node0``/``node1``: its node-to-node ends, the nodes (where member axes meet, inside the
+    connectors) its p0/p1 ends meet; empty when that end is free (then the tube end)."""
 
     p0: Vector
     p1: Vector
@@ -537,14 +539,18 @@ class TrussMember(msgspec.Struct, kw_only=True):
     axis: Vector
     confidence: float = 1.0
     id: int = 0
+    node0: Vector = []
+    node1: Vector = []
 
 
 class TrussNode(msgspec.Struct, kw_only=True):
     """A connector of the truss: where the ends of two or more members meet (m, odometry
-    frame), and the ids of those members."""
+    frame), and the ids of those members; ``reach`` (m): how far from it the farthest of
+    their tube ends lies (the connector's extent along the members; 0: not measured)."""
 
     position: Vector
     members: Annotated[list[int], msgspec.Meta(max_length=MAX_ENTRIES)]
+    reach: float = 0.0
 
 
 class TrussMembers(Feature):
@@ -555,6 +561,35 @@ class TrussMembers(Feature):
     RATE: ClassVar[str] = "on model update"
     members: Annotated[list[TrussMember], msgspec.Meta(max_length=MAX_FEATURES)] = []
     nodes: Annotated[list[TrussNode], msgspec.Meta(max_length=MAX_FEATURES)] = []
+
+
+class TrussGrasp(msgspec.Struct, kw_only=True):
+    """Where a gripper may close on a truss member (odometry frame, m): ``position`` on the
+    member's axis, ``approach`` the unit direction the gripper moves in to close (perpendicular
+    to the axis), ``clearance`` the free space between the closed gripper (a ball of half its
+    width, or the member's radius if larger, about ``position``) and the nearest node or other
+    member (inf: the truss has no other), ``span`` the ends (x, y, z) of the clear stretch of
+    axis it lies on, ``limbs`` the legs (profile order) whose IK reaches ``position`` within
+    joint limits from the frame's pose."""
+
+    member: int
+    position: Vector
+    approach: Vector
+    clearance: float
+    span: Vectors
+    limbs: Annotated[list[int], msgspec.Meta(max_length=MAX_LEGS)] = []
+
+
+class TrussGrasps(Feature):
+    """Grasp targets on the truss model's members (paper 003) for the profile's gripper
+    (``width`` along the axis and ``clearance``, m), odometry frame; reachability is from the
+    body pose ``frame_position``, ``frame_orientation``."""
+
+    TOPIC: ClassVar[str] = "features/truss_grasps"
+    RATE: ClassVar[str] = "on model update, with features/truss"
+    width: float = 0.0
+    clearance: float = 0.0
+    grasps: Annotated[list[TrussGrasp], msgspec.Meta(max_length=MAX_FEATURES)] = []
 
 
 class Stair(msgspec.Struct, kw_only=True):
@@ -612,6 +647,7 @@ FEATURES: tuple[type[Feature], ...] = (
     GraspablePoints,
     HoldMap,
     TrussMembers,
+    TrussGrasps,
     Stairs,
     StairMap,
 )
@@ -718,6 +754,7 @@ ALL_MESSAGES: tuple[type[Message], ...] = (
     DepthImage,
     DepthPreview,
     TrussMembers,
+    TrussGrasps,
     Stairs,
     StairMap,
     SimTruth,

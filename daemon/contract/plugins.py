@@ -24,7 +24,8 @@ class EmptyConfig(msgspec.Struct, forbid_unknown_fields=True):
 
 
 class PerceptionPlugin:
-    """Base of perception plugins: a depth frame in, one feature message (or None) out.
+    """Base of perception plugins: a depth frame in, one feature message, a tuple of them (a
+    plugin that publishes two topics from one model), or None out.
 
     ``process`` takes a DepthFrame and the body state at the frame's timestamp;
     ``process_cloud`` takes an N×3 array of body-frame points (m) and is what ``climbd
@@ -42,10 +43,12 @@ class PerceptionPlugin:
         self.config = config if config is not None else self.Config()
         self.profile = profile
 
-    def process(self, frame: DepthFrame, body: BodyState) -> Message | None:
+    def process(self, frame: DepthFrame, body: BodyState) -> Message | tuple[Message, ...] | None:
         raise NotImplementedError
 
-    def process_cloud(self, points: np.ndarray, body: BodyState, stamp: float) -> Message | None:
+    def process_cloud(
+        self, points: np.ndarray, body: BodyState, stamp: float
+    ) -> Message | tuple[Message, ...] | None:
         raise NotImplementedError
 
 

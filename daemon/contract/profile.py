@@ -52,6 +52,12 @@ STATE_AGE = (0.001, 1.0)
 FOOT_RADIUS = (0.001, 0.1)
 """m: a foot's rounded tip, from a 1 mm point to a 10 cm ball."""
 
+GRIPPER_WIDTH = (0.005, 0.3)
+"""m: a gripper's footprint along a member's axis, from a 5 mm pinch to a 30 cm clamp."""
+
+GRIPPER_CLEARANCE = (0.0, 0.2)
+"""m: free space the gripper keeps from nodes and other members around its footprint."""
+
 CAMERA_FPS = (1, 300)
 """Frames per second of a depth camera's stream."""
 
@@ -275,6 +281,14 @@ class NetworkConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     auth: AuthConfig | None = None
 
 
+class GripperConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A gripper that closes around a truss member: its ``width`` along the member's axis and
+    the ``clearance`` it needs from nodes and other members beyond it (m)."""
+
+    width: float
+    clearance: float
+
+
 class StandConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Standing pose: body height (m) and the feet's radial distance from their coxa (m)."""
 
@@ -294,6 +308,9 @@ class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """m: radius of the feet's rounded tips. A stance foot rolls on it and its centre, which FK
     gives, travels with the body; the torque robots' estimator follows the roll. Unset: a point
     foot to the estimator; the twin then makes the feet 4 % of a leg's span."""
+    gripper: GripperConfig | None = None
+    """The feet's grippers, for grasping truss members (``[gripper]``); unset: no grasp
+    targets are published."""
     bus: JointBusConfig = msgspec.field(default_factory=JointBusConfig)
     cameras: list[CameraConfig] = []
     safety: SafetyConfig = msgspec.field(default_factory=SafetyConfig)
@@ -464,6 +481,10 @@ def validate(profile: Profile) -> Profile:
     _check_range(profile.bus.max_state_age, STATE_AGE, src, "$.bus.max_state_age", "s")
     if profile.foot_radius is not None:
         _check_range(profile.foot_radius, FOOT_RADIUS, src, "$.foot_radius", "m")
+    if profile.gripper is not None:
+        g = profile.gripper
+        _check_range(g.width, GRIPPER_WIDTH, src, "$.gripper.width", "m")
+        _check_range(g.clearance, GRIPPER_CLEARANCE, src, "$.gripper.clearance", "m")
     _check(
         profile.bus.health_rate_hz > 0,
         src,

@@ -223,25 +223,30 @@ class PerceptionRole:
             return
         features = []
         for iso in plugins:
-            feature = iso.call(iso.plugin.process, frame, body)
-            if feature is None:
-                continue
-            if not isinstance(feature, iso.plugin.publishes):
-                if not self.undeclared:
-                    log.error(
-                        "plugin %s returned %s, which it does not declare (publishes %s): dropped",
-                        iso.name,
-                        type(feature).__name__,
-                        ", ".join(t.__name__ for t in iso.plugin.publishes),
-                    )
-                self.undeclared += 1
-                continue
-            feature.frame_position = list(body.position)
-            feature.frame_orientation = list(body.orientation)
-            publish(feature)
-            self.published += 1
-            features.append(feature)
+            result = iso.call(iso.plugin.process, frame, body)
+            for feature in result if isinstance(result, tuple) else (result,):
+                if feature is not None and self._declared(iso, feature):
+                    feature.frame_position = list(body.position)
+                    feature.frame_orientation = list(body.orientation)
+                    publish(feature)
+                    self.published += 1
+                    features.append(feature)
         self._map(frame, body, features, publish)
+
+    def _declared(self, iso: Isolated[PerceptionPlugin], feature: m.Message) -> bool:
+        """``feature`` is of a type its plugin declares; else it is counted and dropped (the
+        first one logged)."""
+        if isinstance(feature, iso.plugin.publishes):
+            return True
+        if not self.undeclared:
+            log.error(
+                "plugin %s returned %s, which it does not declare (publishes %s): dropped",
+                iso.name,
+                type(feature).__name__,
+                ", ".join(t.__name__ for t in iso.plugin.publishes),
+            )
+        self.undeclared += 1
+        return False
 
     def _map(
         self,

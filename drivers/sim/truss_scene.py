@@ -7,14 +7,17 @@ its outermost coupler, so its true ends are tube ends. Depth is ray-cast per vie
 Kinect-2-like noise (about 1.5 mm axial at 1-3 m, growing with range and incidence), flying
 pixels at depth edges and dropouts; each view's reported body pose can carry odometry noise.
 
-``five_member()``, ``seven_member()`` and ``scaffold()`` build geometries; ``render()`` views
-one from a few poses and returns a ``TrussScene`` with per-view body-frame clouds, the body
-poses (BodyState), the merged odometry-frame cloud and the ground-truth tubes.
+``five_member()``, ``seven_member()`` and ``scaffold()`` build scaffold geometries;
+``space_frame()`` builds a space frame instead: members run node to node and end on a connector
+(box, sphere or plate) at every node, so the tube extent and the node-to-node length differ.
+``render()`` views one from a few poses and returns a ``TrussScene`` with per-view body-frame
+clouds, the body poses (BodyState), the merged odometry-frame cloud and the ground-truth tubes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -59,12 +62,34 @@ class Block:
 
 
 @dataclass(frozen=True)
+class Ball:
+    """A spherical connector: centre (m) and radius (m)."""
+
+    centre: np.ndarray
+    radius: float
+
+
+ConnectorShape = Literal["box", "sphere", "plate"]
+"""The connector at a space frame's nodes: a cube, a ball, or a flat disc (a gusset plate)."""
+
+
+@dataclass(frozen=True)
 class TrussGeometry:
-    """Tubes (the ground-truth members), couplers at their crossings, and a floor at z = 0."""
+    """Tubes (the ground-truth members: their tube extents), couplers or box connectors, ball
+    connectors, plates (flat discs, ray-cast as short closed cylinders), and a floor at z = 0.
+
+    A space frame also has its ``nodes`` (m) and, per tube, the two nodes it runs between
+    (``links``): the node-to-node truth. Scaffolds have neither. ``occluders``: boxes in view
+    that are no part of the truss."""
 
     tubes: tuple[Tube, ...]
     couplers: tuple[Block, ...]
     floor_half_size: float = 4.0
+    balls: tuple[Ball, ...] = ()
+    plates: tuple[Tube, ...] = ()
+    nodes: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    links: tuple[tuple[int, int], ...] = ()
+    occluders: tuple[Block, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -251,8 +276,114 @@ def scaffold(
     return assemble(tubes)
 
 
+FRAME_NODES = np.array(
+    [
+        [0.0, -0.8, 0.5],
+        [0.0, 0.0, 0.5],
+        [0.0, 0.8, 0.5],
+        [0.0, -0.8, 1.4],
+        [0.0, 0.0, 1.4],
+        [0.0, 0.8, 1.4],
+        [-0.8, -0.8, 1.4],
+        [-0.8, 0.8, 1.4],
+    ]
+)
+"""Nodes of the default space frame (m): a two-bay front truss in x = 0 and a back chord."""
+
+FRAME_LINKS = (
+    (0, 1),
+    (1, 2),
+    (3, 4),
+    (4, 5),
+    (0, 3),
+    (1, 4),
+    (2, 5),
+    (0, 4),
+    (2, 4),
+    (3, 6),
+    (5, 7),
+    (6, 7),
+)
+"""Members of the default space frame: chords, posts, two diagonals, transoms, back chord."""
+
+
+def _exit_distance(
+    shape: ConnectorShape, direction: np.ndarray, size: float, radius: float, normal: np.ndarray
+) -> float:
+    """Distance from a node along ``direction`` to the surface of its connector of ``size``
+    (cube edge, ball or plate diameter); a plate is half a tube radius thick either side."""
+    if shape == "sphere":
+        return size / 2
+    if shape == "box":
+        return size / 2 / float(np.abs(direction).max())
+    along = abs(float(direction @ normal))
+    across = float(np.linalg.norm(direction - along * normal))
+    thickness = radius / 2 / along if along > 1e-9 else np.inf
+    return min(thickness, size / 2 / across if across > 1e-9 else np.inf)
+
+
+def _clearance(direction: np.ndarray, others: list[np.ndarray], radius: float) -> float:
+    """How far from the node a tube along ``direction`` must end to clear the tubes along
+    ``others`` meeting there: r / tan(θ / 2) for the smallest angle θ between them."""
+    angles = [np.arccos(np.clip(direction @ o, -1.0, 1.0)) for o in others]
+    return radius / np.tan(min(angles) / 2) if angles else 0.0
+
+
+def space_frame(
+    shape: ConnectorShape = "box",
+    factor: float = 2.0,
+    diameter: float = 0.048,
+    nodes: np.ndarray = FRAME_NODES,
+    links: tuple[tuple[int, int], ...] = FRAME_LINKS,
+    plate_normal: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    occluder: Block | None = None,
+) -> TrussGeometry:
+    """A space frame: a tube per link, running between its nodes, ending on the connector at
+    each node (a ``shape`` of ``factor`` times the tube ``diameter``: a world-aligned cube, a
+    ball, or a disc across ``plate_normal``) or, where it would cut another tube meeting there,
+    where it clears it; an optional ``occluder`` box in view."""
+    nodes = np.asarray(nodes, float)
+    radius, size = diameter / 2, factor * diameter
+    normal = np.asarray(plate_normal, float) / np.linalg.norm(plate_normal)
+    directions: dict[int, list[np.ndarray]] = {i: [] for i in range(len(nodes))}
+    for a, b in links:
+        axis = (nodes[b] - nodes[a]) / np.linalg.norm(nodes[b] - nodes[a])
+        directions[a].append(axis)
+        directions[b].append(-axis)
+
+    def end(node: int, direction: np.ndarray) -> np.ndarray:
+        others = [o for o in directions[node] if not np.allclose(o, direction)]
+        reach = max(
+            _exit_distance(shape, direction, size, radius, normal),
+            _clearance(direction, others, radius),
+        )
+        return nodes[node] + reach * direction
+
+    tubes = []
+    for a, b in links:
+        axis = (nodes[b] - nodes[a]) / np.linalg.norm(nodes[b] - nodes[a])
+        tubes.append(Tube(end(a, axis), end(b, -axis), radius))
+    blocks = tuple(Block(n, np.eye(3), np.full(3, size / 2)) for n in nodes if shape == "box")
+    balls = tuple(Ball(n, size / 2) for n in nodes if shape == "sphere")
+    plates = tuple(
+        Tube(n - radius / 2 * normal, n + radius / 2 * normal, size / 2)
+        for n in nodes
+        if shape == "plate"
+    )
+    return TrussGeometry(
+        tuple(tubes),
+        blocks,
+        balls=balls,
+        plates=plates,
+        nodes=nodes,
+        links=tuple(links),
+        occluders=(occluder,) if occluder is not None else (),
+    )
+
+
 def to_mjcf(geometry: TrussGeometry, name: str = "truss") -> str:
-    """The geometry as a MuJoCo model (static geoms: floor plane, tube cylinders, coupler boxes),
+    """The geometry as a MuJoCo model (static geoms: floor plane, tube and plate cylinders,
+    coupler, connector and occluder boxes, balls),
     for a physics-twin world or to ray-cast it with ``mujoco.mj_multiRay``."""
     geoms = [
         f'<geom name="floor" type="plane" size="{geometry.floor_half_size} '
@@ -263,12 +394,22 @@ def to_mjcf(geometry: TrussGeometry, name: str = "truss") -> str:
         geoms.append(
             f'<geom name="member{i}" type="cylinder" size="{tube.radius:.6f}" fromto="{ends}"/>'
         )
-    for i, block in enumerate(geometry.couplers):
+    for i, block in enumerate((*geometry.couplers, *geometry.occluders)):
         quat = Rotation.from_matrix(block.rotation).as_quat(scalar_first=True)
         geoms.append(
             f'<geom name="coupler{i}" type="box" size="{" ".join(f"{h:.6f}" for h in block.half)}"'
             f' pos="{" ".join(f"{x:.6f}" for x in block.centre)}"'
             f' quat="{" ".join(f"{q:.9f}" for q in quat)}"/>'
+        )
+    for i, ball in enumerate(geometry.balls):
+        geoms.append(
+            f'<geom name="ball{i}" type="sphere" size="{ball.radius:.6f}"'
+            f' pos="{" ".join(f"{x:.6f}" for x in ball.centre)}"/>'
+        )
+    for i, plate in enumerate(geometry.plates):
+        ends = " ".join(f"{x:.6f}" for x in (*plate.p0, *plate.p1))
+        geoms.append(
+            f'<geom name="plate{i}" type="cylinder" size="{plate.radius:.6f}" fromto="{ends}"/>'
         )
     body = "\n    ".join(geoms)
     return f'<mujoco model="{name}">\n  <worldbody>\n    {body}\n  </worldbody>\n</mujoco>\n'
@@ -352,6 +493,21 @@ def _hit_blocks(origin: np.ndarray, dirs: np.ndarray, blocks: tuple[Block, ...])
     return best
 
 
+def _hit_balls(origin: np.ndarray, dirs: np.ndarray, balls: tuple[Ball, ...]) -> np.ndarray:
+    """Ray parameter of the nearest hit on any ball (inf for none)."""
+    best = np.full(len(dirs), np.inf)
+    for ball in balls:
+        w = origin - ball.centre
+        qa = np.einsum("ij,ij->i", dirs, dirs)
+        qb = 2 * dirs @ w
+        disc = qb * qb - 4 * qa * (w @ w - ball.radius**2)
+        with np.errstate(invalid="ignore"):
+            t = (-qb - np.sqrt(disc)) / (2 * qa)
+        hit = (disc >= 0) & (t > 0)
+        best = np.where(hit & (t < best), t, best)
+    return best
+
+
 def _hit_floor(origin: np.ndarray, dirs: np.ndarray, half_size: float) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         t = -origin[2] / dirs[:, 2]
@@ -372,7 +528,9 @@ def depth_image(geometry: TrussGeometry, pose: np.ndarray, camera: DepthCamera) 
     t = np.minimum.reduce(
         [
             _hit_tubes(origin, dirs, geometry.tubes),
-            _hit_blocks(origin, dirs, geometry.couplers),
+            _hit_blocks(origin, dirs, (*geometry.couplers, *geometry.occluders)),
+            _hit_tubes(origin, dirs, geometry.plates),
+            _hit_balls(origin, dirs, geometry.balls),
             _hit_floor(origin, dirs, geometry.floor_half_size),
         ]
     )

@@ -19,14 +19,17 @@ from climbd.plugins.perception.truss.cylinders import Cylinder, Segment, perpend
 
 @dataclass(frozen=True)
 class Member:
-    """A modelled member: its cylinder, axial extent [t0, t1] from ``cylinder.point``, and the
-    indices of the points supporting it (segment points plus completion points)."""
+    """A modelled member: its cylinder, axial extent [t0, t1] from ``cylinder.point`` (the tube
+    extent), and the indices of the points supporting it (segment points plus completion
+    points). ``node0``/``node1``: the nodes its p0/p1 ends meet (None: the end is free)."""
 
     cylinder: Cylinder
     t0: float
     t1: float
     indices: np.ndarray
     pieces: int = 1
+    node0: np.ndarray | None = None
+    node1: np.ndarray | None = None
 
     @property
     def p0(self) -> np.ndarray:
@@ -39,6 +42,20 @@ class Member:
     @property
     def length(self) -> float:
         return self.t1 - self.t0
+
+    @property
+    def ends(self) -> tuple[np.ndarray, np.ndarray]:
+        """Node-to-node ends: the nodes, or the tube ends where an end is free."""
+        return (
+            self.p0 if self.node0 is None else self.node0,
+            self.p1 if self.node1 is None else self.node1,
+        )
+
+    @property
+    def node_length(self) -> float:
+        """Node-to-node length (axis to axis through the nodes)."""
+        a, b = self.ends
+        return float(np.linalg.norm(b - a))
 
 
 def from_segment(segment: Segment) -> Member:

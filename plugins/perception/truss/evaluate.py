@@ -1,5 +1,7 @@
 """Accuracy of a truss model against known members, with the paper's metrics (Figs. 9-11):
-relative length error, midpoint distance and axis angle per ground-truth member."""
+relative length error, midpoint distance and axis angle per ground-truth member, and (ours,
+issue 37) the farther of the two end point errors. Run it on tube extents against true tubes,
+or on node-to-node ends against true nodes."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ class MemberError:
     relative_length_error: float = float("nan")
     midpoint_error: float = float("nan")
     angle_error_deg: float = float("nan")
+    end_error: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,18 @@ class Accuracy:
     def mean(self, field: str) -> float:
         values = [getattr(m, field) for m in self.members if m.detected is not None]
         return float(np.mean(values)) if values else float("nan")
+
+    def max(self, field: str) -> float:
+        """The worst found member's ``field`` (nan if none was found)."""
+        values = [getattr(m, field) for m in self.members if m.detected is not None]
+        return float(np.max(values)) if values else float("nan")
+
+
+def end_error(d0: np.ndarray, d1: np.ndarray, t0: np.ndarray, t1: np.ndarray) -> float:
+    """The farther of the two end point errors (m), the ends paired either way round."""
+    same = max(np.linalg.norm(d0 - t0), np.linalg.norm(d1 - t1))
+    flipped = max(np.linalg.norm(d0 - t1), np.linalg.norm(d1 - t0))
+    return float(min(same, flipped))
 
 
 def _line_distance(point: np.ndarray, origin: np.ndarray, axis: np.ndarray) -> float:
@@ -95,6 +110,7 @@ def evaluate(
                 relative_length_error=abs(length - true_length) / true_length,
                 midpoint_error=float(np.linalg.norm(0.5 * (d0 + d1) - 0.5 * (t0 + t1))),
                 angle_error_deg=float(angle),
+                end_error=end_error(d0, d1, t0, t1),
             )
         )
     return Accuracy(errors, len(detected) - len(used))

@@ -3,7 +3,8 @@
 Dense cloud -> voxel downsampling -> plane removal -> isolated-point removal -> normals ->
 RANSAC cylinder segments (the initial model), each completed by the sliding boxes as soon as
 it is found (the points in its boxes then leave the RANSAC pool) -> merging of split pieces -> a
-final refit of each member on all its surface points.
+final refit of each member on all its surface points -> nodes as features (ours, nodes.py):
+members cut at the nodes where their axes meet, each with its tube extent and its nodes.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from climbd.plugins.perception.truss.cylinders import (
     segment_cylinders,
     surface_fit,
 )
+from climbd.plugins.perception.truss.nodes import NodeRules, node_members
 from climbd.plugins.perception.truss.planes import accept_plane, find_planes, plane_heights
 
 
@@ -42,7 +44,10 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     ``gap`` also bounds how near the far face of a box the points must run for it to slide
     again. The rest are ours, for a Kinect-2-like cloud.
     ``linker`` is the size of the linkers members end in, for a space frame (its members end
-    at the nodes); 0 for tubes that end free and run through their couplers (scaffolds).
+    at the nodes), a hint; 0 (default): find the nodes where member axes meet, of any connector,
+    and report each member's tube extent and its nodes (nodes.py); ``node_reach``: how far a
+    node may lie beyond a member's completed extent; ``node_angle_deg``: the least angle between
+    members meeting at a node.
     ``track_gate``: a member re-modelled with both ends within this of one of the last model
     keeps its id; ``node_radius``: member ends this close meet at one connector."""
 
@@ -60,7 +65,7 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     plane_min_width: float = 0.3
     max_planes: int = 3
     radius_min: float = 0.01
-    radius_max: float = 0.04
+    radius_max: float = 0.042
     partner_radius: float = 0.05
     cylinder_distance: float = 0.008
     cylinder_angle_deg: float = 25.0
@@ -86,6 +91,8 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     model_every: int = 1
     track_gate: float = 0.1
     node_radius: float = 0.05
+    node_reach: float = 0.25
+    node_angle_deg: float = 20.0
 
     def __post_init__(self) -> None:
         if not 0 < self.radius_min < self.radius_max:
@@ -104,7 +111,7 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
         if self.linker < 0:
             raise ValueError(f"truss: linker must be >= 0 (0: members end free), got {self.linker}")
         names = ("voxel", "gap", "cylinder_distance", "plane_distance", "segment_gap")
-        for name in (*names, "gap_epsilon", "track_gate", "node_radius"):
+        for name in (*names, "gap_epsilon", "track_gate", "node_radius", "node_reach"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"truss: {name} must be > 0, got {getattr(self, name)}")
 
@@ -178,7 +185,23 @@ class TrussModeller:
                 for m in merged
             ]
         )
+        if c.linker == 0:
+            members = node_members(members, points, normals, self._node_rules())
         return TrussModel(members, [from_segment(s) for s in segments], points)
+
+    def _node_rules(self) -> NodeRules:
+        """The configured rules for nodes as features: bins of a voxel, the cylinder
+        surface tolerances, the shortest member."""
+        c = self.config
+        return NodeRules(
+            reach=c.node_reach,
+            angle_deg=c.node_angle_deg,
+            radius=c.node_radius,
+            bin_size=c.voxel,
+            distance=c.cylinder_distance,
+            surface_angle_deg=c.cylinder_angle_deg,
+            min_length=c.min_member_length,
+        )
 
     def _without_planes(
         self, cloud: np.ndarray, rng: np.random.Generator

@@ -4,17 +4,26 @@ The modeller rebuilds the whole truss from the accumulated cloud at each update,
 comes back with other end points and in another order each time; ``MemberTracks`` gives it the
 id it had (the least end-to-end distance, either way round, within a gate). ``connectors``
 finds the nodes: where the ends of two or more members meet.
+
+Nodes as features (ours, for space frames whose members end on connectors of any shape and
+size): where member axes meet (``junctions``), the node is the least-squares point nearest
+those axes; each member is cut at the nodes on it and its tube ends where the tube's surface
+ends next to each node (``node_members``). A member end meeting no other axis whose tube
+stops short of its completed end, at a blob of points off the tube's surface, gets the blob's
+centre as its node.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from climbd.daemon.algorithms.tracks import Track, TrackConfig, Tracker
 from climbd.daemon.contract.messages import TrussNode
 from climbd.plugins.perception.truss.completion import Member
+from climbd.plugins.perception.truss.cylinders import surface_fit
 
 
 def end_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -44,12 +53,9 @@ class MemberTracks:
         return [t.id for t in self.tracker.update(ends, [1.0] * len(ends), stamp)]
 
 
-def connectors(members: Sequence[Member], ids: Sequence[int], radius: float) -> list[TrussNode]:
-    """The nodes of the truss: groups of member ends within ``radius`` (m) of one another
-    (linked through any chain of ends), of two or more members; at the mean of those ends."""
-    ends = np.array([p for m in members for p in (m.p0, m.p1)], float).reshape(-1, 3)
-    owner = np.repeat(np.asarray(ids, int), 2)
-    parent = list(range(len(ends)))
+def _groups(points: np.ndarray, radius: float) -> list[list[int]]:
+    """Indices of ``points`` grouped by distance <= ``radius`` (through any chain of points)."""
+    parent = list(range(len(points)))
 
     def root(i: int) -> int:
         while parent[i] != i:
@@ -57,15 +63,342 @@ def connectors(members: Sequence[Member], ids: Sequence[int], radius: float) -> 
             i = parent[i]
         return i
 
-    close = np.linalg.norm(ends[:, None] - ends[None, :], axis=2) <= radius
+    close = np.linalg.norm(points[:, None] - points[None, :], axis=2) <= radius
     for i, j in zip(*np.nonzero(np.triu(close, 1)), strict=True):
         parent[root(int(i))] = root(int(j))
     groups: dict[int, list[int]] = {}
-    for i in range(len(ends)):
+    for i in range(len(points)):
         groups.setdefault(root(i), []).append(i)
+    return list(groups.values())
+
+
+def connectors(members: Sequence[Member], ids: Sequence[int], radius: float) -> list[TrussNode]:
+    """The nodes of the truss: groups of member node ends (``Member.ends``) within ``radius``
+    (m) of one another, of two or more members; at the mean of those ends, with the farthest
+    tube end of a member there from it (how far the connector keeps the tubes off)."""
+    ends = np.array([p for m in members for p in m.ends], float).reshape(-1, 3)
+    tubes = np.array([p for m in members for p in (m.p0, m.p1)], float).reshape(-1, 3)
+    owner = np.repeat(np.asarray(ids, int), 2)
     nodes = []
-    for group in groups.values():
+    for group in _groups(ends, radius):
         joined = sorted({int(owner[i]) for i in group})
         if len(joined) >= 2:
-            nodes.append(TrussNode(position=ends[group].mean(axis=0).tolist(), members=joined))
+            position = ends[group].mean(axis=0)
+            reach = np.linalg.norm(tubes[group] - position, axis=1).max()
+            nodes.append(
+                TrussNode(position=position.tolist(), members=joined, reach=round(float(reach), 4))
+            )
     return nodes
+
+
+def axes_point(origins: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """The least-squares point nearest to the lines (origin, unit axis): the solution of
+    sum(I - a a^T) x = sum(I - a a^T) o."""
+    projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
+    return np.linalg.lstsq(projectors.sum(axis=0), np.einsum("kij,kj->i", projectors, origins))[0]
+
+
+def _closest_on_axes(a: Member, b: Member) -> tuple[float, float, float]:
+    """Axial parameters on a and b of the closest points of their axis lines, and their
+    distance (m); parallel axes give an infinite distance."""
+    ua, ub = a.cylinder.axis, b.cylinder.axis
+    w = a.cylinder.point - b.cylinder.point
+    c = float(ua @ ub)
+    denom = 1.0 - c * c
+    if denom < 1e-9:
+        return 0.0, 0.0, np.inf
+    ta = (c * (ub @ w) - ua @ w) / denom
+    tb = (ub @ w - c * (ua @ w)) / denom
+    gap = a.cylinder.point + ta * ua - b.cylinder.point - tb * ub
+    return float(ta), float(tb), float(np.linalg.norm(gap))
+
+
+def junctions(
+    members: Sequence[Member], *, reach: float, angle_deg: float, radius: float
+) -> list[tuple[np.ndarray, list[int]]]:
+    """Nodes where member axes meet: pairs of members at ``angle_deg`` or more whose axes pass
+    within half their mean radius (scaffold tubes crossing at a coupler pass at the radii sum),
+    at points within ``reach`` (m) of both members' extents, grouped within ``radius`` (m).
+    Each node is the least-squares point nearest its members' axes, with their indices."""
+    meets, pairs = [], []
+    for i, a in enumerate(members):
+        for j in range(i + 1, len(members)):
+            b = members[j]
+            if abs(a.cylinder.axis @ b.cylinder.axis) > np.cos(np.radians(angle_deg)):
+                continue
+            ta, tb, gap = _closest_on_axes(a, b)
+            near_a = a.t0 - reach <= ta <= a.t1 + reach
+            near_b = b.t0 - reach <= tb <= b.t1 + reach
+            if near_a and near_b and gap < 0.25 * (a.cylinder.radius + b.cylinder.radius):
+                meets.append(a.cylinder.point + ta * a.cylinder.axis)
+                pairs.append((i, j))
+    nodes = []
+    for group in _groups(np.array(meets).reshape(-1, 3), radius):
+        joined = sorted({k for g in group for k in pairs[g]})
+        origins = np.array([members[k].cylinder.point for k in joined])
+        axes = np.array([members[k].cylinder.axis for k in joined])
+        nodes.append((axes_point(origins, axes), joined))
+    return nodes
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A member's points along its axis, in bins of ``bin_size`` from ``start``: how many lie on
+    the tube's surface and how many lie off it within four radii of the axis (a blob), and the
+    sorted axial positions of the points at the tube's radius whose normals lie within twice the
+    surface angle of radial (``near``: normals blur where the tube meets its connector)."""
+
+    start: float
+    bin_size: float
+    surface: np.ndarray
+    blob: np.ndarray
+    near: np.ndarray
+
+    def t(self, index: int) -> float:
+        """The axial position of a bin's lower edge."""
+        return self.start + index * self.bin_size
+
+    def index(self, t: float) -> int:
+        """The bin holding axial position ``t`` (clipped to the profile)."""
+        return int(np.clip((t - self.start) // self.bin_size, 0, len(self.surface) - 1))
+
+
+def profile(
+    member: Member,
+    points: np.ndarray,
+    normals: np.ndarray,
+    *,
+    span: tuple[float, float],
+    bin_size: float,
+    distance: float,
+    angle_deg: float,
+    foreign: np.ndarray | None = None,
+) -> Profile:
+    """The surface and blob counts of the points along ``member``'s axis over ``span``,
+    leaving out the ``foreign`` points (those of other members meeting it)."""
+    cylinder = member.cylinder
+    t = (points - cylinder.point) @ cylinder.axis
+    inside = (t >= span[0]) & (t < span[1])
+    if foreign is not None:
+        inside &= ~foreign
+    t = t[inside]
+    off, cos = surface_fit(points[inside], normals[inside], cylinder)
+    on = (off < distance) & (cos > np.cos(np.radians(angle_deg)))
+    section = off + cylinder.radius < 4 * cylinder.radius
+    edges = np.arange(span[0], span[1] + bin_size, bin_size)
+    surface = np.histogram(t[on], edges)[0]
+    blob = np.histogram(t[~on & section], edges)[0]
+    near = (off < distance) & (cos > np.cos(np.radians(2 * angle_deg)))
+    return Profile(span[0], bin_size, surface, blob, np.sort(t[near]))
+
+
+def tube_end(
+    prof: Profile, node: float, inward: int, reference: float, clearance: float = 0.0
+) -> float:
+    """Where the tube's surface ends next to a node at ``node`` (ours). Walking ``inward``
+    (+1/-1) from ``clearance`` off the node (tubes meeting there cannot interpenetrate), find
+    the first bin whose surface count, smoothed over three bins, reaches half the tube's
+    typical count ``reference``; from its inner edge, walk back towards the node over points at
+    the tube's radius less than two bins apart (a gap rule on those points alone), not nearer
+    the node than ``clearance``."""
+    smooth = np.convolve(prof.surface, np.ones(3) / 3, "same")
+    last = len(smooth) - 1
+    i = prof.index(node + inward * clearance)
+    while 0 < i < last and smooth[i] < 0.5 * reference:
+        i += inward
+    if inward > 0:
+        body = prof.t(i + 1)
+        towards = prof.near[(prof.near > node) & (prof.near <= body)][::-1]
+    else:
+        body = prof.t(i)
+        towards = prof.near[(prof.near < node) & (prof.near >= body)]
+    if len(towards) == 0:
+        return body
+    end = float(towards[0])
+    for t in towards[1:]:
+        if abs(t - end) >= 2 * prof.bin_size or (t - node) * inward < clearance:
+            break
+        end = float(t)
+    return end
+
+
+def blob_centre(prof: Profile, end: float, outward: int, reach: float) -> float | None:
+    """The axial centre of the blob of off-surface points that starts at a tube ``end`` and
+    runs ``outward`` (gaps of up to two bins) within ``reach`` (m); None without one."""
+    i = prof.index(end + outward * prof.bin_size / 2)
+    stop = prof.index(end + outward * reach)
+    far, misses = None, 0
+    while misses <= 2 and 0 <= i < len(prof.blob) and (i - stop) * outward <= 0:
+        if prof.blob[i] > 0:
+            far, misses = i, 0
+        else:
+            misses += 1
+        i += outward
+    if far is None:
+        return None
+    edge = prof.t(far + 1) if outward > 0 else prof.t(far)
+    return 0.5 * (end + edge)
+
+
+@dataclass(frozen=True)
+class NodeRules:
+    """How ``node_members`` finds nodes and tube ends (m, deg): ``reach``, how far a node may
+    lie beyond a member's completed extent; ``angle_deg``, the least angle between members
+    meeting at a node; ``radius``, how near meeting points of pairs are one node; profile bins
+    of ``bin_size``; surface points within ``distance`` of the tube and normals within
+    ``surface_angle_deg`` of radial; tubes shorter than ``min_length`` are no members."""
+
+    reach: float
+    angle_deg: float
+    radius: float
+    bin_size: float
+    distance: float
+    surface_angle_deg: float
+    min_length: float
+
+
+def node_members(
+    members: Sequence[Member], points: np.ndarray, normals: np.ndarray, rules: NodeRules
+) -> list[Member]:
+    """Members cut at the nodes on their axes, each with its tube extent (t0, t1) and nodes;
+    a member meeting no node whose middle lies within ``reach`` of one is dropped (an edge of a
+    large connector, fitted as a cylinder)."""
+    nodes = junctions(members, reach=rules.reach, angle_deg=rules.angle_deg, radius=rules.radius)
+    centres = np.array([node for node, _ in nodes]).reshape(-1, 3)
+    cut = []
+    for k, member in enumerate(members):
+        on = [
+            (node, [members[j] for j in joined if j != k]) for node, joined in nodes if k in joined
+        ]
+        middle = 0.5 * (member.p0 + member.p1)
+        if not on and (np.linalg.norm(centres - middle, axis=1) < rules.reach).any():
+            continue
+        cut += _cut(member, on, points, normals, rules)
+    return cut
+
+
+def _foreign(
+    member: Member,
+    points: np.ndarray,
+    meeting: list[tuple[np.ndarray, list[Member]]],
+    rules: NodeRules,
+) -> np.ndarray:
+    """Points of the other members meeting ``member`` at a node: within ``reach`` of the node,
+    inside (radius + ``distance``) of another member's axis and farther from the node along
+    it, on its side, than along ``member``'s axis. A tube ending on another at right angles
+    has its end cap at this member's radius; this member's own tube, ending where it clears
+    the others (r / tan(θ / 2) from the node), stays."""
+    foreign = np.zeros(len(points), bool)
+    for node, others in meeting:
+        close = np.flatnonzero(np.linalg.norm(points - node, axis=1) < rules.reach)
+        w = points[close] - node
+        along_own = np.abs(w @ member.cylinder.axis)
+        for other in others:
+            axis = other.cylinder.axis
+            side = np.sign((0.5 * (other.p0 + other.p1) - node) @ axis)
+            t = w @ axis
+            radial = np.linalg.norm(w - np.outer(t, axis), axis=1)
+            inside = (radial < other.cylinder.radius + rules.distance) & (side * t > along_own)
+            foreign[close[inside]] = True
+    return foreign
+
+
+Bound = tuple[float, np.ndarray | None, list[Member]]
+"""Where a member's piece may end: axial position, node (None: a free end), members meeting."""
+
+
+def clearance(
+    radius: float, direction: np.ndarray, node: np.ndarray, others: list[Member]
+) -> float:
+    """How near a node a tube along ``direction`` (from the node) can end without cutting the
+    tubes of ``others`` meeting there: r / tan(θ / 2) for the least angle θ between them, r the
+    mean radius of the two tubes."""
+    gaps = []
+    for other in others:
+        side = np.sign((0.5 * (other.p0 + other.p1) - node) @ other.cylinder.axis)
+        cos = float(np.clip(direction @ (side * other.cylinder.axis), -1.0, 1.0))
+        gaps.append(0.5 * (radius + other.cylinder.radius) / np.tan(np.arccos(cos) / 2))
+    return max(gaps)
+
+
+def _cut(
+    member: Member,
+    meeting: list[tuple[np.ndarray, list[Member]]],
+    points: np.ndarray,
+    normals: np.ndarray,
+    rules: NodeRules,
+) -> list[Member]:
+    """The pieces of ``member`` between the nodes on its axis (each with the other members
+    meeting there: ``meeting``) and its free ends; a member meeting no other (a scaffold tube
+    running through its couplers) stays as completed."""
+    if not meeting:
+        return [member]
+    cylinder = member.cylinder
+    at = sorted(
+        ((float((n - cylinder.point) @ cylinder.axis), n, o) for n, o in meeting),
+        key=lambda x: x[0],
+    )
+    lo = min([member.t0, *(b[0] for b in at)]) - rules.reach
+    hi = max([member.t1, *(b[0] for b in at)]) + rules.reach
+    prof = profile(
+        member,
+        points,
+        normals,
+        span=(lo, hi),
+        bin_size=rules.bin_size,
+        distance=rules.distance,
+        angle_deg=rules.surface_angle_deg,
+        foreign=_foreign(member, points, meeting, rules),
+    )
+    own = prof.surface[prof.index(member.t0) : prof.index(member.t1) + 1]
+    if not (own > 0).any():
+        return [member]
+    reference = float(np.median(own[own > 0]))
+    support = (points[member.indices] - cylinder.point) @ cylinder.axis
+    bounds: list[Bound] = [(member.t0, None, []), *at, (member.t1, None, [])]
+    pieces = []
+    for low, high in zip(bounds[:-1], bounds[1:], strict=True):
+        if high[0] > low[0]:
+            pieces.append(_piece(member, prof, reference, low, high, support, rules))
+    return [p for p in pieces if p is not None]
+
+
+def _piece(
+    member: Member,
+    prof: Profile,
+    reference: float,
+    low: Bound,
+    high: Bound,
+    support: np.ndarray,
+    rules: NodeRules,
+) -> Member | None:
+    """The tube between two bounds (a node, or a completed free end) of a member, if any."""
+    ends, nodes = [], []
+    for (t, node, others), inward in ((low, +1), (high, -1)):
+        direction = inward * member.cylinder.axis
+        gap = clearance(member.cylinder.radius, direction, node, others) if others else 0.0
+        end = tube_end(prof, t, inward, reference, gap)
+        if node is None:
+            node, end = _free_end(member, prof, t, end, -inward, rules)
+        ends.append(end)
+        nodes.append(node)
+    t0, t1 = ends
+    if t1 - t0 < rules.min_length:
+        return None
+    smooth = np.convolve(prof.surface, np.ones(3) / 3, "same")
+    covered = smooth[prof.index(t0) : prof.index(t1) + 1] >= 0.5 * reference
+    if covered.mean() < 0.3:
+        return None
+    inside = (support >= t0) & (support <= t1)
+    return Member(member.cylinder, t0, t1, member.indices[inside], member.pieces, *nodes)
+
+
+def _free_end(
+    member: Member, prof: Profile, completed: float, tube: float, outward: int, rules: NodeRules
+) -> tuple[np.ndarray | None, float]:
+    """A free end keeps its completed end, unless the tube's surface stops two bins or more
+    short of it at a blob: then the tube ends there and the node is the blob's centre."""
+    centre = blob_centre(prof, tube, outward, rules.reach)
+    if abs(completed - tube) < 2 * rules.bin_size or centre is None:
+        return None, completed
+    return member.cylinder.point + centre * member.cylinder.axis, tube

@@ -1,21 +1,26 @@
-"""The truss perception plugin: accumulate body-frame clouds in the odometry frame, model them."""
+"""The truss perception plugin: accumulate body-frame clouds in the odometry frame, model them,
+and, for a profile with a gripper, find where it may grasp the members."""
 
 from __future__ import annotations
 
 from typing import Any, ClassVar
 
+import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.cloud import CloudPerception, within_range
-from climbd.daemon.contract.messages import BodyState, TrussMember, TrussMembers
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.messages import BodyState, TrussGrasps, TrussMember, TrussMembers
 from climbd.plugins.perception.truss.cloud import VoxelMap, body_to_odometry
 from climbd.plugins.perception.truss.completion import Member
+from climbd.plugins.perception.truss.grasp import GraspConfig, truss_grasps
 from climbd.plugins.perception.truss.model import TrussConfig, TrussModeller, coverage
 from climbd.plugins.perception.truss.nodes import MemberTracks, connectors
 
 
 def to_message(member: Member, points: np.ndarray, bin_size: float, ident: int) -> TrussMember:
-    """A modelled member as the wire TrussMember (odometry frame, axis from p0 to p1)."""
+    """A modelled member as the wire TrussMember (odometry frame, axis from p0 to p1): its
+    tube extent and, where an end meets a node, that node."""
     return TrussMember(
         p0=member.p0.tolist(),
         p1=member.p1.tolist(),
@@ -23,21 +28,34 @@ def to_message(member: Member, points: np.ndarray, bin_size: float, ident: int) 
         axis=member.cylinder.axis.tolist(),
         confidence=round(coverage(member, points, bin_size), 3),
         id=ident,
+        node0=[] if member.node0 is None else member.node0.tolist(),
+        node1=[] if member.node1 is None else member.node1.tolist(),
     )
+
+
+class TrussPerceptionConfig(TrussConfig, kw_only=True):
+    """The truss modeller's parameters and, under ``grasp``, the grasp targets'."""
+
+    grasp: GraspConfig = msgspec.field(default_factory=GraspConfig)
 
 
 class TrussPerception(CloudPerception):
     """Builds the truss model from every frame so far (the paper's dense SLAM cloud, here our
     odometry poses) and publishes its members, with ids kept across updates, and its nodes
-    every ``model_every`` frames."""
+    every ``model_every`` frames; with the profile's gripper, the grasp targets on them too,
+    each with the legs that reach it from the frame's body pose."""
 
     name: ClassVar[str] = "truss"
-    publishes = (TrussMembers,)
-    Config: ClassVar[type[TrussConfig]] = TrussConfig
+    publishes = (TrussMembers, TrussGrasps)
+    Config: ClassVar[type[TrussConfig]] = TrussPerceptionConfig
 
     def __init__(self, config: TrussConfig | None = None, profile: Any = None) -> None:
         super().__init__(config, profile)
         self.modeller = TrussModeller(self.config)
+        grasping = isinstance(self.config, TrussPerceptionConfig)
+        self.grasp = self.config.grasp if grasping else GraspConfig()
+        self.gripper = None if profile is None else profile.gripper
+        self.kinematics = None if self.gripper is None else Kinematics(profile)
         self.reset()
 
     def reset(self) -> None:
@@ -49,8 +67,9 @@ class TrussPerception(CloudPerception):
 
     def process_cloud(
         self, points: np.ndarray, body: BodyState, stamp: float
-    ) -> TrussMembers | None:
-        """Add body-frame points (N x 3, m) seen at ``body``'s pose; model when it is time."""
+    ) -> TrussMembers | tuple[TrussMembers, TrussGrasps] | None:
+        """Add body-frame points (N x 3, m) seen at ``body``'s pose; model when it is time
+        (with the grasp targets, for a profile with a gripper)."""
         points = np.asarray(points, dtype=float)
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"truss: points must be N x 3 (m), got shape {points.shape}")
@@ -72,4 +91,7 @@ class TrussPerception(CloudPerception):
             for m, i in zip(model.members, ids, strict=True)
         ]
         nodes = connectors(model.members, ids, self.config.node_radius)
-        return TrussMembers(stamp=stamp, frame_stamp=stamp, members=members, nodes=nodes)
+        truss = TrussMembers(stamp=stamp, frame_stamp=stamp, members=members, nodes=nodes)
+        if self.kinematics is None:
+            return truss
+        return truss, truss_grasps(truss, self.gripper, self.grasp, body, self.kinematics)
