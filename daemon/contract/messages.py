@@ -528,8 +528,9 @@ class Stability(Message):
 
 class TrussMember(msgspec.Struct, kw_only=True):
     """A cylindrical truss member (paper 003): the tube extent p0, p1 (m, where the tube's
-    surface ends), radius (m), unit axis p0 -> p1; confidence is the fraction of its length
-    covered by points; ``id`` stays the member's across model updates (0: not tracked).
+    surface ends), radius (m), unit axis p0 -> p1; confidence: 1 - the product over the
+    updates it was seen in of (1 - the fraction of its length covered by points); ``id`` stays
+    the member's across model updates (0: not tracked).
     ``node0``/``node1``: its node-to-node ends, the nodes (where member axes meet, inside the
     connectors) its p0/p1 ends meet; empty when that end is free (then the tube end)."""
 

@@ -48,8 +48,9 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     and report each member's tube extent and its nodes (nodes.py); ``node_reach``: how far a
     node may lie beyond a member's completed extent; ``node_angle_deg``: the least angle between
     members meeting at a node.
-    ``track_gate``: a member re-modelled with both ends within this of one of the last model
-    keeps its id; ``node_radius``: member ends this close meet at one connector."""
+    ``track_gate``: a member re-modelled with both ends within this of a member of the
+    persistent model fuses into it (keeps its id); ``track_expiry``: model updates in view
+    without a member drop it; ``node_radius``: member ends this close meet at one connector."""
 
     voxel: float = 0.01
     max_range: float = 4.5
@@ -90,6 +91,7 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     seed: int = 0
     model_every: int = 1
     track_gate: float = 0.1
+    track_expiry: int = 3
     node_radius: float = 0.05
     node_reach: float = 0.25
     node_angle_deg: float = 20.0
@@ -111,7 +113,14 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
         if self.linker < 0:
             raise ValueError(f"truss: linker must be >= 0 (0: members end free), got {self.linker}")
         names = ("voxel", "gap", "cylinder_distance", "plane_distance", "segment_gap")
-        for name in (*names, "gap_epsilon", "track_gate", "node_radius", "node_reach"):
+        for name in (
+            *names,
+            "gap_epsilon",
+            "track_gate",
+            "track_expiry",
+            "node_radius",
+            "node_reach",
+        ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"truss: {name} must be > 0, got {getattr(self, name)}")
 

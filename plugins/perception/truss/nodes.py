@@ -1,9 +1,7 @@
-"""Identities and connectors of the truss model (paper 003), across model updates.
+"""Nodes and connectors of the truss model (paper 003).
 
-The modeller rebuilds the whole truss from the accumulated cloud at each update, so a member
-comes back with other end points and in another order each time; ``MemberTracks`` gives it the
-id it had (the least end-to-end distance, either way round, within a gate). ``connectors``
-finds the nodes: where the ends of two or more members meet.
+``connectors`` finds the nodes of a model: where the ends of two or more members meet;
+``end_distance`` compares two members end to end (tracking.py associates members with it).
 
 Nodes as features (ours, for space frames whose members end on connectors of any shape and
 size): where member axes meet (``junctions``), the node is the least-squares point nearest
@@ -20,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from climbd.daemon.algorithms.tracks import Track, TrackConfig, Tracker
 from climbd.daemon.contract.messages import TrussNode
 from climbd.plugins.perception.truss.completion import Member
 from climbd.plugins.perception.truss.cylinders import surface_fit
@@ -32,25 +29,6 @@ def end_distance(a: np.ndarray, b: np.ndarray) -> float:
     same = max(np.linalg.norm(a[:3] - b[:3]), np.linalg.norm(a[3:] - b[3:]))
     flipped = max(np.linalg.norm(a[:3] - b[3:]), np.linalg.norm(a[3:] - b[:3]))
     return float(min(same, flipped))
-
-
-def latest(track: Track, seen: np.ndarray, gain: float, payload: object) -> None:
-    """A member's estimate is the latest model's: the modeller already used every frame."""
-    track.estimate = seen
-
-
-class MemberTracks:
-    """Member ids across model updates: a member of the new model within ``gate`` (m, end to
-    end) of one of the last model keeps its id; one the new model lacks is dropped."""
-
-    def __init__(self, gate: float) -> None:
-        config = TrackConfig(gate=gate, memory=1.0, max_misses=1)
-        self.tracker = Tracker(config, end_distance, latest)
-
-    def update(self, members: Sequence[Member], stamp: float) -> list[int]:
-        """The ids of ``members``, in their order."""
-        ends = [np.concatenate([m.p0, m.p1]) for m in members]
-        return [t.id for t in self.tracker.update(ends, [1.0] * len(ends), stamp)]
 
 
 def _groups(points: np.ndarray, radius: float) -> list[list[int]]:

@@ -15,18 +15,19 @@ from climbd.plugins.perception.truss.cloud import VoxelMap, body_to_odometry
 from climbd.plugins.perception.truss.completion import Member
 from climbd.plugins.perception.truss.grasp import GraspConfig, truss_grasps
 from climbd.plugins.perception.truss.model import TrussConfig, TrussModeller, coverage
-from climbd.plugins.perception.truss.nodes import MemberTracks, connectors
+from climbd.plugins.perception.truss.nodes import connectors
+from climbd.plugins.perception.truss.tracking import FieldOfView, MemberTracks, Sighting
 
 
-def to_message(member: Member, points: np.ndarray, bin_size: float, ident: int) -> TrussMember:
-    """A modelled member as the wire TrussMember (odometry frame, axis from p0 to p1): its
-    tube extent and, where an end meets a node, that node."""
+def to_message(member: Member, confidence: float, ident: int) -> TrussMember:
+    """A member of the persistent model as the wire TrussMember (odometry frame, axis from p0
+    to p1): its tube extent and, where an end meets a node, that node."""
     return TrussMember(
         p0=member.p0.tolist(),
         p1=member.p1.tolist(),
         radius=float(member.cylinder.radius),
         axis=member.cylinder.axis.tolist(),
-        confidence=round(coverage(member, points, bin_size), 3),
+        confidence=round(confidence, 3),
         id=ident,
         node0=[] if member.node0 is None else member.node0.tolist(),
         node1=[] if member.node1 is None else member.node1.tolist(),
@@ -41,8 +42,9 @@ class TrussPerceptionConfig(TrussConfig, kw_only=True):
 
 class TrussPerception(CloudPerception):
     """Builds the truss model from every frame so far (the paper's dense SLAM cloud, here our
-    odometry poses) and publishes its members, with ids kept across updates, and its nodes
-    every ``model_every`` frames; with the profile's gripper, the grasp targets on them too,
+    odometry poses) every ``model_every`` frames, fuses its members into the persistent model
+    (tracking.py: ids, fused estimates, confidence, expiry, splits and merges) and publishes
+    that model's members and nodes; with the profile's gripper, the grasp targets on them too,
     each with the legs that reach it from the frame's body pose."""
 
     name: ClassVar[str] = "truss"
@@ -59,10 +61,11 @@ class TrussPerception(CloudPerception):
         self.reset()
 
     def reset(self) -> None:
-        """Forget the accumulated cloud and the members' ids (e.g. after the odometry frame
+        """Forget the accumulated cloud and the persistent model (e.g. after the odometry frame
         was reset)."""
         self.map = VoxelMap(self.config.voxel)
-        self.tracks = MemberTracks(self.config.track_gate)
+        self.tracks = MemberTracks(self.config.track_gate, self.config.track_expiry)
+        self.views: list[FieldOfView] = []
         self.frames = 0
 
     def process_cloud(
@@ -80,18 +83,26 @@ class TrussPerception(CloudPerception):
         points = within_range(points, self.config.max_range)
         if len(points):
             self.map.add(body_to_odometry(points, body))
+        self.views.append(FieldOfView(points, body, self.config.max_range))
         self.frames += 1
         if self.frames % self.config.model_every:
             return None
-        model = self.modeller.model(self.map.points)
-        bin_size = 2 * self.config.voxel
-        ids = self.tracks.update(model.members, stamp)
-        members = [
-            to_message(m, model.points, bin_size, i)
-            for m, i in zip(model.members, ids, strict=True)
-        ]
-        nodes = connectors(model.members, ids, self.config.node_radius)
+        self.fuse(stamp)
+        fused = self.tracks.members()
+        members = [to_message(m, t.confidence, t.id) for t, m in fused]
+        nodes = connectors([m for _, m in fused], [t.id for t, _ in fused], self.config.node_radius)
         truss = TrussMembers(stamp=stamp, frame_stamp=stamp, members=members, nodes=nodes)
         if self.kinematics is None:
             return truss
         return truss, truss_grasps(truss, self.gripper, self.grasp, body, self.kinematics)
+
+    def fuse(self, stamp: float) -> None:
+        """Model the accumulated cloud and fold its members into the persistent model, each
+        weighted by its coverage and the frames the cloud holds."""
+        model = self.modeller.model(self.map.points)
+        bin_size = 2 * self.config.voxel
+        sightings = [
+            Sighting.of(m, coverage(m, model.points, bin_size), self.frames) for m in model.members
+        ]
+        self.tracks.update(sightings, stamp, self.views)
+        self.views = []
