@@ -3,10 +3,14 @@
 Each setup runs twice in the same process: the gait's joint goals set in the twin in-process
 (the baseline: what tests/test_joist_climb_twin.py runs) and the daemon's driver path
 (Controller, Safety, leg odometry, dynamixel_sdk to the AX-18A emulator on the twin's pty,
-lock-step). Prints each run's verdict (the tests' own checks) and its wall seconds per
-simulated second, with the driver path's ratio to the baseline.
+lock-step). The joist map is built from the world's true joists (the gait isolated) or, with
+``--perceived``, from joist perception on the twin's ray-cast depth at the pose the gait is
+given. Prints each run's verdict (the tests' own checks), the simulated seconds of each
+crossing, its replans (succeeded of requested; drifts after which the plan still kept its
+margins) and its wall seconds per simulated second, with the driver path's ratio.
 
-    .venv/bin/python bench/joist_climb.py [--only 1 3 row] [--set foot_margin=0.035]
+    .venv/bin/python bench/joist_climb.py [--only 1 3 row] [--perceived] [--in-process-only]
+        [--set foot_margin=0.035]
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from test_joist_climb_twin import TABLE_2, assert_climbed, assert_went_round  # 
 
 from climbd.drivers.sim.worlds import INCH, JoistRow  # noqa: E402
 from climbd.plugins.gaits.joist_climb import JoistClimbConfig  # noqa: E402
+from climbd.plugins.perception.joist_perception import JoistPerception  # noqa: E402
 
 
 def setups() -> dict[str, tuple[JoistRow, float, float]]:
@@ -63,6 +68,8 @@ def main() -> None:
     parser.add_argument(
         "--set", nargs="*", default=[], metavar="KEY=VALUE", help="JoistClimbConfig overrides"
     )
+    parser.add_argument("--perceived", action="store_true", help="joists from perception")
+    parser.add_argument("--in-process-only", action="store_true", help="skip the driver path")
     args = parser.parse_args()
     config = {}
     for item in args.set:
@@ -74,21 +81,28 @@ def main() -> None:
         except ValueError:
             parser.error(f"--set {item}: {key} needs a number")
     chosen = {k: v for k, v in setups().items() if not args.only or k in args.only}
-    print("| setup | in-process | wall/sim | driver path | wall/sim | ratio | replans |")
+    paths = (False,) if args.in_process_only else (False, True)
+    joists = "perceived" if args.perceived else "true"
+    print("| setup | joists | path | verdict | crossing s | replans ok/asked, kept | wall/sim |")
     print("|---|---|---|---|---|---|---|")
     for name, (row, goal, seconds) in chosen.items():
-        cells = []
-        for driver in (False, True):
+        rates = []
+        for driver in paths:
+            perception = JoistPerception() if args.perceived else None
             t0 = time.perf_counter()
-            outcome = run_scenario([row], goal=goal, seconds=seconds, driver=driver, **config)
-            rate = (time.perf_counter() - t0) / max(outcome.seconds, 1e-9)
-            replans = sum("replanned" in e or "no new plan" in e for e in outcome.events)
-            cells.append((verdict(outcome, row), rate, replans))
-        (v0, r0, n0), (v1, r1, n1) = cells
-        print(
-            f"| {name} | {v0} | {r0:.3f} | {v1} | {r1:.3f} | {r1 / r0:.1f}× | {n0} / {n1} |",
-            flush=True,
-        )
+            outcome = run_scenario(
+                [row], goal=goal, seconds=seconds, perception=perception, driver=driver, **config
+            )
+            rates.append((time.perf_counter() - t0) / max(outcome.seconds, 1e-9))
+            r = outcome.replans
+            crossing = ", ".join(f"{s:.0f}" for s in outcome.crossings) or "–"
+            ratio = f" ({rates[-1] / rates[0]:.1f}× in-process)" if driver else ""
+            print(
+                f"| {name} | {joists} | {'driver' if driver else 'in-process'} | "
+                f"{verdict(outcome, row)} | {crossing} | {r.succeeded}/{r.attempts}, {r.kept} | "
+                f"{rates[-1]:.3f}{ratio} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

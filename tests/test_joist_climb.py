@@ -362,3 +362,55 @@ def test_the_walk_is_done_only_after_the_feet_have_had_touchdown_time_to_land():
     assert b.done and b.travelled >= 0.3
     assert t - last_move >= b.config.touchdown_time - DT
     assert t - last_move < b.config.touchdown_time + 2 * DT
+
+
+def _plan_on(bars: tuple[Bar, ...], feet: np.ndarray, height: float, **config) -> CrossingPlan:
+    """A crossing plan of the default config (``config`` over it) from ``feet`` (ground)."""
+    kin = Kinematics(WIDOWX)
+    stand = -float(kin.stand_feet()[0, 2])
+    geometry = CrossingGeometry(bars=bars, half_length=float(np.abs(kin.mount[:, 0]).max()))
+    params = JoistClimbConfig(**config).crossing_params()
+    return CrossingPlan(geometry, params, kin, feet, stand, height)
+
+
+def test_a_plan_keeps_its_tolerance_so_a_drift_inside_it_needs_no_replan():
+    """Every margin of the plan keeps ``plan_tolerance`` beyond its limit, so the joist found
+    that far off along x (perception's noise, servo lag) still fits the rest of the plan; one
+    found 3 cm nearer does not, and the behaviour replans."""
+    kin = Kinematics(WIDOWX)
+    feet = kin.stand_feet()
+    ground = np.column_stack([feet[:, :2], np.zeros(len(feet))])
+    bar = Bar(0.31, 0.04, 0.10)
+    tolerance = JoistClimbConfig().plan_tolerance
+    plan = _plan_on((bar,), ground, -float(feet[0, 2]))
+    assert plan.margin((bar,), 0) >= tolerance - 1e-9
+    for phase in (0, len(plan.moves) // 3, 2 * len(plan.moves) // 3):
+        for shift in (-tolerance, tolerance):
+            moved = Bar(bar.face + shift, bar.width, bar.height)
+            assert plan.margin((moved,), phase) >= -1e-9, (phase, shift)
+    nearer = Bar(bar.face - 0.03, bar.width, bar.height)
+    assert plan.margin((nearer,), 0) < 0.0
+
+
+def test_a_replan_from_a_pose_inside_a_margin_crosses_without_going_deeper():
+    """A replan from the twin on its perceived joist: a drift left the left front foot 1.4 cm
+    before the joist's face, its tibia 2 mm inside its clearance. Every margin could not keep
+    the tolerance from there, so the plan keeps each no worse than the start's: the crossing
+    goes on, every foot ends beyond the joist."""
+    feet = np.array(
+        [
+            [0.131, -0.166, 0.0],
+            [0.0, -0.25, 0.0],
+            [-0.226, -0.166, 0.0],
+            [0.136, 0.166, 0.0],
+            [0.0, 0.25, 0.0],
+            [-0.256, 0.166, 0.0],
+        ]
+    )
+    bar = Bar(0.150, 0.044, 0.098)
+    plan = _plan_on((bar,), feet, 0.145)
+    start = plan.check(np.array([[[0.0, 0.0, 0.145]]]), feet[None, None], np.ones(6, bool))[0]
+    assert -0.005 < start < 0.0, "the start breaks a margin"
+    assert plan.margin((bar,), 0) >= start - 1e-9
+    final = plan.moves[-1].feet0
+    assert (final[:, 0] > bar.face + bar.width).all(), "every foot beyond the joist"

@@ -11,7 +11,10 @@ plugins/gaits/joist_crossing.py: body raised to the climb height, legs stepped o
 over the joist (front, then middle, then back, as in Figure 8) while five feet stand, the
 body moved on six. Joists parallel to it in view (an attic row, 16 in apart, closer than the
 robot is long) are crossed in the same plan, which is extended when another comes into view
-and replanned when the measured body has drifted from the planned one (feet slip, servo lag).
+and replanned only when the measured body has drifted out of the plan's tolerance (feet slip,
+servo lag): past ``replan_drift`` the rest of the plan is checked against the joists where the
+body now finds them, and kept when it still keeps its margins, so perception's noise of a few
+millimetres does not restart the crossing at every phase.
 At or above the threshold, it walks sideways until no high joist blocks its path, then walks
 on; a joist for which the planner finds no safe motion (legs clear of it, feet reachable, body
 over its support) is gone round the same way. The crossing is planned standing still, in the
@@ -96,8 +99,13 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     exit_distance: float = 0.06
     landing_height: float = 0.0
     slip_recovery: bool = False
+    plan_tolerance: float = 0.006
+    """How far (m) each margin of a crossing plan stays inside its limit where it can."""
+    landmark_gate: float = 0.05
+    """How near (m) a joist of the map must be to the tracked one to be taken for it."""
     replan_drift: float = 0.006
     replan_yaw_deg: float = 0.5
+    """Drift (m, deg) from the planned pose past which the rest of the plan is checked."""
     row_angle_deg: float = 10.0
     goal_distance: float | None = None
     tripod: TripodConfig = msgspec.field(default_factory=TripodConfig)
@@ -134,6 +142,7 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
             exit_distance=self.exit_distance,
             landing_height=self.landing_height,
             slip_recovery=self.slip_recovery,
+            tolerance=self.plan_tolerance,
         )
 
 
@@ -222,6 +231,31 @@ class InPlaceTurn:
         return feet, stance
 
 
+class Replans(msgspec.Struct):
+    """A crossing's replans: requested, of which a new plan came, and drift checks after which
+    the plan still kept its margins (no replan)."""
+
+    attempts: int = 0
+    succeeded: int = 0
+    kept: int = 0
+
+    def __str__(self) -> str:
+        return (
+            f"{self.succeeded} of {self.attempts} replans succeeded; "
+            f"the plan kept its margins after {self.kept} drifts"
+        )
+
+
+def _refit(
+    plan: CrossingPlan, bars: tuple[Bar, ...], phase: int, *args: object
+) -> CrossingPlan | None:
+    """None when the rest of ``plan`` from ``phase`` keeps its margins with the joists at
+    ``bars`` (its frame), else a new plan from ``args`` (CrossingPlan's)."""
+    if plan.margin(bars, phase) >= 0.0:
+        return None
+    return CrossingPlan(*args)
+
+
 def _rot(yaw: float) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s], [s, c]])
@@ -279,7 +313,8 @@ class JoistClimb(GaitPlugin):
         self.turn: InPlaceTurn | None = None
         self._align_from: tuple[float, float, float] | None = None
         self._square_from = 0.0
-        self.planner: PlanWorker[CrossingPlan] = PlanWorker("joist-plan")
+        self.planner: PlanWorker[CrossingPlan | None] = PlanWorker("joist-plan")
+        self.replans = Replans()
         self._held: tuple[float, FootTargets, np.ndarray, np.ndarray] | None = None
         self._holding: FootTargets | None = None
         self._planned: tuple[tuple[Bar, ...], np.ndarray, float] | None = None
@@ -297,6 +332,7 @@ class JoistClimb(GaitPlugin):
         self.done = False
         self.travelled = 0.0
         self._held = None
+        self.replans = Replans()
         self.planner.close()
         self.planner = PlanWorker("joist-plan", wait=self.stepped)
 
@@ -351,12 +387,17 @@ class JoistClimb(GaitPlugin):
         )
 
     def _sighting(self, joist: TrackedJoist, sightings: list[Joist]) -> Joist | None:
-        """The detection of the latest message that is ``joist`` (within 10 cm and 10°)."""
+        """The joist of the map that is ``joist``: the nearest in distance within
+        ``landmark_gate`` and 10°. Seen from above, a joist's far edge can enter the map as a
+        second joist a width or two beyond its face; the nearest is the one tracked."""
         distance, yaw = self.ahead(joist)
-        for j in self._relevant(sightings):
-            if abs(j.distance - distance) < 0.1 and abs(j.yaw - yaw) < math.radians(10.0):
-                return j
-        return None
+        near = [
+            j
+            for j in self._relevant(sightings)
+            if abs(j.distance - distance) < self.config.landmark_gate
+            and abs(j.yaw - yaw) < math.radians(10.0)
+        ]
+        return min(near, key=lambda j: abs(j.distance - distance), default=None)
 
     def _refresh(self, sightings: list[Joist]) -> None:
         """Replace the tracked joist by a fresh detection of the same joist, when there is one."""
@@ -615,20 +656,28 @@ class JoistClimb(GaitPlugin):
             bars.append(Bar(distance - skew, c.joist_width + 2.0 * skew, joist.height))
         return tuple(sorted(bars, key=lambda bar: bar.face))
 
-    def _request_plan(self, feet: np.ndarray, height: float) -> None:
+    def _request_plan(
+        self, feet: np.ndarray, height: float, fit: tuple[CrossingPlan, float, int] | None = None
+    ) -> None:
         """Plan a crossing of the row from here on the worker: ``feet`` on the ground (n×3: x, y
-        relative to the body, z above the floor). Its inputs are taken now, on the tick."""
+        relative to the body, z above the floor). With ``fit`` (the plan, the body's x in it,
+        the phase) the plan is kept (the outcome is None) when its rest still keeps its
+        margins with the joists where the body finds them. Inputs are taken now, on the tick."""
         geometry = CrossingGeometry(
             bars=self._bars(),
             half_length=float(np.abs(self.kin.mount[:, 0]).max()),
         )
         params = self.config.crossing_params()
         self._planned = (geometry.bars, feet.copy(), height)
-        self.planner.request(
-            CrossingPlan, geometry, params, self.kin, feet.copy(), self.tripod.height0, height
-        )
+        args = (geometry, params, self.kin, feet.copy(), self.tripod.height0, height)
+        if fit is None:
+            self.planner.request(CrossingPlan, *args)
+        else:
+            plan, x, phase = fit
+            shifted = tuple(Bar(bar.face + x, bar.width, bar.height) for bar in geometry.bars)
+            self.planner.request(_refit, plan, shifted, phase, *args)
 
-    def _outcome(self) -> Outcome[CrossingPlan] | None:
+    def _outcome(self) -> Outcome[CrossingPlan | None] | None:
         """The requested plan's outcome; a planner bug (not a CrossingError) is raised, so the
         runtime isolates the behaviour and holds."""
         outcome = self.planner.take()
@@ -737,26 +786,37 @@ class JoistClimb(GaitPlugin):
         self.pose = measured
         return True
 
-    def _replan(self, t: float, targets: FootTargets, body: np.ndarray, feet: np.ndarray) -> None:
-        """Plan on from this phase boundary (a joist of the row came into view, or the body
-        drifted), holding ``targets`` until the plan arrives: the feet stay where they stand
-        relative to the body."""
-        self._request_plan(feet - np.array([body[0], body[1], 0.0]), float(body[2]))
+    def _replan(
+        self, t: float, targets: FootTargets, body: np.ndarray, feet: np.ndarray, fit: bool
+    ) -> None:
+        """Plan on from this phase boundary (a joist of the row came into view, or, with
+        ``fit``, the body drifted and the plan no longer keeps its margins), holding
+        ``targets`` until the outcome arrives: the feet stay where they stand relative to the
+        body."""
+        check = (self.plan, float(body[0]), self._phase) if fit else None
+        self._request_plan(feet - np.array([body[0], body[1], 0.0]), float(body[2]), check)
         self._plan_from = self.pose.copy()
         self._held = (t, targets, body, feet)
         self._take_replan(t)
 
     def _take_replan(self, t: float) -> None:
-        """Go on from the held boundary on the new plan, or on the old one when none fits."""
+        """Go on from the held boundary on the new plan, or on the old one when it still fits
+        or none does."""
         outcome = self._outcome()
         if outcome is None or self._held is None:
             return
         since, _, body, _ = self._held
         self._held = None
-        if outcome.error is not None:
+        if outcome.error is None and outcome.plan is None:
+            self.replans.kept += 1
             self._t_mode += t - since  # the old plan resumes at the boundary it held at
+            return
+        self.replans.attempts += 1
+        if outcome.error is not None:
+            self._t_mode += t - since
             self._event(t, f"cross: no new plan from here ({outcome.error}); on as planned")
             return
+        self.replans.succeeded += 1
         plan = outcome.plan
         self.travelled += float(body[0])
         self.plan = plan
@@ -786,11 +846,13 @@ class JoistClimb(GaitPlugin):
         phase = plan.phase(elapsed)
         if phase != self._phase:
             self._phase = phase
-            if stance.all() and (self._grow_row(sightings) or self._drifted(body, sightings)):
-                self._replan(t, out, b, feet)
+            if stance.all() and self._grow_row(sightings):
+                self._replan(t, out, b, feet, fit=False)
+            elif stance.all() and self._drifted(body, sightings):
+                self._replan(t, out, b, feet, fit=True)
         if elapsed >= plan.duration:
             self.travelled += float(b[0])
             self.target = None
             self.tripod.start(body, local)
-            self._switch(t, Phase.WALK, "joist crossed")
+            self._switch(t, Phase.WALK, f"joist crossed ({self.replans})")
         return out

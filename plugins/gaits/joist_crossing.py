@@ -18,11 +18,13 @@ mount), so a foot lifted to the joist top does not fold the knee past its limit,
 swinging foot may spread outward at its apex for the same reason. The order is the free
 gait's greedy rule: a leg with a bar just ahead tries to step over it at every phase (so the
 back pair finds the short window of body positions where it can), a leg far behind its home
-steps, the others step home while one waits to cross, else the body advances as far as the
-constraints allow (at most 3 cm). The front legs thus cross first, then the middle pair, then
-the back pair (Figure 8), one leg at a time. Body heights are tried from the lowest whose
-underside clears the joist; when none gives a plan, ``CrossingError`` says which leg is
-stuck where.
+steps, else the body advances as far as the constraints allow (at most 3 cm), else the others
+step home while one waits to cross (stepping them home before every advance doubled the
+swings). The front legs thus cross first, then the middle pair, then the back pair (Figure 8),
+one leg at a time. Every margin keeps ``tolerance`` beyond its limit where it can, so the
+robot found a few millimetres off the plan (perception, servo lag) still fits it
+(``margin``). Body heights are tried from the lowest whose underside clears the joist; when
+none gives a plan, ``CrossingError`` says which leg is stuck where.
 """
 
 from __future__ import annotations
@@ -66,7 +68,10 @@ class CrossingParams:
     three feet and the robot slid 1 cm. 3 mm fixes that run but leaves the in-process row of
     three unfinished in 420 s, so the default stays 0. ``slip_recovery``: a plan that starts
     inside a margin first shifts the body out of it (``_recovery``); off by default, since
-    through the driver it turned Table 2 test 5 from a clean crossing into a tibia touch."""
+    through the driver it turned Table 2 test 5 from a clean crossing into a tibia touch.
+    ``tolerance`` (m): how much every margin keeps beyond its limit in the plan, so that the
+    body found that much off the planned pose (perception's noise, servo lag) still fits it;
+    a phase that starts nearer a limit may not go nearer."""
 
     foot_margin: float
     clearance: float
@@ -86,6 +91,7 @@ class CrossingParams:
     exit_distance: float
     landing_height: float
     slip_recovery: bool
+    tolerance: float
 
 
 class LegChains:
@@ -306,12 +312,17 @@ class CrossingPlan:
     # --- checks -------------------------------------------------------------------------
 
     def check(
-        self, body: np.ndarray, feet: np.ndarray, stance: np.ndarray, legs=slice(None)
+        self,
+        body: np.ndarray,
+        feet: np.ndarray,
+        stance: np.ndarray,
+        legs=slice(None),
+        bars: tuple[Bar, ...] | None = None,
     ) -> np.ndarray:
         """Worst margin (C,) over T instants of C candidates: body (C, T, 3) as (x, y, height),
         ground feet (C, T, n, 3), stance (n,); reach and clearance of ``legs`` only (the
-        others stand still on a checked pose). Negative: a constraint is broken (-inf:
-        unreachable)."""
+        others stand still on a checked pose), from the plan's bars or ``bars``. Negative: a
+        constraint is broken (-inf: unreachable)."""
         p = self.p
         moving = feet[:, :, legs]
         local = moving - body[:, :, None, :]
@@ -324,7 +335,7 @@ class CrossingPlan:
         pts = (a[..., None, :] + LINK_SAMPLES * (b - a)[..., None, :]).reshape(*a.shape[:3], -1, 3)
         margin = np.full(body.shape[:2], np.inf)
         underside = body[..., 2] - p.body_half_height
-        for bar in self.g.bars:
+        for bar in self.g.bars if bars is None else bars:
             gap = np.minimum(bar_gap(pts, bar).min(axis=3), corner_gap(a, b, bar)).min(axis=2)
             gap = gap - p.leg_radius - SLACK
             margin = np.minimum(margin, gap)
@@ -371,18 +382,26 @@ class CrossingPlan:
     def _try_body(
         self, body: np.ndarray, feet: np.ndarray, targets: np.ndarray, floor: float = 0.0
     ):
-        """The first candidate body pose (rows of ``targets``) reachable by a checked move. From
-        a start that breaks a margin (``floor`` < 0, its worst), one that breaks none worse on
-        the way and ends with every margin kept."""
+        """The first candidate body pose (rows of ``targets``) reachable by a checked move: its
+        margins keep ``floor`` on the way, by default the tolerance or, from a start with less
+        of it, no less than the start's. From a start that breaks a margin (``floor`` < 0),
+        the move must end with every margin kept."""
         c = len(targets)
         path = body + progress(TAUS)[None, :, None] * (targets - body)[:, None, :]
         ground = np.broadcast_to(feet, (c, len(TAUS), self.n, 3))
         stance = np.ones(self.n, bool)
+        if floor >= 0.0:
+            floor = self._floor(path[:1, :1], ground[:1, :1], stance)
         good = self.check(path, ground, stance) >= floor
         if floor < 0.0:
             good &= self.check(path[:, -1:], ground[:, -1:], stance) >= 0.0
         good = np.flatnonzero(good)
         return targets[good[0]] if len(good) else None
+
+    def _floor(self, body, feet, stance, legs=slice(None)) -> float:
+        """The least margin a phase from this pose (1×1 instant) must keep: the tolerance, or
+        what of it the pose has (a replan from a pose a drift carried into it: no worse)."""
+        return min(self.p.tolerance, float(self.check(body, feet, stance, legs)[0]))
 
     def _recovery(self, body: np.ndarray, feet: np.ndarray) -> np.ndarray:
         """The body pose to plan from: ``body`` itself, or, when the robot has slipped into a
@@ -459,7 +478,7 @@ class CrossingPlan:
         if not len(sel):
             return None
         margin = self.check(bodies[sel], ground[sel], stance, [leg])
-        good = np.flatnonzero(margin >= 0.0)
+        good = np.flatnonzero(margin >= self._floor(bodies[:1, :1], ground[:1, :1], stance, [leg]))
         return paths[sel[good[0]]] if len(good) else None
 
     def _blocked(self, leg: int, body: np.ndarray, feet: np.ndarray, lead: float) -> bool:
@@ -524,10 +543,6 @@ class CrossingPlan:
             due = [i for i in order if behind[i] < -p.lead]
             if self._swing_first(due, body, feet, lead, swing):
                 continue
-            # A leg waits to cross: set the others at home, the support it needs to swing.
-            off = [i for i in order if abs(behind[i]) > MIN_STEP]
-            if blocked and self._swing_first(off, body, feet, 0.0, swing):
-                continue
             if not homing:
                 steps = np.minimum(body[0] + ADVANCES, goal)
                 targets = np.column_stack(
@@ -537,6 +552,11 @@ class CrossingPlan:
                 if target is not None and target[0] > body[0] + 1e-6:
                     body_move(target)
                     continue
+            # A leg waits to cross and the body cannot advance: set the others at home, the
+            # support it needs to swing.
+            off = [i for i in order if abs(behind[i]) > MIN_STEP]
+            if blocked and self._swing_first(off, body, feet, 0.0, swing):
+                continue
             off = np.abs(behind) > MIN_STEP
             rest = [int(i) for i in np.argsort(-np.abs(behind), kind="stable") if off[i]]
             if self._swing_first(rest, body, feet, 0.0, swing):
@@ -557,6 +577,27 @@ class CrossingPlan:
         return moves
 
     # --- playing ----------------------------------------------------------------------
+
+    def margin(self, bars: tuple[Bar, ...], phase: int) -> float:
+        """Worst margin (m) of the moves from ``phase`` on with the joists at ``bars`` (the
+        plan's frame) instead of where they were planned: the plan's tolerance to where the
+        robot finds itself. Negative: a constraint the plan was built to keep is broken."""
+        worst = np.inf
+        for move in self.moves[phase:]:
+            if move.paths:
+                leg, path = next(iter(move.paths.items()))
+                swing = segment_points(path[None], SEGMENT_FRACTIONS)
+                ground = np.repeat(move.feet0[None, None], swing.shape[1], axis=1)
+                ground[:, :, leg] = swing
+                stance = np.ones(self.n, bool)
+                stance[leg] = False
+                body = np.broadcast_to(move.body0, (1, swing.shape[1], 3))
+            else:
+                body = (move.body0 + progress(TAUS)[:, None] * (move.body1 - move.body0))[None]
+                ground = np.broadcast_to(move.feet0, (1, len(TAUS), self.n, 3))
+                stance = np.ones(self.n, bool)
+            worst = min(worst, float(self.check(body, ground, stance, bars=bars)[0]))
+        return worst
 
     def phase(self, t: float) -> int:
         """Index of the phase playing ``t`` s into the plan."""

@@ -35,7 +35,7 @@ from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.dynamixel.bus import DynamixelBus
 from climbd.drivers.sim.twin import Twin
 from climbd.drivers.sim.worlds import JoistRow, World
-from climbd.plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig
+from climbd.plugins.gaits.joist_climb import JoistClimb, JoistClimbConfig, Replans
 from support.joist_scenes import JoistSpec
 from support.joist_world import mapped, perceive
 
@@ -63,6 +63,9 @@ class Outcome:
     seconds: float = 0.0
     held: str = ""
     """Why the safety supervisor left ACTIVE (driver path only; empty when it never did)."""
+    replans: Replans = field(default_factory=Replans)
+    crossings: list[float] = field(default_factory=list)
+    """Simulated seconds of each crossing, from its plan's start to the walk on."""
 
 
 def specs(row: JoistRow) -> list[JoistSpec]:
@@ -139,9 +142,18 @@ def run_scenario(
             unreachable_ticks=unreachable,
             seconds=twin.time,
             held=held,
+            replans=behaviour.replans,
+            crossings=_crossings(behaviour.events),
         )
     finally:
         twin.stop()
+
+
+def _crossings(events: list[tuple[float, str]]) -> list[float]:
+    """Seconds from each crossing's start to its "joist crossed"."""
+    starts = [t for t, e in events if e.startswith("cross: crossing")]
+    ends = [t for t, e in events if e.startswith("walk: joist crossed")]
+    return [end - start for start, end in zip(starts, ends, strict=False)]
 
 
 class _Scene:
