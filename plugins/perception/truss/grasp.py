@@ -48,7 +48,7 @@ class GraspConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 
 @dataclass(frozen=True)
-class Tube:
+class MemberAxis:
     """A member as the gripper meets it: its id, axis ends p0 -> p1 (m) and radius (m)."""
 
     id: int
@@ -57,7 +57,7 @@ class Tube:
     radius: float
 
     @classmethod
-    def of(cls, member: TrussMember) -> Tube:
+    def of(cls, member: TrussMember) -> MemberAxis:
         """The tube of a published member."""
         p0, p1 = np.asarray(member.p0, float), np.asarray(member.p1, float)
         return cls(member.id, p0, p1, float(member.radius))
@@ -82,14 +82,14 @@ class Obstacles:
 
     nodes: np.ndarray
     node_radii: np.ndarray
-    tubes: Sequence[Tube]
+    tubes: Sequence[MemberAxis]
 
 
 @dataclass(frozen=True)
 class Span:
     """A clear stretch of a member's axis, ``start`` to ``end`` m from its p0."""
 
-    member: Tube
+    member: MemberAxis
     start: float
     end: float
 
@@ -116,12 +116,12 @@ def segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
     return np.linalg.norm(points - a - np.multiply.outer(t, ab), axis=1)
 
 
-def envelope(tube: Tube, gripper: GripperConfig) -> float:
+def envelope(tube: MemberAxis, gripper: GripperConfig) -> float:
     """Radius (m) of the closed gripper's ball: half its width, or the tube it wraps."""
     return max(gripper.width / 2, tube.radius)
 
 
-def clearances(points: np.ndarray, tube: Tube, obstacles: Obstacles) -> np.ndarray:
+def clearances(points: np.ndarray, tube: MemberAxis, obstacles: Obstacles) -> np.ndarray:
     """Least distance (m) of each point on ``tube``'s axis to a node's or another member's
     surface (inf with none)."""
     out = np.full(len(points), np.inf)
@@ -143,7 +143,7 @@ def runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def spans(
-    tube: Tube, obstacles: Obstacles, gripper: GripperConfig, config: GraspConfig
+    tube: MemberAxis, obstacles: Obstacles, gripper: GripperConfig, config: GraspConfig
 ) -> list[Span]:
     """The clear stretches of ``tube``'s axis (found on samples ``resolution`` apart): the
     footprint on the member, the gripper's ball ``clearance`` from every obstacle."""
@@ -164,7 +164,7 @@ def spread(span: Span, spacing: float) -> np.ndarray:
     return middle + spacing * (np.arange(count) - (count - 1) / 2)
 
 
-def approaches(tube: Tube, points: np.ndarray, body: np.ndarray) -> np.ndarray:
+def approaches(tube: MemberAxis, points: np.ndarray, body: np.ndarray) -> np.ndarray:
     """Unit approach of each point (N x 3): downwards from above the member, or for a member
     within ``UPRIGHT`` of vertical towards it from the body's side (any perpendicular if the
     body is on its axis)."""
@@ -218,7 +218,7 @@ def obstacles_of(truss: TrussMembers, node_radius: float) -> Obstacles:
     or of ``node_radius`` where it has none measured."""
     nodes = np.array([n.position for n in truss.nodes], float).reshape(-1, 3)
     radii = np.array([n.reach if n.reach > 0 else node_radius for n in truss.nodes], float)
-    return Obstacles(nodes, radii, [Tube.of(m) for m in truss.members])
+    return Obstacles(nodes, radii, [MemberAxis.of(m) for m in truss.members])
 
 
 def truss_grasps(
