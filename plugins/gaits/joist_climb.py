@@ -232,8 +232,8 @@ class InPlaceTurn:
 
 
 class Replans(msgspec.Struct):
-    """A crossing's replans: requested, of which a new plan came, and drift checks after which
-    the plan still kept its margins (no replan)."""
+    """Replans of the crossings since the walk started: requested, of which a new plan came,
+    and drift checks after which the plan still kept its margins (no replan)."""
 
     attempts: int = 0
     succeeded: int = 0
