@@ -414,3 +414,22 @@ def test_a_replan_from_a_pose_inside_a_margin_crosses_without_going_deeper():
     assert plan.margin((bar,), 0) >= start - 1e-9
     final = plan.moves[-1].feet0
     assert (final[:, 0] > bar.face + bar.width).all(), "every foot beyond the joist"
+
+
+def test_a_joist_just_crossed_behind_the_body_is_not_taken_for_one_ahead():
+    """The world model keeps a joist it no longer sees (out of view is not gone), so after a
+    crossing the joist just crossed is in the map, behind the body and inside the circle its
+    feet sweep turning: the walk goes on instead of turning to it (make demo did)."""
+    b = JoistClimb(JoistClimbConfig(goal_distance=0.3), WIDOWX)
+    b.stepped = True
+    b.start(body_state(b.pose), b.kin.stand_feet())
+    crossed = JoistSpec(-0.15, math.radians(-9.0), 0.10)
+    seen_before = np.array([-0.75, 0.0, 0.0])  # where the robot saw it, 0.6 m ahead
+    world = {JoistMap.TOPIC: oracle_map(JoistTracks(), [crossed], seen_before, 0.0)}
+    assert world[JoistMap.TOPIC].joists, "the map holds the crossed joist"
+    assert b._turn_radius() > 0.15, "it is inside the circle the feet sweep turning"
+    for k in range(int(10.0 / DT)):
+        b.step(k * DT, DT, body_state(b.pose, k * DT), world, None)
+        if b.done:
+            break
+    assert [e.split(":")[0] for _, e in b.events] == ["done"], b.events

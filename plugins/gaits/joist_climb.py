@@ -592,7 +592,8 @@ class JoistClimb(GaitPlugin):
                 self._switch(t, Phase.DONE, f"walked {self.travelled:.2f} m")
                 self.done = True
             return out
-        joists = self._relevant(sightings)
+        # A joist behind (one just crossed, kept by the map while out of view) is not in the way.
+        joists = [j for j in self._relevant(sightings) if j.distance > 0.0]
         near = [j for j in joists if _reach(j) < self._turn_radius()]
         if near or (joists and joists[0].distance < c.approach_distance):
             nearest = near[0] if near else joists[0]
