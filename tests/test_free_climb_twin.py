@@ -110,3 +110,31 @@ def test_swing_feet_land_on_their_holds_isolating_the_gait(periodic):
         climb.close()
     assert len(landings) >= 5
     assert np.linalg.norm(np.asarray(landings), axis=1).max() < 0.01
+
+
+def test_a_hold_removed_from_the_wall_mid_swing_is_backed_off_without_a_slip_isolating_the_gait():
+    """Halfway through the first swing its hold is taken off the wall (no longer graspable
+    nor solid) and out of the hold map: the foot swings back to the hold it left and grips it
+    again; no gripper slips, every grip engages, the TSM of the holding grippers stays ≥ 0."""
+    climb = SlopeClimb(periodic=False, seed=0)
+    twin = climb.twin
+    try:
+        first = climb.run(climb.config.swing_period / 2)
+        step = climb.runner.step
+        assert step is not None and not step.wait
+        lost = np.flatnonzero(np.linalg.norm(climb.holds - step.target, axis=1) < 1e-9)
+        assert len(lost) == 1
+        geom = twin.model.geom(f"hold_{lost[0]}").id
+        twin.model.geom_contype[geom] = twin.model.geom_conaffinity[geom] = 0
+        twin.robot.graspable_geoms = twin.robot.graspable_geoms[twin.robot.graspable_geoms != geom]
+        climb.holds = np.delete(climb.holds, lost, axis=0)
+        log = climb.run(climb.config.swing_period + 0.1)
+        back = climb.runner.steps[1]
+        np.testing.assert_allclose(back.target, step.start, atol=1e-12)
+        feet = climb.to_wall(twin.data.site_xpos[twin.robot.foot_sites])
+        assert np.linalg.norm(feet[step.limb, :2] - step.start[:2]) < 0.01
+        assert twin.holding()[step.limb]
+        assert first.slips == log.slips == 0 and log.missed == 0
+        assert min(first.tsm + log.tsm) >= 0.0
+    finally:
+        climb.close()

@@ -20,11 +20,17 @@ options ahead, a stand-in (its two stated assumptions) for the stride and the la
 the whole robot; on maps tiled from the real cloud (about one hold per palm) that count
 walks the robot into postures with no step ahead (``limb_rule = "paper"``, measured below).
 So it selects by what the count stands for:
-the base's progress towards the goal (the base follows the diagonals' crossing, §3.3),
-looking ``horizon`` swings ahead over feasible steps (a beam of ``beam`` postures per swing),
-and takes the first swing of the best sequence; among equals, the longer stride. It never
-returns to one of its recent stances, so it cannot undo a step and redo it; a step back is
-taken only when it leads further.
+the base's progress towards the goal, looking ``horizon`` swings ahead over feasible steps (a
+beam of ``beam`` postures per swing), and takes the first swing of the best sequence; among
+equals, the longer stride. It never returns to one of its recent stances, so it cannot undo a
+step and redo it; a step back is taken only when it leads further.
+
+Its base does not sit on the diagonals' crossing (§3.3): with grippers the TSM stays far above
+zero there (least 0.25 m in the twin), and what bounds the climb is the legs' reach (the stance
+legs left the base 5.6 cm of room up the slope per swing where it advanced 1.1 cm). So each
+swing takes the base up to ``max_lead`` beyond the crossing, the furthest lead that keeps
+every foot in reach and the holding grips' TSM ≥ ``lead_margin`` along the swing, which lets
+the front legs reach holds further up.
 
 ``limb_rule = "paper"`` selects the paper's own rule instead (``ClimbPlanner._plan_paper``):
 the limb with the most graspable options ahead in its reachable region (§3.1) steps to its
@@ -42,6 +48,7 @@ bench) the runner waits for the plan where it needs it, so runs stay determinist
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -76,6 +83,8 @@ RECENT = 32
 KNOWN_POSTURES = 4096
 """Postures whose feasible steps the non-periodic gait keeps between plans."""
 
+log = logging.getLogger("climbd.gait.free_climb")
+
 
 class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Paper 001 §4.1 conditions (swing height/period, base height, grip force, slope, gravity,
@@ -84,9 +93,14 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     distance (m) between two grippers' holds (one palm's width). ``horizon`` (swings) and
     ``beam`` (postures kept per swing) bound the non-periodic gait's look-ahead; ``limb_rule``
     is how the non-periodic gait chooses its swing: ``"search"`` by that look-ahead, ``"paper"``
-    by §3.1's count of options ahead (the periodic gait ignores it). The holds are
+    by §3.1's count of options ahead (the periodic gait ignores it). The search may put the base
+    up to ``max_lead`` (m) up the slope beyond the diagonals' crossing: the furthest of
+    ``lead_steps`` evenly spaced leads whose swing keeps every foot in reach and the TSM of
+    the holding grips ≥ ``lead_margin`` (m); the periodic gait and the paper's rule keep it on
+    the crossing (§3.3). The holds are
     the world model's hold map: those at least ``min_confidence`` sure, each a foot target
-    ``foot_radius`` (m, the gripper's contact sphere) above the top perception saw."""
+    ``foot_radius`` (m, the gripper's contact sphere) above the top perception saw; a swing's
+    hold counts as still there while the map has a hold within ``hold_tolerance`` (m) of it."""
 
     swing_height: float = 0.02
     swing_period: float = 4.0
@@ -98,11 +112,15 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     max_stride: float = 0.1
     min_stride: float = 0.005
     hold_spacing: float = 0.03
+    hold_tolerance: Annotated[float, msgspec.Meta(gt=0.0)] = 0.01
     foot_radius: Annotated[float, msgspec.Meta(ge=0.0)] = 0.0
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.0
     horizon: Annotated[int, msgspec.Meta(ge=1)] = 8
     beam: Annotated[int, msgspec.Meta(ge=1)] = 6
     limb_rule: Literal["search", "paper"] = "search"
+    max_lead: Annotated[float, msgspec.Meta(ge=0.0, le=0.2)] = 0.04
+    lead_steps: Annotated[int, msgspec.Meta(ge=2)] = 4
+    lead_margin: Annotated[float, msgspec.Meta(ge=0.0)] = 0.05
 
 
 @dataclass(frozen=True)
@@ -228,16 +246,45 @@ class ClimbPlanner:
         foot = foot + NORMAL * swing_lift(s, self.config.swing_height)
         return foot, step.base_start + k * (step.base_end - step.base_start)
 
+    def leads(self) -> np.ndarray:
+        """Leads (m) of the base up the slope beyond the diagonals' crossing that a step tries,
+        furthest first: only the search leads; the periodic gait and the paper's rule keep the
+        base on the crossing (§3.3)."""
+        cfg = self.config
+        if self.periodic or cfg.limb_rule != "search" or cfg.max_lead == 0.0:
+            return np.zeros(1)
+        return np.linspace(cfg.max_lead, 0.0, cfg.lead_steps)
+
     def feasible(
         self, feet: np.ndarray, base: np.ndarray, limb: int, target: np.ndarray
     ) -> Step | None:
-        """The step of ``limb`` to ``target``, or None if the new diagonals do not cross, a foot
-        leaves its reach along the base's path or the TSM of the three holding limbs < 0."""
+        """The step of ``limb`` to ``target`` with the base at its furthest feasible lead, or
+        None if the new diagonals do not cross or, at every lead, a foot leaves its reach along
+        the base's path or the TSM of the three holding limbs falls below its margin (0 on the
+        crossing, ``lead_margin`` ahead of it)."""
         new = feet.copy()
         new[limb] = target
-        base_end = self.base_for(new)
-        if base_end is None:
+        crossing = self.base_for(new)
+        if crossing is None:
             return None
+        for lead in self.leads():
+            margin = self.config.lead_margin if lead > 0.0 else 0.0
+            step = self._swing(feet, base, limb, target, crossing + lead * GOAL, margin)
+            if step is not None:
+                return step
+        return None
+
+    def _swing(
+        self,
+        feet: np.ndarray,
+        base: np.ndarray,
+        limb: int,
+        target: np.ndarray,
+        base_end: np.ndarray,
+        margin: float,
+    ) -> Step | None:
+        """The step of ``limb`` to ``target`` moving the base to ``base_end``, if every foot
+        stays in reach along the path and the holding limbs' TSM stays ≥ ``margin`` (m)."""
         step = Step(limb, feet[limb].copy(), np.asarray(target, float), base.copy(), base_end)
         trial = feet.copy()
         coms = []
@@ -250,7 +297,7 @@ class ClimbPlanner:
         margins = tumble_stability_margins(
             np.array(coms), stance, self.force, self.config.grip_force, NORMAL
         )
-        return step if margins.min() >= 0.0 else None
+        return step if margins.min() >= margin else None
 
     def options(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> list[np.ndarray]:
         """Per limb, the holds it may grip next: reachable from the current base, within
@@ -312,8 +359,7 @@ class ClimbPlanner:
         """§3.1 by its aim: the first swing of the feasible sequence (≤ ``horizon`` swings, the
         ``beam`` postures with the base furthest ahead kept per swing) that takes the base
         furthest towards the goal; a first swing whose sequences end sooner ranks lower."""
-        barred = self._remember(feet, holds)
-        first = self.successors(feet, base, holds, barred)
+        first, barred = self._first_steps(feet, base, holds)
         if not first:
             return None
         value = [(0, float(step.base_end @ GOAL)) for step, _ in first]
@@ -334,14 +380,31 @@ class ClimbPlanner:
         step = first[pick][0]
         return dataclasses.replace(step, regrip=step.stride <= self.config.min_stride)
 
+    def _first_steps(
+        self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray
+    ) -> tuple[list[tuple[Step, np.ndarray]], set]:
+        """The non-periodic gaits' feasible steps from this posture that do not return to a
+        recent stance, and the stances barred. In a pocket, where every feasible step returns
+        to a recent stance, only the current one is barred, so the gait backs out at once
+        rather than holding still until the pocket's stances fall out of its memory."""
+        barred = self._remember(feet, holds)
+        steps = self.successors(feet, base, holds, barred)
+        if not steps:
+            barred = {stance_key(feet)}
+            steps = self.successors(feet, base, holds, barred)
+        return steps, barred
+
     def _remember(self, feet: np.ndarray, holds: np.ndarray) -> set:
         """The non-periodic gaits' bookkeeping before a plan: forget the known steps if the hold
-        map changed, remember the stance ``feet``; returns the recent stances (barred)."""
+        map changed, remember the stance ``feet`` (once, however often it is planned from);
+        returns the recent stances (barred)."""
         token = hash(holds.tobytes())
         if token != self.holds_token:
             self.known.clear()
             self.holds_token = token
-        self.recent.append(stance_key(feet))
+        key = stance_key(feet)
+        if not self.recent or self.recent[-1] != key:
+            self.recent.append(key)
         return set(self.recent)
 
     def ahead_counts(self, feet: np.ndarray, options: list[np.ndarray]) -> np.ndarray:
@@ -364,8 +427,7 @@ class ClimbPlanner:
         then stride: that limb's shortest step back or aside); and, like the search, it never
         returns to a recent stance, so a re-grip is not undone at once (this can bar the
         paper's pick only after a step back: steps ahead never repeat a stance)."""
-        barred = self._remember(feet, holds)
-        steps = [step for step, _ in self.successors(feet, base, holds, barred)]
+        steps = [step for step, _ in self._first_steps(feet, base, holds)[0]]
         if not steps:
             return None
         count = self.ahead_counts(feet, self.options(feet, base, holds))
@@ -431,7 +493,8 @@ class PlanAhead:
 @dataclass
 class Tick:
     """Wall-frame state of one control tick: feet, base, swinging limb, grips, TSM (m);
-    ``late`` when the robot holds its stance because the next swing's plan is not ready."""
+    ``late`` when the robot holds its stance because the next swing's plan is not ready;
+    ``reason`` why the gait holds still or backs off, while it does."""
 
     feet: np.ndarray
     base: np.ndarray
@@ -439,6 +502,7 @@ class Tick:
     grip: list[bool]
     tsm: float
     late: bool = False
+    reason: str = ""
 
 
 class ClimbRunner:
@@ -455,10 +519,19 @@ class ClimbRunner:
         self.step: Step | None = None
         self.phase = 0.0
         self.steps: list[Step] = []
+        self.reason = ""
+        """Why the runner backs off, while it does."""
+        self._backing: Step | None = None
 
     def tick(self, dt: float, holds: np.ndarray) -> Tick:
         """Advance by ``dt`` (s); a swing starts only when the three other grippers hold and
-        its plan is ready; until then the four grippers hold (a ``late`` tick)."""
+        its plan is ready; until then the four grippers hold (a ``late`` tick). A swing whose
+        hold has left the map backs off to the hold it left; with no feasible step at all
+        the four grippers hold, and the tick says why."""
+        step = self.step
+        lost = step is not None and not step.wait and not self._mapped(step.target, holds)
+        if lost and step is not self._backing:
+            self._back_off(holds)
         if self.step is None:
             if not self.ahead.requested:
                 self.ahead.request(self.feet, self.base, holds)
@@ -466,12 +539,13 @@ class ClimbRunner:
             if not ready:
                 return self._still(late=True)
             self.step, self.phase = step, 0.0
+            self.reason, self._backing = "", None
             if step is not None:
                 self.steps.append(step)
                 self.ahead.request(*self._after(step), holds)
         step = self.step
         if step is None:
-            return self._still()
+            return self._still(reason=f"no feasible step over the {len(holds)} holds mapped")
         self.phase = min(1.0, self.phase + dt / self.planner.config.swing_period)
         if step.wait:
             if self.phase >= 1.0:
@@ -487,7 +561,29 @@ class ClimbRunner:
             self.feet = feet
             self.base = base
             self.step = None
-        return Tick(feet, base, step.limb, grip, margin)
+        return Tick(feet, base, step.limb, grip, margin, reason=self.reason)
+
+    def _mapped(self, target: np.ndarray, holds: np.ndarray) -> bool:
+        """Whether the hold map still has a hold at ``target`` (within ``hold_tolerance``)."""
+        gap = np.linalg.norm(np.asarray(holds).reshape(-1, 3) - target, axis=1)
+        return bool(gap.size) and float(gap.min()) <= self.planner.config.hold_tolerance
+
+    def _back_off(self, holds: np.ndarray) -> None:
+        """The swinging limb's hold left the map (occluded, or gone from the wall): swing back
+        from where the foot is to the hold it left, which it gripped a moment ago, the base
+        back along its path to where the swing began; the three others keep their grips, and
+        the plan made for after the lost swing is replaced by one from after the back-off."""
+        step = self.step
+        foot, base = self.planner.pose(step, self.phase)
+        back = Step(step.limb, foot, step.start.copy(), base, step.base_start.copy(), regrip=True)
+        x, y = step.target[:2]
+        self.reason = (
+            f"limb {step.limb}'s hold at ({x:.3f}, {y:.3f}) m left the hold map mid-swing: "
+            "back to the hold it left"
+        )
+        self.step, self.phase, self._backing = back, 0.0, back
+        self.steps.append(back)
+        self.ahead.request(*self._after(back), holds)
 
     def _after(self, step: Step) -> tuple[np.ndarray, np.ndarray]:
         """Feet and base once ``step`` is done: exactly what ``tick`` reaches at phase 1."""
@@ -498,10 +594,10 @@ class ClimbRunner:
         feet[step.limb] = foot
         return feet, base
 
-    def _still(self, late: bool = False) -> Tick:
+    def _still(self, late: bool = False, reason: str = "") -> Tick:
         """A tick holding the current stance with all four grippers."""
         margin = self.planner.tsm(self.base, self.feet)
-        return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin, late)
+        return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin, late, reason)
 
     def close(self) -> None:
         """Stop the planning worker."""
@@ -559,6 +655,8 @@ class FreeClimb(GaitPlugin):
         if isinstance(seen, HoldMap):
             self.holds = self.wall_holds(seen)
         tick = self.runner.tick(dt, self.holds)
+        if tick.reason and (self.last is None or tick.reason != self.last.reason):
+            log.info("%.2f s %s", t, tick.reason)
         self.last = tick
         self.stamp = t
         return FootTargets(

@@ -144,7 +144,10 @@ class SlopeClimb:
                 legs = tick.feet - tick.base
                 if tick.swing is not None:
                     legs[tick.swing] = tick.feet[tick.swing] - self.to_wall(twin.data.qpos[:3])
-                q, _ = self.kin.ik(legs)
+                q, reached = self.kin.ik(legs)
+                if not reached.all():  # a swing foot the real base cannot reach: the plan's aim
+                    planned, _ = self.kin.ik(tick.feet - tick.base)
+                    q.reshape(len(legs), 3)[~reached] = planned.reshape(len(legs), 3)[~reached]
                 twin.command(q)
                 twin.grip[:] = tick.grip
             twin.advance_to(twin.time + dt)
