@@ -31,6 +31,7 @@ from climbd.daemon.contract.messages import DepthImage, Feature, Joists, Message
 from climbd.daemon.contract.profile import CameraConfig, Profile
 from climbd.daemon.runtime.loop import MonotonicClock, SteppedClock
 from climbd.drivers.realsense.models import model
+from climbd.drivers.sim.joist_outcomes import describe, joist_outcomes
 from climbd.drivers.sim.topview import render_top_view
 from climbd.drivers.sim.truth import truth_message
 from climbd.drivers.torque.bus import waiting_for_replies
@@ -181,6 +182,8 @@ class SimHost:
         self.publish = publish
         self.twin = Twin(profile, world, stepped=stepped, depth_backend=depth_backend)
         self.path: list[np.ndarray] = []
+        self.times: list[float] = []
+        """Simulated time (s) of each ``path`` sample."""
         self.detected: list[tuple[list[float], list[float]]] = []
         self.gate = PerceptionGate()
         self.truth = TruthPublisher(truth_message(self.twin.world), publish)
@@ -191,7 +194,7 @@ class SimHost:
     def start(self) -> None:
         self.twin.start()
         self.twin.on_depth(self._on_depth)
-        self.path.append(self.twin.body_pose()[0].copy())
+        self._sample()
         if not self.stepped and not self.truth.empty and self._truth_thread is None:
             self._truth_stop.clear()
             self._truth_thread = threading.Thread(
@@ -244,7 +247,12 @@ class SimHost:
     def _sample_path(self, t: float) -> None:
         if t >= self._next_sample:
             self._next_sample = t + 0.1
-            self.path.append(self.twin.body_pose()[0].copy())
+            self._sample()
+
+    def _sample(self) -> None:
+        """Keep the body's position now in the path, with the simulated time."""
+        self.path.append(self.twin.body_pose()[0].copy())
+        self.times.append(self.twin.time)
 
     def _on_depth(self, camera: str, frame) -> None:
         """Publish a rendered frame for the perception role (``sim/depth``)."""
@@ -297,7 +305,7 @@ class SimHost:
         """Note the robot's state when the run ends, before the safe stop lowers it."""
         self.final_height = float(self.twin.body_pose()[0][2])
         self.final_fallen = self.twin.fallen(self.profile.stand.body_height)
-        self.path.append(self.twin.body_pose()[0].copy())
+        self._sample()
 
     def summary(self, png: Path) -> str:
         """A one-screen account of the run and the top-view PNG it names."""
@@ -306,6 +314,7 @@ class SimHost:
         start, end = path[0], path[-1]
         travelled = float(np.linalg.norm((end - start)[:2]))
         height = self.final_height
+        at_joists = describe(joist_outcomes(self.twin.world, np.array(self.times), path))
         fallen = "yes" if self.final_fallen else "no"
         render_top_view(
             self.twin.world, path, png, self.detected, title=f"{self.profile.name} in the twin"
@@ -318,6 +327,7 @@ class SimHost:
             f"{len(self.detected)} joist(s) in the last detection; "
             + (f"perception frames given up: {self.gate.given_up}; " if self.stepped else "")
             + f"top view: {png}"
+            + (f"\n{at_joists}" if at_joists else "")
         )
 
 
