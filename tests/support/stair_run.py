@@ -9,20 +9,33 @@ measures perception separately), folded into the world model's stair map, which 
 these runs isolate the gait from perception. With ``icp``, every ``CLOUD_PERIOD`` the front
 camera's cloud goes through the stairs perception plugin's ICP onto its stitched map, and the
 message carries that alignment to the estimator's filter 2, as the plugin's own does.
+
+With ``perceived`` the stair model is perception's instead (issue 35): every ``CLOUD_PERIOD``
+the front camera's ray-cast depth frame goes through the stairs perception plugin's ``process``
+with the controller's estimated body pose at the frame's time (never the twin's), and the
+``Stairs`` it reports (its alignment included) is folded into the stair map as the perception
+role does (a frame without steps adds nothing). The world's geometry then only scores the run:
+at each half cycle's plan the rise and tread the gait planned on are recorded for every step a
+foot is first placed on (``Commit``), beside the truth.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import msgspec
+import mujoco
 import numpy as np
 
 from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, quaternion
-from climbd.daemon.algorithms.feature_maps import StairTracks
+from climbd.daemon.algorithms.feature_maps import StairTracks, ViewCone
+from climbd.daemon.algorithms.tracks import Track
+from climbd.daemon.algorithms.world import WorldConfig
 from climbd.daemon.contract.geometry import rotation
-from climbd.daemon.contract.messages import MotionCommand, Stair, Stairs
+from climbd.daemon.contract.hardware import DepthFrame
+from climbd.daemon.contract.messages import MotionCommand, Stair, StairMap, Stairs
 from climbd.daemon.runtime.loader import Isolated
 from climbd.drivers.sim.worlds import Staircase, World, load
 from climbd.plugins.gaits.stair_gait import StairGait, StairGaitConfig
@@ -90,6 +103,29 @@ def odometry_stairs(stairs: Stairs, true_pose: tuple, estimate: tuple) -> Stairs
     return Stairs(steps=steps)
 
 
+@dataclass(frozen=True)
+class Commit:
+    """The stair map a foothold was planned on, for the first foothold on a true step (1 is
+    the first tread above the floor; the top one is the landing): the rise and tread of the
+    step the gait's model had there (m, tread along the foot's lane, edge to next edge; for
+    the top step its seen depth), where it put the step's edge along the ascent, against the
+    world's truth (edge placed by the estimate as perception would: the drift is not an
+    error of perception), and the view it came from."""
+
+    t: float
+    step: int
+    leg: int
+    rise: float
+    tread: float
+    rise_error: float
+    tread_error: float
+    edge_error: float
+    sightings: int  # times the world model's track of the step was seen
+    body_x: float  # the twin's body x (m) at the commit
+    first_seen_x: float  # the twin's body x (m) when perception first reported the step
+    same_step: bool  # the gait's model put the foothold on this step too
+
+
 @dataclass
 class RunLog:
     """What the checks read: truth, estimate, collisions and footholds."""
@@ -107,6 +143,9 @@ class RunLog:
     scuffs: list = field(default_factory=list)  # (t, leg, foot centre): back down while lifting
     tracking: list = field(default_factory=list)  # (phase, foot error, joint-level error) (m)
     support: list = field(default_factory=list)  # the feet's total upward contact force (N)
+    commits: dict = field(default_factory=dict)  # true step -> its first Commit
+    placements: list = field(default_factory=list)  # every planned foothold's Commit
+    frames: list = field(default_factory=list)  # (t, body x, steps reported) per perceived frame
     seconds: float = 0.0
 
     def swing_tracking(self, lo: float, hi: float) -> tuple[float, float]:
@@ -138,10 +177,17 @@ class StairRun:
         start_x: float = 0.0,
         feed_forward: bool = False,
         icp: bool = False,
+        perceived: bool = False,
+        mask_robot: bool = False,
         **config,
     ) -> None:
         self.world = world
-        self.perception = StairPerception(StairsConfig(voxel=CLOUD_VOXEL)) if icp else None
+        self.perceived = perceived
+        self.mask_robot = mask_robot
+        if perceived:  # the profile's stairs plugin: its default config
+            self.perception = StairPerception()
+        else:
+            self.perception = StairPerception(StairsConfig(voxel=CLOUD_VOXEL)) if icp else None
         self.stairs = world_stairs(world)
         self.stair_map = StairTracks()
         rig = QingzhuiRig(world, start_x=start_x, feed_forward=feed_forward)
@@ -158,6 +204,11 @@ class StairRun:
         self.foot_geoms = {int(g): k for k, g in enumerate(rig.twin.robot.foot_geoms)}
         self._down = np.ones(6, bool)
         self.walking = False
+        self._planned = 0
+        self._first_seen: dict[int, float] = {}
+        self._view_range = WorldConfig().view_range
+        self._mask_data = mujoco.MjData(model) if mask_robot else None
+        self._robot_geoms = np.flatnonzero(model.geom_bodyid != 0)
         rig.hooks.append(self._record)
 
     def _record(self, t: float) -> None:
@@ -192,6 +243,9 @@ class StairRun:
         self._down = touching
         if self.walking:
             self.log.support.append(float(contact_forces(twin)[:, 2].sum()))
+        if len(self.gait.plans) > self._planned:
+            self._planned = len(self.gait.plans)
+            self._commit(t)
         if swing is not None:
             tau, legs, planned = swing
             kin, c = rig.controller.kinematics, rig.controller
@@ -219,7 +273,10 @@ class StairRun:
         self.rig.stand()
         est = self.rig.start_estimator()
         self.plain = StateEstimator(self.rig.profile, est.config, est.pos, quaternion(est.rot))
-        self._see(self.stairs)
+        if self.perceived:
+            self._perceive()
+        else:
+            self._see(self.stairs)
 
     def walk(self, vx: float, seconds: float) -> None:
         """Walk with forward speed ``vx`` (m/s; negative walks backward) for ``seconds``."""
@@ -232,22 +289,122 @@ class StairRun:
         step = 1.0 if self.perception is None else CLOUD_PERIOD
         done = 0.0
         while done < seconds - 1e-9:
-            seen = odometry_stairs(
-                self.stairs, rig.twin.body_pose(), rig.controller.estimator.pose()
-            )
-            self._see(seen if self.perception is None else self._aligned(seen))
+            if self.perceived:
+                self._perceive()
+            else:
+                seen = odometry_stairs(
+                    self.stairs, rig.twin.body_pose(), rig.controller.estimator.pose()
+                )
+                self._see(seen if self.perception is None else self._aligned(seen))
             rig.run(min(step, seconds - done))
             done += step
         self.log.seconds += seconds
 
-    def _see(self, seen: Stairs) -> None:
+    def _see(self, seen: Stairs, cone: ViewCone | None = None) -> None:
         """What the perception role sends the controller of a frame's stairs: the frame's
         Stairs (its alignment is the estimator's drift measurement) and the stair map the
-        world model folds it into (which the gait plans on)."""
+        world model folds it into (which the gait plans on); ``cone``: the frame's view, where
+        a step not seen again counts a miss."""
         controller = self.rig.controller
         controller.on_feature(seen)
-        self.stair_map.update(seen, None)
+        self.stair_map.update(seen, cone)
         controller.on_feature(self.stair_map.message(seen.stamp, seen.frame_stamp))
+
+    def _perceive(self) -> None:
+        """One front-camera frame through the stairs plugin, as the perception role runs it:
+        the frame now, the controller's estimated pose now (the frame's time; the twin's true
+        pose stays out), the Stairs it reports stamped with that pose and folded in through
+        ``_see`` with the frame's view cone; nothing when it reports no steps."""
+        twin = self.rig.twin
+        frame = twin.depth_frame("front")
+        if self.mask_robot:
+            frame = self._without_robot(frame)
+        body = self.rig.controller.estimator.body(frame.timestamp)
+        result = self.perception.process(frame, body)
+        found = [r for r in (result if isinstance(result, tuple) else (result,)) if r is not None]
+        seen = next((r for r in found if isinstance(r, Stairs)), None)
+        x = float(twin.body_pose()[0][0])
+        self.log.frames.append((frame.timestamp, x, 0 if seen is None else len(seen.steps)))
+        if seen is None or not seen.steps:
+            return
+        seen.frame_position = list(body.position)
+        seen.frame_orientation = list(body.orientation)
+        cone = ViewCone(frame, body.position, body.orientation, self._view_range)
+        self._see(seen, cone)
+        for track in self.stair_map.tracker.tracks:
+            self._first_seen.setdefault(track.id, x)
+
+    def _without_robot(self, frame: DepthFrame) -> DepthFrame:
+        """``frame`` with the pixels that see the robot itself zeroed, by the twin's own ray
+        cast of the same state (a perfect self-filter: a diagnostic of what the robot's legs
+        in view do to perception, not a part of the daemon)."""
+        twin, data = self.rig.twin, self._mask_data
+        data.qpos[:] = twin.data.qpos
+        mujoco.mj_kinematics(twin.model, data)
+        _, geom, _, _ = twin.cameras["front"].cast(data)
+        robot = np.isin(geom, self._robot_geoms).reshape(frame.depth.shape)
+        return dataclasses.replace(frame, depth=np.where(robot, 0, frame.depth).astype(np.uint16))
+
+    def _commit(self, t: float) -> None:
+        """Record, for each true step a foot of the plan just made is placed on, the rise and
+        tread the gait's model had there (``Commit``) against the world's truth: every one in
+        ``placements``, the first on each step in ``commits``."""
+        gait, twin = self.gait, self.rig.twin
+        plan, model = gait.step_plan, gait.model
+        if plan is None or plan.length <= 0.0 or model is None:
+            return
+        pos, quat = twin.body_pose()
+        est_rot, est_pos = self.rig.controller.estimator.pose()
+        to_world = rotation(quat) @ est_rot.T
+        truth = odometry_stairs(self.stairs, (pos, quat), (est_rot, est_pos))
+        true_model = StairModel(truth, model.origin, model.yaw, model.lanes[:-1], 0.0)
+        landing_world = (plan.landing - est_pos) @ to_world.T + pos
+        world_model = StairModel(self.stairs, np.zeros(3), 0.0, landing_world[:, 1], 0.0)
+        steps = world_model.segment(np.arange(len(plan.group)), landing_world[:, 0])
+        flight = self.world.stairs[0]
+        for k, (leg, step) in enumerate(zip(plan.group, steps, strict=True)):
+            step = int(step)
+            if not 1 <= step <= flight.count:
+                continue
+            s, _ = model.to_plane(plan.landing[k : k + 1])
+            j = int(model.segment(np.array([leg]), s)[0])
+            mapped = 1 <= j <= len(model.levels) - 2 and model.known[j]
+            if not mapped:
+                j = min(max(step, 1), len(model.levels) - 2)
+            rise = float(model.levels[j] - model.levels[j - 1])
+            tread = float(model.bounds[leg, j] - model.bounds[leg, j - 1])
+            true_rise = float(true_model.levels[step] - true_model.levels[step - 1])
+            true_tread = float(true_model.bounds[leg, step] - true_model.bounds[leg, step - 1])
+            edge_error = float(model.bounds[leg, j - 1] - true_model.bounds[leg, step - 1])
+            track = self._track_at(model.levels[j])
+            commit = Commit(
+                t=t,
+                step=step,
+                leg=int(leg),
+                rise=rise,
+                tread=tread,
+                rise_error=rise - true_rise,
+                tread_error=tread - true_tread,
+                edge_error=edge_error,
+                sightings=0 if track is None else track.seen,
+                body_x=float(pos[0]),
+                first_seen_x=np.nan if track is None else self._first_seen.get(track.id, np.nan),
+                same_step=mapped and j == step,
+            )
+            self.log.placements.append(commit)
+            self.log.commits.setdefault(step, commit)
+
+    def _track_at(self, height: float) -> Track | None:
+        """The stair map's track of the step whose tread is at ``height`` (m), if any."""
+        tracks = self.stair_map.tracker.tracks
+        if not tracks:
+            return None
+        best = min(tracks, key=lambda tr: abs(tr.estimate[2] - height))
+        return best if abs(best.estimate[2] - height) < 0.02 else None
+
+    def stair_map_now(self) -> StairMap:
+        """The world model's stair map now (odometry frame)."""
+        return self.stair_map.message(0.0, 0.0)
 
     def _aligned(self, seen: Stairs) -> Stairs:
         """``seen`` with the alignment of the front camera's cloud now, placed with the
