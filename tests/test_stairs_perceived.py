@@ -1,7 +1,9 @@
 """The stair gait on stairs from perception (issue 35, item 1): Qingzhui in the twin through the
 torque-leg driver at 1 kHz plans on the world model's stair map built from the front camera's
 ray-cast depth by the stairs perception plugin, placed with the estimated pose at each frame's
-time; the world's geometry only scores the run (tests/support/stair_run.py, ``perceived``).
+time, after the self filter has dropped the pixels that see the robot's legs (without it the
+middle-front thigh became a fourth 'step' and the gait's model refused overlapping treads); the
+world's geometry only scores the run (tests/support/stair_run.py, ``perceived``).
 
 A bounded variant of ``bench/stairs.py --full --perceived``: the approach and the climb onto the
 second tread, 8 s simulated (about 25 s wall on two cores).
@@ -9,7 +11,6 @@ second tread, 8 s simulated (about 25 s wall on two cores).
 
 from __future__ import annotations
 
-import pytest
 from support.stair_run import StairRun, stair_world
 
 from climbd.daemon.contract.messages import Mode
@@ -21,20 +22,6 @@ TOLERANCE = 0.01
 """m: the issue's bound on each step's rise and tread when the gait first plans a foot onto it."""
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "measured: the stairs plugin stitches the robot's own middle-front thigh "
-        "(mf_thigh_link, a quarter of the front camera's pixels, 6-25 cm away) into its map at "
-        "every pose; by body x 0.42 m (frame at 6.0 s) that strip at body height (z 0.338, "
-        "x 0.36-0.80, |y| < 3 cm) plus a slice of the third riser is a fourth 'step' (rise "
-        "0.081 m, edge at x 0.395 m, behind the first riser), the gait's StairModel raises "
-        "'treads overlap' and the controller holds before any foothold on step 2. Step 1 at its "
-        "first commit: rise +0.0 mm, tread -5.2 mm, edge +1.4 mm. With the robot's pixels "
-        "masked out (bench/stairs.py --full --perceived --mask-robot, a diagnostic) this climb "
-        "meets it: first commits rise within 0.6 mm, treads -5.4 / -3.4 mm, no contact"
-    ),
-)
 def test_stairs_seen_by_its_camera_are_climbed_within_1_cm_without_edge_contact() -> None:
     """Every step the gait first plans a foot onto has its rise and tread within 1 cm of the
     world's (the top step's tread is the landing, seen only as far as the camera reaches: its

@@ -34,6 +34,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.profile import Profile
 
 LIMIT_TOLERANCE = 1e-9
@@ -210,6 +211,21 @@ class Kinematics:
         trans[:, 0] = self.mount
         trans[:, 1, 0], trans[:, 2, 0], trans[:, 3, 0] = self.l1, self.l2, self.l3
         return trans, quat
+
+    def link_points(self, q: np.ndarray) -> np.ndarray:
+        """Each leg's joint axes' origins and foot in the body frame, (n_legs, 4, 3): the
+        mount, the second and third joints and the foot, chained from ``link_frames``; the
+        segments between them are the coxa (or abduction link), femur (thigh) and tibia
+        (shank)."""
+        trans, quats = self.link_frames(q)
+        points = np.empty((self.n_legs, 4, 3))
+        for leg in range(self.n_legs):
+            p, r = np.zeros(3), np.eye(3)
+            for k in range(4):
+                p = p + r @ trans[leg, k]
+                r = r @ rotation(quats[leg, k])
+                points[leg, k] = p
+        return points
 
     # --- inverse kinematics -----------------------------------------------------------
 

@@ -36,6 +36,7 @@ from climbd.daemon.algorithms.feature_maps import (
     joist_tracking,
     stair_tracking,
 )
+from climbd.daemon.algorithms.self_filter import SelfFilterConfig
 from climbd.daemon.algorithms.terrain import (
     GroundConfig,
     GroundTilt,
@@ -67,8 +68,8 @@ class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """The map's extent, cells and fusion (elevation), its terrain filter chain, the depth
     decimation it fuses at, the level-ground check of each frame, the camera range features are
     expected within, its publish period (s), the tracking of each feature map, and the depth
-    preview the perception role sends viewers (``DepthPreview``). A profile's ``[world]``
-    table overrides them."""
+    preview the perception role sends viewers (``DepthPreview``) and its self filter. A
+    profile's ``[world]`` table overrides them."""
 
     elevation: ElevationConfig = msgspec.field(
         default_factory=lambda: ElevationConfig(z_min=-1.0, z_max=0.6)
@@ -93,6 +94,9 @@ class WorldConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     holds: TrackConfig = msgspec.field(default_factory=hold_tracking)
     joists: TrackConfig = msgspec.field(default_factory=joist_tracking)
     stairs: TrackConfig = msgspec.field(default_factory=stair_tracking)
+    self_filter: SelfFilterConfig = msgspec.field(default_factory=SelfFilterConfig)
+    """The pixels that see the robot's own legs, dropped before any plugin or map sees the
+    frame (``algorithms.self_filter``); off unless the profile gives a radius."""
 
     def __post_init__(self) -> None:
         if self.decimation < 1:

@@ -91,6 +91,8 @@ def rebuild(path: str | Path, profile: Profile) -> tuple[list[m.Message], list[m
         message = item.message
         if isinstance(message, m.BodyState):
             role.on_body(message)
+        elif isinstance(message, m.JointState):
+            role.on_joints(message)
         elif isinstance(message, m.DepthImage) and message.camera in cameras:
             role.perceive(frame_of(message, cameras[message.camera]), plugins, rebuilt.append)
         elif isinstance(message, m.Feature):

@@ -32,7 +32,9 @@ from typing import Any
 
 import numpy as np
 
+from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.pose_history import PoseHistory, PoseRefused, Refusal
+from climbd.daemon.algorithms.self_filter import NO_JOINTS, JointHistory, SelfFilter
 from climbd.daemon.algorithms.world import Unfusable, Unfused, WorldModel, world_config
 from climbd.daemon.contract import messages as m
 from climbd.daemon.contract.hardware import Camera, DepthFrame, DriverError
@@ -176,6 +178,16 @@ class PerceptionRole:
         self._next_preview = -math.inf
         self.preview = (config.preview_period, config.preview_points)
         """Seconds between depth previews (0: none) and their most pixels (``[world]``)."""
+        self.self_filter = (
+            SelfFilter(Kinematics(profile), config.self_filter.radius)
+            if config.self_filter.radius > 0
+            else None
+        )
+        self.joint_age = config.self_filter.max_age
+        self.joints = JointHistory()
+        self._joints_lock = threading.Lock()
+        self.self_pixels = 0
+        """Depth pixels the self filter took for the robot's legs, over all frames."""
         self._stop = threading.Event()
 
     def _work(
@@ -214,16 +226,18 @@ class PerceptionRole:
         plugins: Sequence[Isolated[PerceptionPlugin]],
         publish: Callable[[m.Message], None],
     ) -> None:
-        """One frame: the pose at its stamp, every plugin not skipped, their features published
-        (those of a type the plugin declares), then the world model (``climbd rebuild`` runs
+        """One frame: the pose at its stamp, the legs' pixels dropped (when the profile sets a
+        self filter), every plugin not skipped, their features published (those of a type the
+        plugin declares), then the world model (``climbd rebuild`` runs
         the same on a recording)."""
         body = self._pose_at(frame.timestamp)
-        if body is None:
+        view = frame if body is None or self.self_filter is None else self._without_legs(frame)
+        if body is None or view is None:
             self._publish_maps(frame.timestamp, publish)
             return
         features = []
         for iso in plugins:
-            result = iso.call(iso.plugin.process, frame, body)
+            result = iso.call(iso.plugin.process, view, body)
             for feature in result if isinstance(result, tuple) else (result,):
                 if feature is not None and self._declared(iso, feature):
                     feature.frame_position = list(body.position)
@@ -231,7 +245,7 @@ class PerceptionRole:
                     publish(feature)
                     self.published += 1
                     features.append(feature)
-        self._map(frame, body, features, publish)
+        self._map(view, body, features, publish)
 
     def _declared(self, iso: Isolated[PerceptionPlugin], feature: m.Message) -> bool:
         """``feature`` is of a type its plugin declares; else it is counted and dropped (the
@@ -349,6 +363,34 @@ class PerceptionRole:
                     body.stamp,
                 )
 
+    def on_joints(self, joints: m.JointState) -> None:
+        """Measured joints from the control role: into the joint history (the self filter)."""
+        with self._joints_lock:
+            self.joints.add(joints.stamp, np.asarray(joints.position, float))
+
+    def _without_legs(self, frame: DepthFrame) -> DepthFrame | None:
+        """``frame`` with the pixels that see the legs zeroed at the joints nearest its stamp,
+        or None (counted as ``no_joints``, the first and every hundredth logged) when no
+        reading is within ``max_age`` of it."""
+        with self._joints_lock:
+            q = self.joints.at(frame.timestamp, self.joint_age)
+        if q is None:
+            count = self.refused.get(NO_JOINTS, 0) + 1
+            self.refused[NO_JOINTS] = count
+            if count == 1 or count % 100 == 0:
+                log.warning(
+                    "frame at %.3f s refused (%s, %d so far): no joint reading within %.3f s, "
+                    "so where the legs are in it is not known",
+                    frame.timestamp,
+                    NO_JOINTS,
+                    count,
+                    self.joint_age,
+                )
+            return None
+        frame, pixels = self.self_filter.apply(frame, q)
+        self.self_pixels += pixels
+        return frame
+
     def _pose_at(self, stamp: float) -> m.BodyState | None:
         """The body pose at a frame's stamp, or None (counted, the first of each reason and
         every hundredth logged) when the history has none."""
@@ -377,6 +419,8 @@ class PerceptionRole:
         publish = net.put
 
         net.subscribe(m.BodyState, self.on_body)
+        if self.self_filter is not None:
+            net.subscribe(m.JointState, self.on_joints)
         for message, callback in self.feeds:
             net.subscribe(message, callback)
         net.alive("perception")

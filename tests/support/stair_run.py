@@ -31,8 +31,10 @@ import numpy as np
 from climbd.daemon.algorithms.cloud import frame_to_points
 from climbd.daemon.algorithms.estimation import StateEstimator, log_so3, quaternion
 from climbd.daemon.algorithms.feature_maps import StairTracks, ViewCone
+from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.algorithms.self_filter import SelfFilter
 from climbd.daemon.algorithms.tracks import Track
-from climbd.daemon.algorithms.world import WorldConfig
+from climbd.daemon.algorithms.world import world_config
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.hardware import DepthFrame
 from climbd.daemon.contract.messages import MotionCommand, Stair, StairMap, Stairs
@@ -206,7 +208,9 @@ class StairRun:
         self.walking = False
         self._planned = 0
         self._first_seen: dict[int, float] = {}
-        self._view_range = WorldConfig().view_range
+        world = world_config(rig.profile)
+        self._view_range = world.view_range
+        self.self_filter = SelfFilter(Kinematics(rig.profile), world.self_filter.radius)
         self._mask_data = mujoco.MjData(model) if mask_robot else None
         self._robot_geoms = np.flatnonzero(model.geom_bodyid != 0)
         rig.hooks.append(self._record)
@@ -319,6 +323,9 @@ class StairRun:
         frame = twin.depth_frame("front")
         if self.mask_robot:
             frame = self._without_robot(frame)
+        elif self.self_filter.radius > 0:
+            measured = self.rig.controller.measured
+            frame, _ = self.self_filter.apply(frame, np.asarray(measured.position, float))
         body = self.rig.controller.estimator.body(frame.timestamp)
         result = self.perception.process(frame, body)
         found = [r for r in (result if isinstance(result, tuple) else (result,)) if r is not None]
