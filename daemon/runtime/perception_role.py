@@ -2,8 +2,10 @@
 
 A capture thread keeps only the newest depth frame (newest wins, drops counted); a worker thread
 pairs it with the body pose at the frame's stamp (from the history of the control role's
-BodyState; a frame outside it is refused with a counted reason), runs the profile's perception
-plugins on it and publishes their features, then folds the frame and the features into the world
+BodyState; a frame outside it is refused with a counted reason), drops the pixels that see the
+robot's own legs at the joint reading nearest that stamp (``algorithms.self_filter``, when the
+profile's ``[world] self_filter`` sets a radius), runs the profile's perception plugins on it
+and publishes their features, then folds the frame and the features into the world
 model (``algorithms.world``: terrain, holds, joists in the odometry frame; a frame it does not
 fuse, such as one whose ground is not level, is counted by reason beside the pose refusals) and
 publishes its maps every ``publish_period``, refused frames or not, and a decimated copy of the
@@ -11,7 +13,8 @@ frame for viewers (``DepthPreview``) every ``preview_period``, posed or not. Eac
 the world model, is kept going by loader.Restarting: an error loses that frame's result for it
 (counted), one failing frame after frame is restarted with back-off, and one that cannot be kept
 going ends the role with exit status 1 so that its supervisor (or systemd) restarts it. The asyncio
-main thread owns the bus: BodyState into the pose history, Health (plugin status and errors,
+main thread owns the bus: BodyState into the pose history, JointState into the joint history
+(self filter only), Health (plugin status and errors,
 dropped and refused frames) at 2 Hz, the ``perception`` liveliness token, signals.
 """
 
@@ -228,8 +231,8 @@ class PerceptionRole:
     ) -> None:
         """One frame: the pose at its stamp, the legs' pixels dropped (when the profile sets a
         self filter), every plugin not skipped, their features published (those of a type the
-        plugin declares), then the world model (``climbd rebuild`` runs
-        the same on a recording)."""
+        plugin declares), then the world model (``climbd rebuild`` runs the same on a
+        recording)."""
         body = self._pose_at(frame.timestamp)
         view = frame if body is None or self.self_filter is None else self._without_legs(frame)
         if body is None or view is None:
