@@ -8,6 +8,7 @@ box (femur, tibia and foot), and static support.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -433,3 +434,23 @@ def test_a_joist_just_crossed_behind_the_body_is_not_taken_for_one_ahead():
         if b.done:
             break
     assert [e.split(":")[0] for _, e in b.events] == ["done"], b.events
+
+
+def test_alike_decisions_in_a_row_are_logged_once_then_summarised(caplog) -> None:
+    """make demo logged 'no new plan from here' 69 times in one crossing: a run of one kind of
+    event is logged at its first and summarised (how many more, the last) before the next
+    event of another kind; the journal (``events``) keeps every one."""
+    b = JoistClimb(JoistClimbConfig(), WIDOWX)
+    unplanned = [f"cross: no new plan from here (leg {leg} cannot step)" for leg in "abcde"]
+    with caplog.at_level(logging.INFO, logger="climbd.gait.joist_climb"):
+        b._event(1.0, "cross: crossing a 0.100 m joist at 0.300 m")
+        for k, what in enumerate(unplanned):
+            b._event(2.0 + k, what, "unplanned")
+        b._event(9.0, "walk: joist crossed")
+    assert [r.getMessage() for r in caplog.records] == [
+        "1.00 s cross: crossing a 0.100 m joist at 0.300 m",
+        f"2.00 s {unplanned[0]}",
+        f"6.00 s {unplanned[-1]} (4 more like it since the first; this the last)",
+        "9.00 s walk: joist crossed",
+    ]
+    assert [what for _, what in b.events][1:6] == unplanned

@@ -246,6 +246,16 @@ class Replans(msgspec.Struct):
         )
 
 
+class Repeats(msgspec.Struct):
+    """The journal's run of alike events: their kind, how many followed the first (logged)
+    without being logged, and the last of them."""
+
+    kind: str = ""
+    more: int = 0
+    t: float = 0.0
+    what: str = ""
+
+
 def _refit(
     plan: CrossingPlan, bars: tuple[Bar, ...], phase: int, *args: object
 ) -> CrossingPlan | None:
@@ -303,6 +313,7 @@ class JoistClimb(GaitPlugin):
         self._phase = 0
         self.plan: CrossingPlan | None = None
         self.events: list[tuple[float, str]] = []
+        self._repeats = Repeats()
         self.impassable: list[TrackedJoist] = []
         self.travelled = 0.0
         self._t_mode = 0.0
@@ -425,9 +436,23 @@ class JoistClimb(GaitPlugin):
         self._t_mode = t
         self._event(t, f"{mode.value}: {why}")
 
-    def _event(self, t: float, what: str) -> None:
-        """Keep ``what`` in ``events`` and log it: the journal says what the behaviour decided."""
+    def _event(self, t: float, what: str, kind: str = "") -> None:
+        """Keep ``what`` in ``events`` and log it: the journal says what the behaviour decided.
+        Events of one ``kind`` in a row are logged once, then summarised (how many more, and the
+        last) when the next event of another kind is logged."""
         self.events.append((t, what))
+        if kind and kind == self._repeats.kind:
+            self._repeats = Repeats(kind, self._repeats.more + 1, t, what)
+            return
+        last = self._repeats
+        if last.more:
+            log.info(
+                "%.2f s %s (%d more like it since the first; this the last)",
+                last.t,
+                last.what,
+                last.more,
+            )
+        self._repeats = Repeats(kind, 0, t, what)
         log.info("%.2f s %s", t, what)
 
     def _settled(self) -> bool:
@@ -815,7 +840,9 @@ class JoistClimb(GaitPlugin):
         self.replans.attempts += 1
         if outcome.error is not None:
             self._t_mode += t - since
-            self._event(t, f"cross: no new plan from here ({outcome.error}); on as planned")
+            self._event(
+                t, f"cross: no new plan from here ({outcome.error}); on as planned", "unplanned"
+            )
             return
         self.replans.succeeded += 1
         plan = outcome.plan
