@@ -496,3 +496,40 @@ def test_each_half_cycle_reports_its_step_and_a_wall_the_wait() -> None:
 
 def test_entry_point_is_registered() -> None:
     assert load_class("climbd.gaits", "stairs") is StairGait
+
+
+def mapped(stairs: Stairs) -> StairMap:
+    """``stairs`` as the world model's stair map."""
+    return StairMap(
+        steps=[
+            MappedStair(id=k, confidence=1.0, seen=3, age=0.0, **msgspec.structs.asdict(s))
+            for k, s in enumerate(stairs.steps)
+        ]
+    )
+
+
+def test_a_stair_map_that_makes_no_flight_leaves_the_last_one_in_use(caplog) -> None:
+    """At the top of the flight the camera sees the floor beyond the landing, and the stair map
+    once gained a phantom step on the first riser's line, 3.9 m deep: its treads overlap. The
+    gait plans on the last map that made a flight and warns, naming why; a first map that
+    makes none fails the gait with the reason (the robot holds)."""
+    profile = qingzhui()
+    good = mapped(flight(0.13, 0.30))
+    phantom = Stair(
+        height=0.035, rise=0.047, depth=3.86, edge=[[0.8, 2.4, 0.035], [0.8, -2.4, 0.035]]
+    )
+    bad = mapped(Stairs(steps=[phantom, *flight(0.13, 0.30).steps]))
+    gait = StairGait(StairGaitConfig(), profile)
+    gait.start(BodyState(), Kinematics(profile).stand_feet(0.29))
+    dt = 1e-3
+    gait.step(0.0, dt, BodyState(), {StairMap.TOPIC: good}, MotionCommand(vx=0.1))
+    model = gait.model
+    with caplog.at_level("WARNING", logger="climbd.gait.stairs"):
+        for k in range(1, 2000):
+            gait.step(k * dt, dt, BodyState(), {StairMap.TOPIC: bad}, MotionCommand(vx=0.1))
+    assert gait.model is model and gait.refused_maps == 1
+    assert "treads overlap" in caplog.text and "last one that made a flight" in caplog.text
+    fresh = StairGait(StairGaitConfig(), profile)
+    fresh.start(BodyState(), Kinematics(profile).stand_feet(0.29))
+    with pytest.raises(PluginError, match="treads overlap"):
+        fresh.step(0.0, dt, BodyState(), {StairMap.TOPIC: bad}, MotionCommand(vx=0.1))

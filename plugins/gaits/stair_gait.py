@@ -25,6 +25,7 @@ feet."""
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import deque
 from typing import ClassVar, NamedTuple
@@ -54,6 +55,8 @@ from climbd.plugins.gaits.stair_plan import (
     StepPlanner,
 )
 from climbd.plugins.gaits.swing import progress
+
+log = logging.getLogger("climbd.gait.stairs")
 
 CROSSING = 0.5
 """Share of the swing a foot spends crossing at its apex; its rise and descent share the rest."""
@@ -195,6 +198,9 @@ class StairGait(GaitPlugin):
         self.start_rot = rot
         self.start_z = float(pos[2])
         self.model: StairModel | None = None
+        self.refused_maps = 0
+        """Stair maps that made no flight (treads overlapping along the walking line, an edge
+        along it) while one did before: the gait plans on the last that made one."""
         self._map: StairMap | None = None
         self._stairs: Stairs | None = None
         self.body_s, self.t0 = 0.0, None
@@ -219,16 +225,29 @@ class StairGait(GaitPlugin):
             stairs = None
         if self.model is not None and (stairs is None or stairs is self._map):
             return
+        seen = self._stairs if stairs is None else flight(stairs)
         if stairs is not None:
             self._map = stairs
-            self._stairs = flight(stairs)
         left = np.array([-math.sin(self.yaw), math.cos(self.yaw), 0.0])
         lanes = (self.feet - self.origin) @ left
         ground = float(self.feet[:, 2].mean()) - self.geometry.foot_radius
         try:
-            self.model = StairModel(self._stairs, self.origin, self.yaw, lanes, ground)
+            model = StairModel(seen, self.origin, self.yaw, lanes, ground)
         except ValueError as e:
-            raise PluginError(f"gait {self.name}: {e}") from None
+            if self.model is None:
+                raise PluginError(f"gait {self.name}: {e}") from None
+            self.refused_maps += 1
+            if self.refused_maps == 1 or self.refused_maps % 100 == 0:
+                log.warning(
+                    "gait %s: stair map of %.3f s not used (%s, %d so far): planning on the "
+                    "last one that made a flight",
+                    self.name,
+                    stairs.frame_stamp,
+                    e,
+                    self.refused_maps,
+                )
+            return
+        self.model, self._stairs = model, seen
         if self.offset is None:
             z, pitch = self.model.body_pose(np.array([0.0]), self.geometry)
             r = self.start_rot
