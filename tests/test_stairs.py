@@ -9,6 +9,7 @@ import pytest
 from climbd.daemon.algorithms.estimation import exp_so3, quaternion
 from climbd.daemon.contract.messages import BodyState
 from climbd.daemon.runtime.loader import load_class
+from climbd.plugins.perception import stairs as stairs_module
 from climbd.plugins.perception.stairs import (
     StairPerception,
     StairsConfig,
@@ -132,3 +133,19 @@ def test_stitching_corrects_a_drifted_body_pose() -> None:
 
 def test_entry_point_is_registered() -> None:
     assert load_class("climbd.perception", "stairs") is StairPerception
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_noisy_far_floor_makes_no_step(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """From the top landing the D435 sees the floor beyond it about 2 m off, where its depth σ
+    is 1.7 cm: RANSAC's 1 cm bands slice that floor into planes 1.5-2 cm apart, and one of them
+    became a 'step' above the floor. A plane whose points lie where a larger plane has more is
+    such a slice: the flight keeps its three steps; without that rule the slice is a fourth."""
+    rng = np.random.default_rng(seed)
+    far = rng.uniform([2.5, -0.5], [3.5, 0.5], (3000, 2))
+    cloud = np.vstack([staircase(rng), np.column_stack([far, rng.normal(0, 0.017, len(far))])])
+    steps = StairPerception().process_cloud(cloud, BodyState(), 0.0).steps
+    assert [round(s.height, 2) for s in steps] == [0.13, 0.26, 0.39]
+    monkeypatch.setattr(stairs_module, "distinct", lambda planes, config: planes)
+    sliced = StairPerception().process_cloud(cloud, BodyState(), 0.0).steps
+    assert len(sliced) == 4 and sliced[0].height < 0.03
