@@ -34,8 +34,8 @@ test: syslibs $(STAMP)
 
 # The WidowX in the simulated attic: the real Dynamixel driver on the twin's pty, the perception
 # role on ray-cast depth, joist_climb walking toward a 10 cm joist; 20 s of simulated time.
-# Paper 000's attic: cross a 10 cm joist, go round an 18 cm one (about 7 min wall on 2 cores).
-DEMO_SECONDS ?= 300
+# Paper 000's attic: cross a 10 cm joist, go round an 18 cm one (about 6 min wall on 2 cores).
+DEMO_SECONDS ?= 210
 
 demo: syslibs $(STAMP)
 	$(VENV)/bin/climbd run --profile robots/widowx-attic-sim.toml --role all --sim attic_paper \
