@@ -33,7 +33,7 @@ test: syslibs $(STAMP)
 	$(PY) -m pytest -q
 
 # The WidowX in the simulated attic: the real Dynamixel driver on the twin's pty, the perception
-# role on ray-cast depth, joist_climb walking toward a 10 cm joist; 20 s of simulated time.
+# role on ray-cast depth, joist_climb walking toward a 10 cm joist (DEMO_SECONDS=20: up to it).
 # Paper 000's attic: cross a 10 cm joist, go round an 18 cm one (about 6 min wall on 2 cores).
 DEMO_SECONDS ?= 210
 
