@@ -378,17 +378,11 @@ class PerceptionRole:
         with self._joints_lock:
             q = self.joints.at(frame.timestamp, self.joint_age)
         if q is None:
-            count = self.refused.get(NO_JOINTS, 0) + 1
-            self.refused[NO_JOINTS] = count
-            if count == 1 or count % 100 == 0:
-                log.warning(
-                    "frame at %.3f s refused (%s, %d so far): no joint reading within %.3f s, "
-                    "so where the legs are in it is not known",
-                    frame.timestamp,
-                    NO_JOINTS,
-                    count,
-                    self.joint_age,
-                )
+            self._refuse(
+                NO_JOINTS,
+                f"no joint reading within {self.joint_age:.3f} s of {frame.timestamp:.3f} s, "
+                "so where the legs are in it is not known",
+            )
             return None
         frame, pixels = self.self_filter.apply(frame, q)
         self.self_pixels += pixels
@@ -402,11 +396,16 @@ class PerceptionRole:
                 return self.poses.at(stamp)
         except PoseRefused as e:
             reason: Refusal = e.reason
-            count = self.refused.get(reason.value, 0) + 1
-            self.refused[reason.value] = count
-            if count == 1 or count % 100 == 0:
-                log.warning("frame refused (%s, %d so far): %s", reason.value, count, e)
+            self._refuse(reason.value, str(e))
             return None
+
+    def _refuse(self, reason: str, detail: str) -> None:
+        """Count a frame refused for ``reason``; log the first of each reason and every
+        hundredth."""
+        count = self.refused.get(reason, 0) + 1
+        self.refused[reason] = count
+        if count == 1 or count % 100 == 0:
+            log.warning("frame refused (%s, %d so far): %s", reason, count, detail)
 
     async def run(self) -> int:
         profile, args, camera = self.profile, self.args, self.camera
