@@ -23,12 +23,10 @@ whole stair run in the twin.
   into the world model's stair map; the world's geometry only scores it), its figures beside
   the true-stairs run's: per step, the rise, tread and edge the gait planned on when it first
   placed a foot on the step, against the truth (goal: rise and tread within 1 cm), the worst
-  over every foothold planned on it, contacts and touch-down margins. ``--mask-robot`` adds a
-  diagnostic run with the pixels that see the robot itself zeroed (the twin's own ray cast: a
-  perfect self-filter, not a daemon part).
+  over every foothold planned on it, contacts and touch-down margins.
 
     .venv/bin/python bench/stairs.py [--repeat 20] [--full [--rise 0.13 --tread 0.30] [--icp]
-        [--perceived [--mask-robot]]]
+        [--perceived]] [--only-full]
 """
 
 from __future__ import annotations
@@ -156,16 +154,13 @@ def climb(label: str, rise: float, tread: float, **options) -> Climb:
     return Climb(label, run, top, end, time.perf_counter() - t0)
 
 
-def full_run(rise: float, tread: float, icp: bool, perceived: bool, mask: bool) -> None:
+def full_run(rise: float, tread: float, icp: bool, perceived: bool) -> None:
     runs = [climb("true stairs", rise, tread, icp=icp)]
     report(runs[0], rise, tread, icp)
     if not perceived:
         return
     runs.append(climb("perceived", rise, tread, perceived=True))
     report(runs[-1], rise, tread, True)
-    if mask:
-        runs.append(climb("perceived, robot masked", rise, tread, perceived=True, mask_robot=True))
-        report(runs[-1], rise, tread, True)
     compare(runs)
 
 
@@ -314,11 +309,6 @@ def main() -> int:
         "--perceived", action="store_true", help="the full run again on perceived stairs"
     )
     parser.add_argument(
-        "--mask-robot",
-        action="store_true",
-        help="with --perceived: a diagnostic run with the robot's own pixels masked out",
-    )
-    parser.add_argument(
         "--only-full", action="store_true", help="skip the parameter and extraction benches"
     )
     args = parser.parse_args()
@@ -326,7 +316,7 @@ def main() -> int:
         parameters(args.repeat)
         extraction(max(3, args.repeat // 4))
     if args.full:
-        full_run(args.rise, args.tread, args.icp, args.perceived, args.mask_robot)
+        full_run(args.rise, args.tread, args.icp, args.perceived)
     return 0
 
 

@@ -21,11 +21,9 @@ foot is first placed on (``Commit``), beside the truth.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import msgspec
-import mujoco
 import numpy as np
 
 from climbd.daemon.algorithms.cloud import frame_to_points
@@ -36,7 +34,6 @@ from climbd.daemon.algorithms.self_filter import SelfFilter
 from climbd.daemon.algorithms.tracks import Track
 from climbd.daemon.algorithms.world import world_config
 from climbd.daemon.contract.geometry import rotation
-from climbd.daemon.contract.hardware import DepthFrame
 from climbd.daemon.contract.messages import MotionCommand, Stair, StairMap, Stairs
 from climbd.daemon.runtime.loader import Isolated
 from climbd.drivers.sim.worlds import Staircase, World, load
@@ -180,12 +177,10 @@ class StairRun:
         feed_forward: bool = False,
         icp: bool = False,
         perceived: bool = False,
-        mask_robot: bool = False,
         **config,
     ) -> None:
         self.world = world
         self.perceived = perceived
-        self.mask_robot = mask_robot
         if perceived:  # the profile's stairs plugin: its default config
             self.perception = StairPerception()
         else:
@@ -211,8 +206,6 @@ class StairRun:
         world = world_config(rig.profile)
         self._view_range = world.view_range
         self.self_filter = SelfFilter(Kinematics(rig.profile), world.self_filter.radius)
-        self._mask_data = mujoco.MjData(model) if mask_robot else None
-        self._robot_geoms = np.flatnonzero(model.geom_bodyid != 0)
         rig.hooks.append(self._record)
 
     def _record(self, t: float) -> None:
@@ -316,14 +309,13 @@ class StairRun:
 
     def _perceive(self) -> None:
         """One front-camera frame through the stairs plugin, as the perception role runs it:
-        the frame now, the controller's estimated pose now (the frame's time; the twin's true
-        pose stays out), the Stairs it reports stamped with that pose and folded in through
+        the frame now, the legs' pixels dropped by the profile's self filter at the joints the
+        controller measured, the controller's estimated pose now (the frame's time; the twin's
+        true pose stays out), the Stairs it reports stamped with that pose and folded in through
         ``_see`` with the frame's view cone; nothing when it reports no steps."""
         twin = self.rig.twin
         frame = twin.depth_frame("front")
-        if self.mask_robot:
-            frame = self._without_robot(frame)
-        elif self.self_filter.radius > 0:
+        if self.self_filter.radius > 0:
             measured = self.rig.controller.measured
             frame, _ = self.self_filter.apply(frame, np.asarray(measured.position, float))
         body = self.rig.controller.estimator.body(frame.timestamp)
@@ -340,17 +332,6 @@ class StairRun:
         self._see(seen, cone)
         for track in self.stair_map.tracker.tracks:
             self._first_seen.setdefault(track.id, x)
-
-    def _without_robot(self, frame: DepthFrame) -> DepthFrame:
-        """``frame`` with the pixels that see the robot itself zeroed, by the twin's own ray
-        cast of the same state (a perfect self-filter: a diagnostic of what the robot's legs
-        in view do to perception, not a part of the daemon)."""
-        twin, data = self.rig.twin, self._mask_data
-        data.qpos[:] = twin.data.qpos
-        mujoco.mj_kinematics(twin.model, data)
-        _, geom, _, _ = twin.cameras["front"].cast(data)
-        robot = np.isin(geom, self._robot_geoms).reshape(frame.depth.shape)
-        return dataclasses.replace(frame, depth=np.where(robot, 0, frame.depth).astype(np.uint16))
 
     def _commit(self, t: float) -> None:
         """Record, for each true step a foot of the plan just made is placed on, the rise and
