@@ -64,11 +64,9 @@ def test_real_time_playback_keeps_the_recorded_pace(tmp_path):
     bag = tmp_path / "paced.bag"
     camera = SoftwareDepthCamera(INTRINSICS, 0.001, np.eye(4), record_to=bag, queue_size=16)
     camera.open()
-    start = time.monotonic()
     for k, image in enumerate(_images(10, seed=1)):
         camera.push(image, 10.0 + k * 0.05)
         time.sleep(0.05)
-    recorded = time.monotonic() - start - 0.05
     camera.close()
     player = RealSenseCamera(CameraConfig(), PlaybackSource(bag, real_time=True), timeout=None)
     player.open()
@@ -77,7 +75,9 @@ def test_real_time_playback_keeps_the_recorded_pace(tmp_path):
     elapsed = time.monotonic() - start
     player.close()
     assert stamps == sorted(stamps) and len(stamps) >= 2
-    assert elapsed >= 0.8 * recorded  # frames come at the pace they were recorded
+    # Frames were recorded at least 50 ms apart; played in real time they come no faster (a slow
+    # machine can only stretch both the recording and the playback, never shorten them).
+    assert elapsed >= 0.9 * (stamps[-1] - stamps[0])
 
 
 def test_missing_recording_is_a_clear_error(tmp_path):

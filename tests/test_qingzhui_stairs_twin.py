@@ -62,7 +62,7 @@ def test_the_weight_passes_between_tripods_without_dropping_the_body(climb, reco
     feet."""
     support = np.array(climb.log.support)
     weight = climb.rig.profile.mass * GRAVITY
-    record_property("support_min_max_N", [support.min(), support.max()])
+    record_property("support_min_max_N", [float(support.min()), float(support.max())])
     assert support.min() > 0.5 * weight, (support.min(), weight)
 
 
@@ -78,8 +78,8 @@ def test_swing_feet_track_their_paths(climb, record_property) -> None:
     the twin's foot against its planned place (odometry frame, so the estimate's drift adds in)
     is recorded beside it."""
     apex, touchdown = climb.log.swing_tracking(0.45, 0.55), climb.log.swing_tracking(0.97, 1.0)
-    record_property("apex_foot_planned_joint_m", apex)
-    record_property("touchdown_foot_planned_joint_m", touchdown)
+    record_property("apex_foot_planned_joint_m", np.asarray(apex).tolist())
+    record_property("touchdown_foot_planned_joint_m", np.asarray(touchdown).tolist())
     assert apex[1] < APEX and touchdown[1] < TOUCHDOWN, (apex, touchdown)
 
 
@@ -90,6 +90,6 @@ def test_estimate_within_2cm_2deg_on_the_approach(climb) -> None:
 
 def test_estimate_without_imu_on_the_approach(climb, record_property) -> None:
     """Kinematics alone (no IMU, no ICP) over the approach, beside the fused estimate."""
-    record_property("fused_max_m_deg", [e.max() for e in climb.approach])
-    record_property("kinematic_only_max_m_deg", climb.approach_plain)
+    record_property("fused_max_m_deg", [float(e.max()) for e in climb.approach])
+    record_property("kinematic_only_max_m_deg", [float(e) for e in climb.approach_plain])
     assert climb.approach_plain[0] < 0.02 and climb.approach_plain[1] < 2.0, climb.approach_plain
