@@ -393,6 +393,45 @@ def test_a_plan_keeps_its_tolerance_so_a_drift_inside_it_needs_no_replan():
     assert plan.margin((nearer,), 0) < 0.0
 
 
+def test_a_plan_moved_onto_a_joist_found_nearer_keeps_its_feet_and_crosses():
+    """Mid-crossing, the joist is found 2 cm nearer than planned (past the plan's 6 mm
+    tolerance). From most phases that this breaks (every fifth checked), the rest of the plan
+    moved onto it starts with the feet where they stand and the body where it is, shifts the
+    body back by the 2 cm, lifts each foot from where it stands, lands none on the joist, and
+    ends with every foot beyond it."""
+    kin = Kinematics(WIDOWX)
+    feet = kin.stand_feet()
+    ground = np.column_stack([feet[:, :2], np.zeros(len(feet))])
+    bar = Bar(0.31, 0.04, 0.10)
+    plan = _plan_on((bar,), ground, -float(feet[0, 2]))
+    shift = -0.02
+    moved = (Bar(bar.face + shift, bar.width, bar.height),)
+    broken = [k for k in range(0, len(plan.moves), 5) if plan.margin(moved, k) < 0.0]
+    assert broken, "a 2 cm shift breaks the plan somewhere"
+    anchored = 0
+    for k in broken:
+        start = plan.moves[k]
+        origin = np.array([start.body0[0], start.body0[1], 0.0])
+        seen = Bar(moved[0].face - origin[0], bar.width, bar.height)
+        geometry = CrossingGeometry(bars=(seen,), half_length=plan.g.half_length)
+        again = plan.reanchored(moved, k, geometry)
+        if again is None:
+            continue
+        anchored += 1
+        first = again.moves[0]
+        np.testing.assert_allclose(first.feet0, start.feet0 - origin, atol=1e-12)
+        np.testing.assert_allclose(first.body0, start.body0 - origin, atol=1e-12)
+        assert first.body1[0] - first.body0[0] == pytest.approx(shift)
+        for a, b in zip(again.moves, again.moves[1:], strict=False):
+            body, at_end, _ = a.sample(1.0)
+            np.testing.assert_allclose(at_end, b.feet0, atol=1e-9)
+            np.testing.assert_allclose(body, b.body0, atol=1e-9)
+            on_joist = (b.feet0[:, 0] > seen.face) & (b.feet0[:, 0] < seen.face + seen.width)
+            assert not on_joist.any(), "no foot stands on the joist"
+        assert (again.moves[-1].feet0[:, 0] > seen.face + seen.width).all()
+    assert anchored >= len(broken) // 2, (anchored, len(broken))
+
+
 def test_a_replan_from_a_pose_inside_a_margin_crosses_without_going_deeper():
     """A replan from the twin on its perceived joist: a drift left the left front foot 1.4 cm
     before the joist's face, its tibia 2 mm inside its clearance. Every margin could not keep

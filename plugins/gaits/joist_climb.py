@@ -257,13 +257,15 @@ class Repeats(msgspec.Struct):
 
 
 def _refit(
-    plan: CrossingPlan, bars: tuple[Bar, ...], phase: int, *args: object
+    plan: CrossingPlan, bars: tuple[Bar, ...], phase: int, geometry: CrossingGeometry, *args
 ) -> CrossingPlan | None:
     """None when the rest of ``plan`` from ``phase`` keeps its margins with the joists at
-    ``bars`` (its frame), else a new plan from ``args`` (CrossingPlan's)."""
+    ``bars`` (its frame); else its rest moved onto the joists where they are, when that keeps
+    them; else a new plan from ``geometry`` and ``args`` (CrossingPlan's)."""
     if plan.margin(bars, phase) >= 0.0:
         return None
-    return CrossingPlan(*args)
+    anchored = plan.reanchored(bars, phase, geometry)
+    return anchored if anchored is not None else CrossingPlan(geometry, *args)
 
 
 def _rot(yaw: float) -> np.ndarray:

@@ -29,6 +29,7 @@ none gives a plan, ``CrossingError`` says which leg is stuck where.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -300,8 +301,13 @@ class CrossingPlan:
         else:
             raise CrossingError("joist crossing: no body height works; " + "; ".join(errors))
         self.climb_height = climb
-        self.duration = sum(m.duration for m in self.moves)
-        self._starts = np.cumsum([0.0] + [m.duration for m in self.moves])
+        self._play(self.moves)
+
+    def _play(self, moves: list[Move]) -> None:
+        """Make ``moves`` the plan that ``sample`` plays."""
+        self.moves = moves
+        self.duration = sum(m.duration for m in moves)
+        self._starts = np.cumsum([0.0] + [m.duration for m in moves])
 
     def _heights(self, height: float) -> list[float]:
         """Climb heights to try: the lowest whose underside clears the target bar first."""
@@ -598,6 +604,49 @@ class CrossingPlan:
                 stance = np.ones(self.n, bool)
             worst = min(worst, float(self.check(body, ground, stance, bars=bars)[0]))
         return worst
+
+    def reanchored(
+        self, bars: tuple[Bar, ...], phase: int, geometry: CrossingGeometry
+    ) -> CrossingPlan | None:
+        """The rest of this plan from ``phase`` kept on the joists where the body now finds them
+        (``bars`` in this plan's frame, ``geometry`` the same seen from the body: the new plan's
+        frame), or None when that breaks a margin. The body first moves back onto its planned
+        place relative to the joists; the later moves go with the joists, each leg's next
+        swing lifting from where its foot stands and clearing the joists' new heights. A plan
+        from scratch at a mid-crossing pose often finds none where the old one still works."""
+        if len(bars) != len(self.g.bars):
+            return None
+        shift = float(np.mean([b.face - a.face for a, b in zip(self.g.bars, bars, strict=True)]))
+        start = self.moves[phase]
+        origin = np.array([start.body0[0], start.body0[1], 0.0])
+        along = np.array([shift, 0.0, 0.0])
+        standing = start.feet0 - origin
+        plan = copy.copy(self)
+        plan.g = geometry
+        plan.recovery = shift
+        moves = []
+        if abs(shift) > 1e-6:
+            duration = max(self.p.shift_time, abs(shift) / self.p.body_speed)
+            body = start.body0 - origin
+            moves.append(Move(duration, body, body + along, standing.copy()))
+        unmoved = set(range(self.n))
+        for move in self.moves[phase:]:
+            feet = move.feet0 - origin + along
+            for leg in unmoved:
+                feet[leg] = standing[leg]
+            paths = {}
+            for leg, path in move.paths.items():
+                path = path - origin + along
+                if leg in unmoved:
+                    path[:2, :2] += standing[leg, :2] - path[0, :2]
+                    unmoved.discard(leg)
+                apex = plan._apex(path[:1], path[-1:])[0]
+                path[1:3, 2] = np.maximum(path[1:3, 2], apex)
+                paths[leg] = path
+            body0, body1 = move.body0 - origin + along, move.body1 - origin + along
+            moves.append(Move(move.duration, body0, body1, feet, paths))
+        plan._play(moves)
+        return plan if plan.margin(geometry.bars, 0) >= 0.0 else None
 
     def phase(self, t: float) -> int:
         """Index of the phase playing ``t`` s into the plan."""
