@@ -29,7 +29,7 @@ from climbd.daemon.algorithms.feature_maps import JoistTracks
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.algorithms.motion import MotionPipeline
 from climbd.daemon.contract import profile as profiles
-from climbd.daemon.contract.messages import JoistMap
+from climbd.daemon.contract.messages import Joist, JoistMap
 from climbd.daemon.contract.plugins import PluginError
 from climbd.daemon.contract.profile import stock_profiles
 from climbd.daemon.runtime.loader import instantiate
@@ -473,6 +473,26 @@ def test_a_joist_just_crossed_behind_the_body_is_not_taken_for_one_ahead():
         if b.done:
             break
     assert [e.split(":")[0] for _, e in b.events] == ["done"], b.events
+
+
+def _joist_ahead(distance: float, height: float = 0.10) -> Joist:
+    """A joist square ahead of the body at ``distance`` (m), its near top edge 0.8 m long."""
+    edge = [[distance, -0.4, height], [distance, 0.4, height]]
+    return Joist(distance=distance, yaw=0.0, height=height, endpoints=edge)
+
+
+def test_a_joist_just_past_the_one_crossed_is_its_far_edge_not_a_row():
+    """Through the driver the map put a second joist 11 cm past the face being crossed (the
+    far edge seen again): taken into the row, it made a 15 cm bar no plan crosses, and 0 of
+    65 replans succeeded. A parallel joist 16 in on (an attic row) joins the row."""
+    b = JoistClimb(JoistClimbConfig(), WIDOWX)
+    b.start(body_state(b.pose), b.kin.stand_feet())
+    b.target = b.track(_joist_ahead(0.30))
+    b.row = [b.target]
+    assert not b._grow_row([_joist_ahead(0.30), _joist_ahead(0.41, 0.08)])
+    assert len(b.row) == 1
+    assert b._grow_row([_joist_ahead(0.30), _joist_ahead(0.30 + 16 * INCH)])
+    assert [round(b.ahead(j)[0], 3) for j in b.row] == [0.3, round(0.30 + 16 * INCH, 3)]
 
 
 def test_alike_decisions_in_a_row_are_logged_once_then_summarised(caplog) -> None:

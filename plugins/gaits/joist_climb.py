@@ -107,6 +107,10 @@ class JoistClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True)
     replan_yaw_deg: float = 0.5
     """Drift (m, deg) from the planned pose past which the rest of the plan is checked."""
     row_angle_deg: float = 10.0
+    row_min_spacing: float = 0.2
+    """Least distance (m) between joists of one row: a parallel joist nearer one in the row is
+    that joist's far edge or top seen again (through the driver the map put one 11 cm past
+    the face being crossed); attic joists stand 12-24 in (0.3-0.6 m) apart."""
     goal_distance: float | None = None
     tripod: TripodConfig = msgspec.field(default_factory=TripodConfig)
 
@@ -666,7 +670,7 @@ class JoistClimb(GaitPlugin):
             seen = self.track(j)
             d, y = self.ahead(seen)
             parallel = abs(y - yaw) < math.radians(c.row_angle_deg)
-            new = all(abs(d - self.ahead(r)[0]) > 0.1 for r in self.row)
+            new = all(abs(d - self.ahead(r)[0]) > c.row_min_spacing for r in self.row)
             if parallel and new:
                 self.row.append(seen)
                 grown = True
