@@ -14,7 +14,8 @@ robot is long) are crossed in the same plan, which is extended when another come
 and replanned only when the measured body has drifted out of the plan's tolerance (feet slip,
 servo lag): past ``replan_drift`` the rest of the plan is checked against the joists where the
 body now finds them, and kept when it still keeps its margins, so perception's noise of a few
-millimetres does not restart the crossing at every phase.
+millimetres does not restart the crossing at every phase; when it does not, the rest is moved
+onto the joists (``CrossingPlan.reanchored``), and planned anew only when that breaks a margin.
 At or above the threshold, it walks sideways until no high joist blocks its path, then walks
 on; a joist for which the planner finds no safe motion (legs clear of it, feet reachable, body
 over its support) is gone round the same way. The crossing is planned standing still, in the
@@ -857,7 +858,7 @@ class JoistClimb(GaitPlugin):
         self._plan_origin = self._plan_from
         self._t_mode = t
         self._phase = 0
-        backed = f", backing {plan.recovery:+.3f} m out of a margin" if plan.recovery else ""
+        backed = f", the body shifted {plan.recovery:+.3f} m first" if plan.recovery else ""
         self._event(t, f"cross: replanned ({len(self.row)} joists in the row{backed})")
 
     def _step_cross(

@@ -271,7 +271,7 @@ LINK_SAMPLES = np.linspace(0.0, 1.0, 7)[:, None]
 class CrossingPlan:
     """Builds and plays the free-gait crossing: ``sample(t)`` gives body, feet and stance.
     ``recovery`` is the body shift (m, along x) of its first move, backing out of a margin the
-    robot slipped into (0 when it had not)."""
+    robot slipped into or onto the place a re-anchored plan has it (0 when there is none)."""
 
     def __init__(
         self,
