@@ -7,6 +7,7 @@ the behaviour sees it from its pose, and whether the check found a drift; then t
 The behaviour's drift check is wrapped to log (the run is otherwise bench/joist_climb.py's).
 
     .venv/bin/python bench/joist_heading.py [--test 1] [--in-process]
+        [--landmark-min-distance -1]   (-1: the joist fixes the pose however near, as before)
 """
 
 from __future__ import annotations
@@ -34,6 +35,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--test", type=int, default=1, help="Table 2 test (1-7)")
     parser.add_argument("--in-process", action="store_true", help="skip the driver")
+    parser.add_argument(
+        "--landmark-min-distance", type=float, default=None, help="JoistClimbConfig override (m)"
+    )
     args = parser.parse_args()
     twins: list[Twin] = []
     started, checked = Twin.start, JoistClimb._drifted
@@ -59,6 +63,9 @@ def main() -> None:
         return out
 
     Twin.start, JoistClimb._drifted = start, drifted
+    config = {}
+    if args.landmark_min_distance is not None:
+        config["landmark_min_distance"] = args.landmark_min_distance
     _, distance, yaw_deg, height = TABLE_2[args.test - 1]
     row = table_2_row(distance, yaw_deg, height)
     print("| sim s | phase | twin yaw ° | estimate ° | joist seen ° | joist m | drifted |")
@@ -69,6 +76,7 @@ def main() -> None:
         seconds=300.0,
         perception=JoistPerception(),
         driver=not args.in_process,
+        **config,
     )
     print(outcome.replans)
 
