@@ -30,13 +30,11 @@ syslibs:
 	fi
 
 # Two workers, each test file whole on one of them (CI has two cores; most tests wait on
-# processes, sockets and the twin), then the tests marked serial alone. TEST_WORKERS=0 runs
-# the first pass in this process.
+# processes, sockets and the twin). TEST_WORKERS=0 runs the suite in this process.
 TEST_WORKERS ?= 2
 
 test: syslibs $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial"
-	$(PY) -m pytest -q -m serial
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The WidowX in the simulated attic: the real Dynamixel driver on the twin's pty, the perception
 # role on ray-cast depth, joist_climb walking toward a 10 cm joist (DEMO_SECONDS=20: up to it).

@@ -19,11 +19,6 @@ from climbd.daemon.contract.profile import load
 from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
-pytestmark = pytest.mark.serial
-"""Alone on the machine: beside another test file on the second worker, two CI rehearsals saw
-some servos of the emulated chain receive fewer goals than others (133 and 164 against 182),
-a loss under load not yet explained (closing note of stop 49)."""
-
 ROOT = Path(__file__).resolve().parent.parent
 RESOLUTION = {1: np.radians(300) / 1023, 2: 2 * np.pi / 4096}
 

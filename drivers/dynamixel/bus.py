@@ -4,10 +4,11 @@ Per cycle: one sync write of goal positions; reads of position, speed and load â
 (fast) sync read, on 1.0 (no sync read on the AX) one READ of the contiguous block per servo.
 Every ``round(rate_hz / health_rate_hz)`` reads the same transaction reads a longer block that
 also holds voltage and temperature (2.0 adds a sync read of Hardware Error Status).
-A servo that misses ``lost_after`` reads in a row is marked lost, skipped, probed on health
-cycles and re-admitted when it answers. Every device problem is a DriverError naming the port.
-``clear_faults()`` is the operator's reset: it REBOOTs X-series servos whose latched hardware
-error switched their torque off and torques limp servos again at their present position.
+A servo that misses its reads in ``lost_after`` ticks in a row is marked lost, skipped, probed
+on health cycles and re-admitted when it answers. Every device problem is a DriverError naming
+the port. ``clear_faults()`` is the operator's reset: it REBOOTs X-series servos whose latched
+hardware error switched their torque off and torques limp servos again at their present
+position.
 """
 
 from __future__ import annotations
@@ -238,6 +239,9 @@ class DynamixelBus:
         self.voltage = np.full(n, np.nan)
         self.errors = np.zeros(n, np.int64)
         self.misses = np.zeros(n, np.int64)
+        """Ticks in a row in which each servo missed a read (several misses in one tick: one)."""
+        self._missed_in = np.full(n, -np.inf)
+        """The tick (its start, monotonic s) of each servo's last counted miss."""
         self.lost = np.zeros(n, bool)
         self.torque_on = False
         self.reads = 0
@@ -904,7 +908,10 @@ class DynamixelBus:
             log.warning("%s: torque on again at its present position", self._where(k))
 
     def _account(self, got: np.ndarray, want: np.ndarray) -> np.ndarray:
-        """Count consecutive misses; mark lost after ``lost_after``; re-admit on an answer.
+        """Count ticks with misses in a row; mark lost after ``lost_after``; re-admit on an
+        answer. Reads between ticks retry the oldest state at once, so a bus silent for a few
+        ms (a starved host or emulator, a noise burst) would miss five in one tick: the count is
+        of ticks, so a servo is lost after ``lost_after`` periods of silence, not ~12 ms.
 
         Returns the servos re-admitted by this read."""
         if got.all() and not self.lost.any():  # the usual cycle: every servo answered
@@ -916,10 +923,12 @@ class DynamixelBus:
         self.lost &= ~got
         self.misses[got] = 0
         missed = want & ~got
-        self.misses[missed] += 1
+        counted = missed & (self._missed_in != self._tick)
+        self.misses[counted] += 1
+        self._missed_in[counted] = self._tick
         newly = missed & ~self.lost & (self.misses >= self.lost_after)
         for k in np.flatnonzero(newly):
-            log.error("%s: lost after %d missed reads", self._where(k), self.misses[k])
+            log.error("%s: lost after missed reads in %d ticks", self._where(k), self.misses[k])
         self.lost |= newly
         return back
 
