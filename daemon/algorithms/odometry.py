@@ -42,10 +42,11 @@ SETTLE_TIME = 0.3
 SLIP_DISTANCE = 0.003
 """Disagreement (m) with the other stance feet over which a foot counts as slipped: above the
 encoders' ~1 mm at the foot, below the 4 mm a step's slip puts in the twin."""
-GRAVITY = 9.81
-"""m/s²: the specific force of a body at rest."""
-STILL_ACCEL = 0.5
-"""m/s²: a specific force within this of ``GRAVITY`` counts as gravity alone (tilt observable)."""
+STILL_ACCEL = 0.05
+"""A specific force within this fraction of gravity's counts as gravity alone (tilt observable)."""
+GRAVITY_TIME = 5.0
+"""Seconds of rest: time constant of the gravity magnitude learnt from the accelerometer (from its
+first sample on): 9.81 m/s² on Earth, 1.62 on the Moon, where HubRobo is built to climb."""
 TILT_TIME = 1.0
 """Seconds: time constant pulling the gyro's tilt toward the accelerometer's gravity."""
 HEADING_TIME = 300.0
@@ -79,6 +80,9 @@ class LegOdometry:
         self.attitude: np.ndarray | None = None
         """The IMU's rotation (body to odometry frame), once a gyro sample has come."""
         self.gyro_bias = np.zeros(3)
+        self.gravity: float | None = None
+        """The specific force's magnitude at rest (m/s²), learnt, once an accelerometer sample
+        has come."""
         self._legs_rot: np.ndarray | None = None
         n = len(kinematics.leg_names)
         self.rot = np.eye(3)
@@ -132,17 +136,27 @@ class LegOdometry:
         if accel is None:
             return
         accel = np.asarray(accel, float)
-        norm = np.linalg.norm(accel)
-        if abs(norm - GRAVITY) > STILL_ACCEL:
+        norm = float(np.linalg.norm(accel))
+        if self.gravity is None:
+            self.gravity = norm
+        if abs(norm - self.gravity) > STILL_ACCEL * self.gravity:
             return
         up = self.attitude[2]  # the odometry frame's z in the body frame (row 2 of R = R^T z)
         axis = np.cross(accel / norm, up)
         self.attitude = self.attitude @ exp_so3(axis * min(1.0, dt / TILT_TIME))
 
-    def _steer(self, gyro: np.ndarray, legs_rot: np.ndarray | None, rest: bool, dt: float) -> None:
+    def _steer(
+        self,
+        gyro: np.ndarray,
+        accel: np.ndarray | None,
+        legs_rot: np.ndarray | None,
+        rest: bool,
+        dt: float,
+    ) -> None:
         """Pull the IMU's heading toward the stance feet's by ``dt / heading_time``; at ``rest``
         (all feet down, the stance feet's rotation ``legs_rot`` before this update unchanged)
-        learn the gyro's bias from ``gyro`` and pull by ``dt / REST_HEADING_TIME``."""
+        learn the gyro's bias from ``gyro`` and gravity's magnitude from ``accel``, and pull by
+        ``dt / REST_HEADING_TIME``."""
         if self._legs_rot is None:
             return
         tau = self.heading_time
@@ -152,6 +166,9 @@ class LegOdometry:
                 self.gyro_bias += (np.asarray(gyro, float) - self.gyro_bias) * min(
                     1.0, dt / BIAS_TIME
                 )
+                if accel is not None and self.gravity is not None:
+                    norm = float(np.linalg.norm(accel))
+                    self.gravity += (norm - self.gravity) * min(1.0, dt / GRAVITY_TIME)
                 tau = REST_HEADING_TIME
         turn = self._legs_rot @ self.attitude.T
         yaw = np.arctan2(turn[1, 0], turn[0, 0]) * min(1.0, dt / tau)
@@ -207,7 +224,7 @@ class LegOdometry:
             seen = self._global(feet)
         if gyro is not None:
             rest = bool(stance.all() and not np.isnan(self.anchor[:, 0]).any())
-            self._steer(gyro, legs_rot, rest, dt)
+            self._steer(gyro, accel, legs_rot, rest, dt)
         self._seen = seen
         if self._last is not None:
             self.walked += float(np.linalg.norm(self.origin - self._last[1]))
