@@ -194,3 +194,62 @@ def test_the_tilt_follows_gravity_on_earth_and_on_the_moon(robots, gravity: floa
         worst = max(worst, math.degrees(math.acos(min(1.0, tilt))))
     assert odo.gravity == pytest.approx(gravity)
     assert worst < 0.3, f"tilt off {worst:.2f}° under {gravity} m/s²"
+
+
+def test_two_of_four_feet_sliding_together_are_not_taken_for_one_slip(robots) -> None:
+    """HubRobo on four feet, the body shifting forward; both rear feet slide 8 mm back
+    together (the crawl's slide under G/6). All four residuals are equal and nothing tells
+    which feet held, so the fit of the four keeps the estimate within half the slide. Judging
+    one foot as slipped (here a front foot, which held) and fitting the other three put the
+    estimate 7.0 mm off and kept it there."""
+    kin = Kinematics(profiles.load(robots / "hubrobo.toml"))
+    world = kin.stand_feet()
+    rear = [k for k, leg in enumerate(kin.leg_names) if leg.endswith("r")]
+    assert len(rear) == 2
+    odo = LegOdometry(kin)
+    worst = 0.0
+    for k in range(201):
+        t = k * 0.01
+        pos = np.array([0.01 * t, 0.0, 0.0])
+        if 50 <= k < 60:
+            world[rear, 0] -= 0.0008
+        q, ok = kin.ik(world - pos)
+        assert ok.all()
+        body = odo.update(q, np.ones(4, bool), t)
+        worst = max(worst, float(np.linalg.norm(np.array(body.position) - pos)))
+    assert worst <= 0.004 + 1e-4, f"body estimate off by {worst * 1000:.1f} mm"
+
+
+def test_rolling_feet_keep_the_body_path(robots) -> None:
+    """Four rounded feet (HubRobo's 11.5 mm) roll without slip as the body moves 6 cm forward
+    over them: each centre moves by r·(dθ × up) as its foot link pitches. Told the radius,
+    the odometry follows the rolling centres and the body path stays within 0.5 mm; taking the
+    centres as fixed it falls behind by the roll."""
+    from climbd.daemon.algorithms.estimation import foot_link_rotations, log_so3
+
+    profile = profiles.load(robots / "hubrobo.toml")
+    kin = Kinematics(profile)
+    r = profile.foot_radius
+    errors = {}
+    for radius in (r, 0.0):
+        world = kin.stand_feet()
+        odo = LegOdometry(kin, foot_radius=radius)
+        q, _ = kin.ik(world)
+        links = foot_link_rotations(kin, q)
+        worst = 0.0
+        for k in range(301):
+            pos = np.array([0.0002 * k, 0.0, 0.0])
+            for _ in range(4):  # the centres where the feet have rolled to: a fixed point
+                q, ok = kin.ik(world - pos)
+                now = foot_link_rotations(kin, q)
+                pairs = zip(now, links, strict=True)
+                turn = np.array([log_so3(np.array(a) @ np.array(b).T) for a, b in pairs])
+                rolled = world + r * np.column_stack([turn[:, 1], -turn[:, 0], np.zeros(4)])
+                q, ok = kin.ik(rolled - pos)
+            assert ok.all()
+            world, links = rolled, foot_link_rotations(kin, q)
+            body = odo.update(q, np.ones(4, bool), k * 0.01)
+            worst = max(worst, float(np.linalg.norm(np.array(body.position) - pos)))
+        errors[radius] = worst
+    assert errors[r] < 5e-4, f"rolling feet: off by {errors[r] * 1000:.2f} mm"
+    assert errors[0.0] > 4 * errors[r], errors

@@ -167,7 +167,11 @@ class Controller:
         self._alignment: AlignedFeature | None = None
         self.body = BodyState()
         self.estimator = estimator
-        self.odometry = LegOdometry(self.kinematics) if estimator is None else None
+        self.odometry = (
+            LegOdometry(self.kinematics, foot_radius=profile.foot_radius or 0.0)
+            if estimator is None
+            else None
+        )
         self.stance = np.ones(len(profile.legs), bool)
         self._stance_changed = False
         self._odometry_every = max(1, round(profile.rate_hz / ODOMETRY_RATE_HZ))
