@@ -11,6 +11,8 @@ walks under G/6, its design gravity (paper 001); at 1 g its servos cannot hold i
 
     .venv/bin/python bench/odometry.py [--distance 5] [--robots widowx hubrobo qingzhui]
         [--gait-config '{"duty_factor": 0.85}']  (the Dynamixel robots' gait, e.g. a gentler crawl)
+        [--ablate]  (replay the Dynamixel robots' odometry inputs into variants of LegOdometry:
+                     point feet, a slip judged from four feet down, both; same walk, same truth)
 """
 
 from __future__ import annotations
@@ -24,18 +26,61 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT / "tests")]
 
-from support.walk_run import Walk, dynamixel_walk, qingzhui_walk  # noqa: E402
+import numpy as np  # noqa: E402
+from support.walk_run import (  # noqa: E402
+    OdometryInput,
+    Walk,
+    dynamixel_walk,
+    qingzhui_walk,
+)
+
+from climbd.daemon.algorithms.kinematics import Kinematics  # noqa: E402
+from climbd.daemon.algorithms.odometry import SLIP_FEET, LegOdometry  # noqa: E402
+from climbd.daemon.contract import profile as profiles  # noqa: E402
+from climbd.daemon.contract.geometry import yaw  # noqa: E402
 
 GAITS = {"widowx": ("tripod", 0.05), "hubrobo": ("crawl", 0.02), "qingzhui": ("tripod", 0.1)}
 """Robot → (gait, commanded speed m/s) of its walk."""
 
 
-def walk(robot: str, distance: float, config: dict) -> Walk:
+def walk(robot: str, distance: float, config: dict, inputs: list[OdometryInput]) -> Walk:
     gait, vx = GAITS[robot]
     seconds = distance / vx
     if robot == "qingzhui":
         return qingzhui_walk(vx, seconds)
-    return dynamixel_walk(robot, gait, vx, seconds, config)
+    return dynamixel_walk(robot, gait, vx, seconds, config, inputs)
+
+
+def replayed_error(w: Walk, inputs: list[OdometryInput], odometry: LegOdometry) -> float:
+    """Position error (m) at the walk's end of ``odometry`` fed the recorded ``inputs``,
+    its origin its pose when the walk began (as the walk scores the live estimate)."""
+    start = end = None
+    for u in inputs:
+        body = odometry.update(u.q, u.stance, u.t, u.gyro, u.accel)
+        pose = (np.asarray(body.position[:2], float), yaw(body.orientation))
+        if u.t <= w.started:
+            start = pose
+        end = pose
+    assert start is not None and end is not None, "no odometry input before the walk began"
+    c, s = np.cos(-start[1]), np.sin(-start[1])
+    d = end[0] - start[0]
+    estimated = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+    return float(np.linalg.norm(estimated - w.true_end))
+
+
+def ablation(robot: str, w: Walk, inputs: list[OdometryInput]) -> None:
+    """Print the drift of LegOdometry variants on the same recorded walk."""
+    profile = profiles.load(ROOT / "robots" / f"{robot}.toml")
+    kin, radius = Kinematics(profile), profile.foot_radius or 0.0
+    variants = {
+        "as shipped": LegOdometry(kin, foot_radius=radius),
+        "point feet": LegOdometry(kin),
+        "slip judged from 4 feet": LegOdometry(kin, foot_radius=radius, slip_feet=4),
+        "point feet, slip from 4 feet": LegOdometry(kin, slip_feet=4),
+    }
+    for name, odometry in variants.items():
+        error = replayed_error(w, inputs, odometry)
+        print(f"| {robot} | {name} | {error * 100:.1f} cm ({error / w.distance:.1%}) |")
 
 
 def main() -> int:
@@ -45,7 +90,11 @@ def main() -> int:
     parser.add_argument(
         "--gait-config", type=json.loads, default={}, help="JSON config of the Dynamixel gaits"
     )
+    parser.add_argument(
+        "--ablate", action="store_true", help="replay the odometry inputs into its variants"
+    )
     args = parser.parse_args()
+    recorded: dict[str, tuple[Walk, list[OdometryInput]]] = {}
     print(
         "| robot (gait, speed) | walked (m) | position error | published σ | heading error "
         "| published σ | stance slid (truth) | dead reckoning of the command | wall time |"
@@ -53,7 +102,10 @@ def main() -> int:
     print("|---|---|---|---|---|---|---|---|---|")
     for robot in args.robots:
         t0 = time.monotonic()
-        w = walk(robot, args.distance, args.gait_config)
+        inputs: list[OdometryInput] = []
+        w = walk(robot, args.distance, args.gait_config, inputs)
+        if inputs:
+            recorded[robot] = (w, inputs)
         gait, vx = GAITS[robot]
         tuned = ""
         if args.gait_config and robot != "qingzhui":
@@ -69,6 +121,11 @@ def main() -> int:
             f"{slid} | {baseline} | {time.monotonic() - t0:.0f} s |",
             flush=True,
         )
+    if args.ablate and recorded:
+        print(f"\n| robot | LegOdometry (slip judged from {SLIP_FEET} feet) | position error |")
+        print("|---|---|---|")
+        for robot, (w, inputs) in recorded.items():
+            ablation(robot, w, inputs)
     return 0
 
 

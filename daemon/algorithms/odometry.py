@@ -82,10 +82,16 @@ class LegOdometry:
     """Dead reckoning of the body in the odometry frame (origin: the start pose)."""
 
     def __init__(
-        self, kinematics: Kinematics, heading_time: float = HEADING_TIME, foot_radius: float = 0.0
+        self,
+        kinematics: Kinematics,
+        heading_time: float = HEADING_TIME,
+        foot_radius: float = 0.0,
+        slip_feet: int = SLIP_FEET,
     ) -> None:
         self.kinematics = kinematics
         self.heading_time = heading_time
+        self.slip_feet = slip_feet
+        """Feet down from which a slip is judged (``SLIP_FEET``)."""
         self.foot_radius = foot_radius
         """Radius (m) of the rounded feet: a registered stance foot's centre, which FK gives,
         moves as the foot rolls (0: point feet)."""
@@ -112,7 +118,7 @@ class LegOdometry:
     def _fit(self, feet: np.ndarray, legs: np.ndarray) -> None:
         """Pose from the registered feet of ``legs`` (three or more), eqs. 7-9 in least squares.
 
-        Of ``SLIP_FEET`` or more, a foot over ``SLIP_DISTANCE`` from where the others put it has
+        Of ``slip_feet`` or more, a foot over ``SLIP_DISTANCE`` from where the others put it has
         slipped (or rocked off the ground): the pose is fitted without it and it is registered
         again where it is now.
         """
@@ -130,7 +136,7 @@ class LegOdometry:
             self.rot, self.origin = rot, origin
             off = np.where(legs, np.linalg.norm(self._global(feet) - self.anchor, axis=1), 0.0)
             worst = int(np.argmax(off))
-            if legs.sum() < SLIP_FEET or off[worst] <= SLIP_DISTANCE:
+            if legs.sum() < self.slip_feet or off[worst] <= SLIP_DISTANCE:
                 break
             legs[worst] = False
             slipped[worst] = True

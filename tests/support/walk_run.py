@@ -17,6 +17,7 @@ import numpy as np
 from conftest import ROOT
 
 from climbd.daemon.algorithms.estimation import log_so3
+from climbd.daemon.algorithms.odometry import LegOdometry
 from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.geometry import yaw
@@ -32,6 +33,29 @@ from support.qingzhui_twin import QingzhuiRig, flat_world
 SESSION = "walk"
 CHUNK = 0.1
 """Seconds of loop between teleop messages (heartbeat and motion, 10 Hz)."""
+
+
+@dataclass
+class OdometryInput:
+    """What leg odometry was given at one update: joints, stance flags, time, IMU."""
+
+    q: np.ndarray
+    stance: np.ndarray
+    t: float
+    gyro: np.ndarray | None
+    accel: np.ndarray | None
+
+
+def recording(odometry: LegOdometry, inputs: list[OdometryInput]) -> None:
+    """Append every input ``odometry`` is given to ``inputs``, to replay into variants of it."""
+    update = odometry.update
+
+    def recorded(q, stance, t, gyro=None, accel=None):
+        imu = [None if v is None else np.array(v, float) for v in (gyro, accel)]
+        inputs.append(OdometryInput(np.array(q, float), np.array(stance), t, *imu))
+        return update(q, stance, t, gyro, accel)
+
+    odometry.update = recorded
 
 
 @dataclass
@@ -51,6 +75,8 @@ class Walk:
     """m: the standard deviation of the horizontal position the odometry published at the end
     of the walk (from its covariance's diagonal)."""
     sigma_yaw_deg: float
+    started: float = 0.0
+    """Clock time (s) at which the walk began: the estimate's origin is its pose then."""
     slide: float = 0.0
     """m: how far the stance slid over the ground in truth: per pair of samples CHUNK apart,
     the median over the feet the gait had down and touching at both of each foot ball's slip
@@ -92,10 +118,15 @@ def _relative(twin: Twin, start: tuple[np.ndarray, float]) -> tuple[np.ndarray, 
 
 
 def dynamixel_walk(
-    robot: str, gait: str, vx: float, seconds: float, config: dict | None = None
+    robot: str,
+    gait: str,
+    vx: float,
+    seconds: float,
+    config: dict | None = None,
+    inputs: list[OdometryInput] | None = None,
 ) -> Walk:
     """``robot`` walks ``gait`` (its ``config``) at ``vx`` for ``seconds`` through
-    DynamixelBus on the twin."""
+    DynamixelBus on the twin; the odometry's inputs are appended to ``inputs`` if given."""
     profile = profiles.load(ROOT / "robots" / f"{robot}.toml")
     world = World(name="flat", floor=Floor(size=12.0), gravity=GRAVITY.get(robot, EARTH))
     twin = Twin(profile, world, stepped=True, bus=True)
@@ -111,6 +142,8 @@ def dynamixel_walk(
         stack = control_stack(
             profile, bus, clock, plugin, imu=SimpleNamespace(read=twin.imu_sample)
         )
+        if inputs is not None:
+            recording(stack.controller.odometry, inputs)
         return _walk(robot, twin, stack, clock, profile.rate_hz, vx, seconds)
     finally:
         bus.close()
@@ -152,7 +185,8 @@ def _walk(
     start = (pos.copy(), yaw(quat))
     body0 = controller.body
     est0 = (np.asarray(body0.position[:2], float), yaw(body0.orientation))
-    safety.claim(SESSION, "walk", clock.now())
+    started = clock.now()
+    safety.claim(SESSION, "walk", started)
     seq = 0
 
     def teleop() -> None:
@@ -195,5 +229,6 @@ def _walk(
         commanded=vx * seconds,
         sigma_xy=math.sqrt(var[0] + var[1]),
         sigma_yaw_deg=math.degrees(math.sqrt(var[5])),
+        started=started,
         slide=float(np.linalg.norm(slide)),
     )
