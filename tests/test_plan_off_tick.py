@@ -136,13 +136,18 @@ def test_a_lost_heartbeat_during_a_two_second_plan_holds_within_its_window(widow
     with WallRig(widowx) as rig:
         c = rig.controller
         c.on_claim(SessionClaim(session="s1", client="alice"))
-        c.on_heartbeat(Heartbeat(session="s1", seq=1, stamp=1.0))
+        seq = iter(range(1, 1_000_000))
+
+        def beat() -> None:
+            c.on_heartbeat(Heartbeat(session="s1", seq=next(seq), stamp=rig.clock.now()))
+
+        beat()
         assert rig.safety.request(Mode.STAND, rig.clock.now())
-        rig.wait_for(lambda: rig.safety.reason == "stand complete", 30.0)
-        c.on_heartbeat(Heartbeat(session="s1", seq=2, stamp=2.0))
+        rig.wait_for(lambda: beat() or rig.safety.reason == "stand complete", 30.0)
+        beat()
         c.on_mode(ModeRequest(session="s1", mode=Mode.ACTIVE))
         rig.wait_for(lambda: hasattr(rig.gait, "started") and rig.gait.started.is_set(), 10.0)
-        c.on_heartbeat(Heartbeat(session="s1", seq=3, stamp=3.0))
+        beat()
         last = rig.clock.now()
         rig.wait_for(lambda: rig.safety.mode == Mode.HOLD, PLAN_SECONDS)
         assert rig.gait.plan is None, "the plan was already there: nothing was tested"

@@ -119,14 +119,15 @@ class MotionPipeline:
         self._target, self._target_qd, self._streaming = q, qd, True
         return self._finish(*self.smoother.advance(q, qd, qdd))
 
-    def joint_step(self, target_q: np.ndarray) -> JointCommand:
-        """One tick towards a joint target at rest (STAND to ``stand_joints()``, HOLD)."""
+    def joint_step(self, target_q: np.ndarray, duration: float | None = None) -> JointCommand:
+        """One tick towards a joint target at rest (STAND to ``stand_joints()``, HOLD); with
+        ``duration`` (s) the joints arrive together that long after they set off."""
         target = np.asarray(target_q, float).reshape(-1).tolist()
         self._target = target
         self._target_qd = [0.0] * len(target)
         self._streaming = False
         self.unreachable = [False] * self.kinematics.n_legs
-        return self._finish(*self.smoother.advance(target))
+        return self._finish(*self.smoother.advance(target, duration=duration))
 
     def _finish(self, q: list[float], qd: list[float]) -> JointCommand:
         """Feed-forward, then the guard: position, velocity and effort inside the limits."""

@@ -149,15 +149,22 @@ class Smoother:
         target_q: list[float],
         target_qd: list[float] | None = None,
         target_qdd: list[float] | None = None,
+        duration: float | None = None,
     ) -> tuple[list[float], list[float]]:
         """``step`` on lists: (new position, new velocity). Without ``target_qd`` the target is
         at rest; a given target velocity and acceleration are first made feasible: the
         acceleration within its limit, the velocity within what can still be brought to zero
-        acceleration without passing the velocity limit."""
+        acceleration without passing the velocity limit. With ``duration`` (s) every joint
+        arrives together, that long after the motion to this target began (ruckig's time
+        synchronisation; the same target and duration each tick continue one plan)."""
         if not self.ready:
             raise SmoothingError("step() before reset(): the current joint state is unknown")
         inp, out = self._inp, self._out
         inp.target_position = self._vector(target_q, "target position")
+        inp.minimum_duration = duration
+        inp.synchronization = (
+            ruckig.Synchronization.No if duration is None else ruckig.Synchronization.Time
+        )
         if target_qd is None:
             inp.target_velocity = inp.target_acceleration = self._zeros
         else:

@@ -204,6 +204,9 @@ class CameraConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 class SafetyConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Safety policy: e-stop behaviour, heartbeat window, servo health thresholds.
 
+    ``stand_time`` (s): how long standing up (and sitting down) takes, every joint arriving
+    together: at its joints' limits the WidowX stood in 0.3 s and HubRobo, under G/6, in 0.2 s,
+    each leaving the ground (HubRobo 5 cm, for 0.5 s) as the legs stopped under a rising body.
     ``stand_tolerance`` (rad): how close the joints must follow the stand command before the
     stand counts as complete; compliant servos under the robot's weight sit a little off it.
     """

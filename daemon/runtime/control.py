@@ -554,7 +554,8 @@ class Controller:
                 self.stance = stance
                 self.unload = stance & np.asarray(feet.unload or False, bool)
                 return command
-            command = motion.joint_step(self.target)
+            stand = self.profile.safety.stand_time if mode == Mode.STAND else None
+            command = motion.joint_step(self.target, stand)
         except SmoothingError as e:
             self.messages.append(f"smoothing: {e}")
             self.safety.hold(t, f"smoothing failed: {e}")
@@ -582,7 +583,7 @@ class Controller:
                     self.shutdown = Shutdown.DONE
                     self.sat_down = True
                     return None
-            return self.motion.joint_step(self.sit_q)
+            return self.motion.joint_step(self.sit_q, self.profile.safety.stand_time)
         return self.motion.joint_step(self.target)
 
     @staticmethod

@@ -10,6 +10,8 @@ reckoning of the commanded velocity along the start heading.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -117,16 +119,11 @@ def _relative(twin: Twin, start: tuple[np.ndarray, float]) -> tuple[np.ndarray, 
     return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]]), yaw(quat) - h0
 
 
-def dynamixel_walk(
-    robot: str,
-    gait: str,
-    vx: float,
-    seconds: float,
-    config: dict | None = None,
-    inputs: list[OdometryInput] | None = None,
-) -> Walk:
-    """``robot`` walks ``gait`` (its ``config``) at ``vx`` for ``seconds`` through
-    DynamixelBus on the twin; the odometry's inputs are appended to ``inputs`` if given."""
+@contextmanager
+def dynamixel_stack(robot: str, gait: str, config: dict | None = None) -> Iterator[tuple]:
+    """The twin of ``robot`` on a flat floor (under its design gravity), DynamixelBus on its
+    emulated servos and the control stack running ``gait``, on a stepped clock: yields
+    (twin, stack, clock, profile)."""
     profile = profiles.load(ROOT / "robots" / f"{robot}.toml")
     world = World(name="flat", floor=Floor(size=12.0), gravity=GRAVITY.get(robot, EARTH))
     twin = Twin(profile, world, stepped=True, bus=True)
@@ -142,12 +139,26 @@ def dynamixel_walk(
         stack = control_stack(
             profile, bus, clock, plugin, imu=SimpleNamespace(read=twin.imu_sample)
         )
-        if inputs is not None:
-            recording(stack.controller.odometry, inputs)
-        return _walk(robot, twin, stack, clock, profile.rate_hz, vx, seconds)
+        yield twin, stack, clock, profile
     finally:
         bus.close()
         twin.stop()
+
+
+def dynamixel_walk(
+    robot: str,
+    gait: str,
+    vx: float,
+    seconds: float,
+    config: dict | None = None,
+    inputs: list[OdometryInput] | None = None,
+) -> Walk:
+    """``robot`` walks ``gait`` (its ``config``) at ``vx`` for ``seconds`` through
+    DynamixelBus on the twin; the odometry's inputs are appended to ``inputs`` if given."""
+    with dynamixel_stack(robot, gait, config) as (twin, stack, clock, profile):
+        if inputs is not None:
+            recording(stack.controller.odometry, inputs)
+        return _walk(robot, twin, stack, clock, profile.rate_hz, vx, seconds)
 
 
 def qingzhui_walk(vx: float, seconds: float) -> Walk:
