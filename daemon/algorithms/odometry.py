@@ -48,7 +48,7 @@ encoders' ~1 mm at the foot, below the 4 mm a step's slip puts in the twin."""
 SLIP_FEET = 5
 """Feet down from which a slip is judged: of four, the three left fit exactly, so nothing checks
 the choice, and two feet sliding together put the largest residual on a third that held (HubRobo's
-crawl under G/6: 413 front feet re-registered over 5 m, drift 4.3 % against 1.0 % without)."""
+crawl under G/6 over 5 m: drift 5.5 % against 0.9 %, bench/odometry.py --ablate)."""
 STILL_ACCEL = 0.05
 """A specific force within this fraction of gravity's counts as gravity alone (tilt observable)."""
 GRAVITY_TIME = 5.0
@@ -70,7 +70,7 @@ STILL_RATE = 0.005
 """rad/s: the stance feet's rotation rate under which a body on all its feet is at rest."""
 POSITION_DRIFT = 0.02
 """m per m walked (one standard deviation): the position error of leg odometry grows with the
-path, not with time (bench/odometry.py: 1.7 % for the WidowX over 5 m)."""
+path, not with time (bench/odometry.py: 1.2 % for the WidowX over 5 m)."""
 HEADING_DRIFT = math.radians(0.4)
 """rad per m walked (one standard deviation) of heading: 2° over 5 m, the bound the odometry
 bench holds the robots to (0.04-0.10° measured)."""
@@ -145,7 +145,7 @@ class LegOdometry:
     def _roll(self, q: np.ndarray, stance: np.ndarray) -> None:
         """Move the anchors of the registered stance feet as their rounded feet roll (no slip:
         the centre moves by r·(dθ × up)); over 5 m in the twin the drift falls from 1.5 to
-        1.2 % for the WidowX and from 1.0 to 0.8 % for HubRobo."""
+        1.2 % for the WidowX and from 1.1 to 0.9 % for HubRobo (bench/odometry.py --ablate)."""
         links = foot_link_rotations(self.kinematics, np.asarray(q, float))
         if self._links is not None:
             legs = np.flatnonzero(stance & ~np.isnan(self.anchor[:, 0])).tolist()

@@ -114,10 +114,11 @@ class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """The joint bus: driver kind, what the runtime needs of any bus, and the driver's own keys.
 
     ``kind`` names the driver (an entry point in ``climbd.drivers``). A motor is lost after
-    ``lost_after`` reads without any reply; health (voltage, temperature) is read at
-    ``health_rate_hz``. Position servos (Dynamixel) sag under load by torque / ``stiffness``
-    (N·m/rad, the firmware gain's); above 0, each stance leg's goal is offset by its share of
-    the weight's torque over it, so loaded legs hold their height (0: no sag compensation).
+    ``lost_after`` ticks in a row whose reads it did not answer; health (voltage, temperature)
+    is read at ``health_rate_hz``. Position servos (Dynamixel) sag under load by torque /
+    ``stiffness`` (N·m/rad, the firmware gain's); above 0, each stance leg's goal is offset by
+    its share of the weight's torque over it, so loaded legs hold their height (0: no sag
+    compensation).
     A joint whose state is older than ``max_state_age`` (s) when a tick takes it (a bus that
     reads joints in turn, not all every tick) is a fault: the e-stop policy applies. The
     default, 0.2 s, is over 4× the oldest state WidowX's schedule gives behind a 16 ms
