@@ -12,7 +12,7 @@ walks under G/6, its design gravity (paper 001); at 1 g its servos cannot hold i
     .venv/bin/python bench/odometry.py [--distance 5] [--robots widowx hubrobo qingzhui]
         [--gait-config '{"duty_factor": 0.85}']  (the Dynamixel robots' gait, e.g. a gentler crawl)
         [--ablate]  (replay the Dynamixel robots' odometry inputs into variants of LegOdometry:
-                     point feet, a slip judged from four feet down, both; same walk, same truth)
+                     rolling or point feet, a slip judged from four feet down; same walk, truth)
 """
 
 from __future__ import annotations
@@ -73,9 +73,10 @@ def ablation(robot: str, w: Walk, inputs: list[OdometryInput]) -> None:
     profile = profiles.load(ROOT / "robots" / f"{robot}.toml")
     kin, radius = Kinematics(profile), profile.foot_radius or 0.0
     variants = {
-        "as shipped": LegOdometry(kin, foot_radius=radius),
+        "as shipped": LegOdometry.from_profile(profile, kin),
+        "rolling feet": LegOdometry(kin, foot_radius=radius),
         "point feet": LegOdometry(kin),
-        "slip judged from 4 feet": LegOdometry(kin, foot_radius=radius, slip_feet=4),
+        "rolling feet, slip from 4 feet": LegOdometry(kin, foot_radius=radius, slip_feet=4),
         "point feet, slip from 4 feet": LegOdometry(kin, slip_feet=4),
     }
     for name, odometry in variants.items():

@@ -34,6 +34,7 @@ from climbd.daemon.algorithms.estimation import (
 )
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.messages import BodyState
+from climbd.daemon.contract.profile import Profile, has_grippers
 
 TOUCHDOWN_SPEED = 0.03
 """Speed (m/s, odometry frame) under which a foot in stance counts as resting on the ground."""
@@ -48,7 +49,7 @@ encoders' ~1 mm at the foot, below the 4 mm a step's slip puts in the twin."""
 SLIP_FEET = 5
 """Feet down from which a slip is judged: of four, the three left fit exactly, so nothing checks
 the choice, and two feet sliding together put the largest residual on a third that held (HubRobo's
-crawl under G/6 over 5 m: drift 5.5 % against 0.9 %, bench/odometry.py --ablate)."""
+crawl under G/6 over 5 m: drift 4.4 % against 1.1 %, bench/odometry.py --ablate)."""
 STILL_ACCEL = 0.05
 """A specific force within this fraction of gravity's counts as gravity alone (tilt observable)."""
 GRAVITY_TIME = 5.0
@@ -142,10 +143,19 @@ class LegOdometry:
             slipped[worst] = True
         self.anchor[slipped] = self._global(feet[slipped])
 
+    @classmethod
+    def from_profile(cls, profile: Profile, kinematics: Kinematics | None = None) -> LegOdometry:
+        """The odometry of ``profile``: its feet roll on ``foot_radius`` unless they are
+        grippers. A gripper's spines do not roll, and HubRobo's feet under G/6 turn in place
+        rather than roll (too light to turn against the servos): over 5 m with the crawl's
+        sway at 0.4, 0.1 % as point feet against 1.8 % rolling; the WidowX's roll at 1 g,
+        1.2 % against 1.5 % (bench/odometry.py --ablate)."""
+        radius = 0.0 if has_grippers(profile) else profile.foot_radius or 0.0
+        return cls(kinematics or Kinematics(profile), foot_radius=radius)
+
     def _roll(self, q: np.ndarray, stance: np.ndarray) -> None:
         """Move the anchors of the registered stance feet as their rounded feet roll (no slip:
-        the centre moves by r·(dθ × up)); over 5 m in the twin the drift falls from 1.5 to
-        1.2 % for the WidowX and from 1.1 to 0.9 % for HubRobo (bench/odometry.py --ablate)."""
+        the centre moves by r·(dθ × up))."""
         links = foot_link_rotations(self.kinematics, np.asarray(q, float))
         if self._links is not None:
             legs = np.flatnonzero(stance & ~np.isnan(self.anchor[:, 0])).tolist()

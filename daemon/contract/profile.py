@@ -338,6 +338,11 @@ class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
         return [j.name for j in self.joints]
 
 
+def has_grippers(profile: Profile) -> bool:
+    """Whether the robot's feet are grippers: a ``hold_grip`` e-stop policy implies them."""
+    return profile.safety.estop_policy == EstopPolicy.HOLD_GRIP
+
+
 def merge_tables(base: dict, override: dict) -> dict:
     """Deep-merge ``override`` into ``base``: tables merge key by key, anything else replaces."""
     out = dict(base)

@@ -168,9 +168,7 @@ class Controller:
         self.body = BodyState()
         self.estimator = estimator
         self.odometry = (
-            LegOdometry(self.kinematics, foot_radius=profile.foot_radius or 0.0)
-            if estimator is None
-            else None
+            LegOdometry.from_profile(profile, self.kinematics) if estimator is None else None
         )
         self.stance = np.ones(len(profile.legs), bool)
         self._stance_changed = False

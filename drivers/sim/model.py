@@ -25,8 +25,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from climbd.daemon.contract.messages import EstopPolicy
-from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import Profile, has_grippers
 from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim import servos
 from climbd.drivers.sim.worlds import (
@@ -382,11 +381,6 @@ def _add_robot(
             )
         ET.SubElement(parent, "site", name=f"{leg.name}_foot", pos=pos, size=_fmt([r_foot]))
     return hz, r_foot
-
-
-def has_grippers(profile: Profile) -> bool:
-    """Whether the robot's feet are grippers: a ``hold_grip`` e-stop policy implies them."""
-    return profile.safety.estop_policy == EstopPolicy.HOLD_GRIP
 
 
 def build(profile: Profile, world: World, timestep: float = 0.001) -> RobotModel:
