@@ -206,8 +206,9 @@ class SafetyConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Safety policy: e-stop behaviour, heartbeat window, servo health thresholds.
 
     ``stand_time`` (s): how long standing up (and sitting down) takes, every joint arriving
-    together: at its joints' limits the WidowX stood in 0.3 s and HubRobo, under G/6, in 0.2 s,
-    each leaving the ground (HubRobo 5 cm, for 0.5 s) as the legs stopped under a rising body.
+    together: at its joints' limits the WidowX stood in 0.38 s and HubRobo, under G/6, in 0.3 s,
+    each leaving the ground (5 and 34 ticks of 10 ms) as the legs stopped under a rising body
+    (tests/test_stand_twin.py).
     ``stand_tolerance`` (rad): how close the joints must follow the stand command before the
     stand counts as complete; compliant servos under the robot's weight sit a little off it.
     """
@@ -310,8 +311,9 @@ class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     legs: list[Leg]
     foot_radius: float | None = None
     """m: radius of the feet's rounded tips. A stance foot rolls on it and its centre, which FK
-    gives, travels with the body; the torque robots' estimator follows the roll. Unset: a point
-    foot to the estimator; the twin then makes the feet 4 % of a leg's span."""
+    gives, travels with the body; the torque robots' estimator and the leg odometry follow the
+    roll (not of grippers, which do not roll). Unset: a point foot to both; the twin then makes
+    the feet 4 % of a leg's span."""
     gripper: GripperConfig | None = None
     """The feet's grippers, for grasping truss members (``[gripper]``); unset: no grasp
     targets are published."""
