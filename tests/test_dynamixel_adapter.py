@@ -131,7 +131,7 @@ def test_a_reply_longer_than_the_adapter_buffer_comes_in_two_usb_packets():
     assert crc16(reply[:-2]) == int.from_bytes(reply[-2:], "little")
     assert reply[4] == 1 and reply[7] == 0x55 and reply[8] == 0  # servo 1's status, no error
     assert reply[9:-2] == chain.servo(1).read_bytes(0, length)
-    assert chunks[1][0] - chunks[0][0] >= latency
+    assert chunks[1][0] - chunks[0][0] >= 0.9 * latency  # read times: the host may be late
 
 
 def test_command_line_latency_option_holds_replies():
