@@ -98,8 +98,11 @@ async def foxglove_client(port: int, until: float) -> tuple[dict, dict[int, list
 
 
 async def first_on(port: int, topic: str, until: float) -> tuple[dict, dict]:
-    """Subscribe to every channel as advertised; the channel ``topic`` and its first message,
-    decoded from the channel's protobuf schema, before ``until`` (monotonic s)."""
+    """Subscribe to the channel ``topic`` as advertised; the channel and its first message,
+    decoded from the channel's protobuf schema, before ``until`` (monotonic s). Only that
+    channel: a client subscribed to all that a loaded machine serves slowly may have the server
+    drop the big messages it waits for (no /depth, no /truth/joists in 20-30 s, twice in CI
+    rehearsals)."""
     uri = f"ws://127.0.0.1:{port}"
     async with websockets.connect(uri, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
         channels: dict[int, dict] = {}
@@ -109,7 +112,7 @@ async def first_on(port: int, topic: str, until: float) -> tuple[dict, dict]:
             except asyncio.TimeoutError:
                 continue
             if isinstance(frame, str):
-                channels.update(await _subscribe_advertised(ws, json.loads(frame)))
+                channels.update(await _subscribe_advertised(ws, json.loads(frame), topic))
                 continue
             _, subscription, _ = struct.unpack_from("<BIQ", frame)
             channel = channels[subscription]
@@ -119,11 +122,14 @@ async def first_on(port: int, topic: str, until: float) -> tuple[dict, dict]:
         raise AssertionError(f"no {topic}; channels: {[c['topic'] for c in channels.values()]}")
 
 
-async def _subscribe_advertised(ws, msg: dict) -> dict[int, dict]:
-    """For an ``advertise`` op: subscribe to each channel it names; the channels by id."""
+async def _subscribe_advertised(ws, msg: dict, topic: str | None = None) -> dict[int, dict]:
+    """For an ``advertise`` op: subscribe to each channel it names (of ``topic`` only, if
+    given); the channels subscribed to, by id."""
     if msg["op"] != "advertise":
         return {}
-    new = {c["id"]: c for c in msg["channels"]}
+    new = {c["id"]: c for c in msg["channels"] if topic is None or c["topic"] == topic}
+    if not new:
+        return {}
     subscriptions = [{"id": cid, "channelId": cid} for cid in new]
     await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
     return new
