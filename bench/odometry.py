@@ -31,6 +31,7 @@ from support.walk_run import (  # noqa: E402
     OdometryInput,
     Walk,
     dynamixel_walk,
+    in_start_frame,
     qingzhui_walk,
 )
 
@@ -62,10 +63,7 @@ def replayed_error(w: Walk, inputs: list[OdometryInput], odometry: LegOdometry) 
             start = pose
         end = pose
     assert start is not None and end is not None, "no odometry input before the walk began"
-    c, s = np.cos(-start[1]), np.sin(-start[1])
-    d = end[0] - start[0]
-    estimated = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
-    return float(np.linalg.norm(estimated - w.true_end))
+    return float(np.linalg.norm(in_start_frame(end[0], *start) - w.true_end))
 
 
 def ablation(robot: str, w: Walk, inputs: list[OdometryInput]) -> None:

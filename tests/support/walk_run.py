@@ -110,13 +110,17 @@ GRAVITY = {"hubrobo": EARTH / 6}
 G/6); at 1 g its X-series servos sag 0.11 rad off the stand pose, past the 0.05 rad tolerance."""
 
 
+def in_start_frame(xy, start_xy, start_heading: float) -> np.ndarray:
+    """Horizontal position ``xy`` in the frame of a start pose (its position and heading)."""
+    c, s = math.cos(-start_heading), math.sin(-start_heading)
+    d = np.asarray(xy[:2], float) - np.asarray(start_xy[:2], float)
+    return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+
+
 def _relative(twin: Twin, start: tuple[np.ndarray, float]) -> tuple[np.ndarray, float]:
     """The twin's pose in the start pose's frame (the odometry frame's origin)."""
     pos, quat = twin.body_pose()
-    p0, h0 = start
-    c, s = math.cos(-h0), math.sin(-h0)
-    d = pos[:2] - p0[:2]
-    return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]]), yaw(quat) - h0
+    return in_start_frame(pos, *start), yaw(quat) - start[1]
 
 
 @contextmanager
@@ -225,9 +229,7 @@ def _walk(
     assert safety.mode == Mode.ACTIVE, safety.reason
     true_xy, true_yaw = _relative(twin, start)
     body = controller.body
-    c, s = math.cos(-est0[1]), math.sin(-est0[1])
-    d = np.asarray(body.position[:2], float) - est0[0]
-    est_xy = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+    est_xy = in_start_frame(body.position, *est0)
     var = body.pose_variance
     return Walk(
         robot=robot,
