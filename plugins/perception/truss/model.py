@@ -9,6 +9,7 @@ members cut at the nodes where their axes meet, each with its tube extent and it
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import get_args
 
@@ -35,6 +36,8 @@ from climbd.plugins.perception.truss.cylinders import (
 from climbd.plugins.perception.truss.nodes import NodeRules, node_members
 from climbd.plugins.perception.truss.planes import accept_plane, find_planes, plane_heights
 
+logger = logging.getLogger(__name__)
+
 
 class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Truss modelling parameters (m, deg). ``slide_lambda`` is the paper's λ ≈ 2.5 (eq. 2);
@@ -50,10 +53,14 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     members meeting at a node.
     ``track_gate``: a member re-modelled with both ends within this of a member of the
     persistent model fuses into it (keeps its id); ``track_expiry``: model updates in view
-    without a member drop it; ``node_radius``: member ends this close meet at one connector."""
+    without a member drop it; ``node_radius``: member ends this close meet at one connector.
+    ``max_points`` bounds a model's time and memory (a cloud of noise peaks near 1.2 GB at the
+    default): a larger cloud is cut to its voxel centroids (the resolution modelled anyway),
+    then, if still too large, to 1 in k of them, which may lose members; either is logged."""
 
     voxel: float = 0.01
     max_range: float = 4.5
+    max_points: int = 1_000_000
     normal_reach: float = 2.0
     outlier_neighbours: int = 3
     plane_distance: float = 0.02
@@ -120,6 +127,7 @@ class TrussConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
             "track_expiry",
             "node_radius",
             "node_reach",
+            "max_points",
         ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"truss: {name} must be > 0, got {getattr(self, name)}")
@@ -147,6 +155,8 @@ class TrussModeller:
         if cloud.ndim != 2 or cloud.shape[1] != 3:
             raise ValueError(f"truss: cloud must be N x 3, got shape {cloud.shape}")
         cloud = cloud[np.isfinite(cloud).all(axis=1)]
+        if len(cloud) > c.max_points:
+            cloud = self._decimated(cloud)
         rng = np.random.default_rng(c.seed)
         points, normals = self._without_planes(cloud, rng)
         if len(points) < c.min_member_points:
@@ -197,6 +207,24 @@ class TrussModeller:
         if c.linker == 0:
             members = node_members(members, points, normals, self._node_rules())
         return TrussModel(members, [from_segment(s) for s in segments], points)
+
+    def _decimated(self, cloud: np.ndarray) -> np.ndarray:
+        """At most ``max_points`` of ``cloud``, deterministic, with a logged note: its voxel
+        centroids, then every k-th of them (in voxel order, so spread evenly) if still too many."""
+        c = self.config
+        centroids = voxel_downsample(cloud, c.voxel)
+        step = -(-len(centroids) // c.max_points)
+        kept = centroids[::step]
+        logger.log(
+            logging.INFO if step == 1 else logging.WARNING,
+            "truss: %d finite points in, over max_points (%d): %d kept, centroids of %g m voxels%s",
+            len(cloud),
+            c.max_points,
+            len(kept),
+            c.voxel,
+            "" if step == 1 else f", then 1 in {step} of those: members may be missed",
+        )
+        return kept
 
     def _node_rules(self) -> NodeRules:
         """The configured rules for nodes as features: bins of a voxel, the cylinder
