@@ -310,10 +310,12 @@ FRAME_LINKS = (
 def _exit_distance(
     shape: ConnectorShape, direction: np.ndarray, size: float, radius: float, normal: np.ndarray
 ) -> float:
-    """Distance from a node along ``direction`` to the surface of its connector of ``size``
-    (cube edge, ball or plate diameter); a plate is half a tube radius thick either side."""
+    """Distance from a node along ``direction`` to where the tube's surface meets its connector
+    of ``size`` (cube edge, ball or plate diameter); a plate is half a tube radius thick either
+    side. A ball meets the tube's surface sqrt(R^2 - r^2) from its centre, short of R on the
+    axis: the tube's end cap lies inside the ball."""
     if shape == "sphere":
-        return size / 2
+        return float(np.sqrt(max((size / 2) ** 2 - radius**2, 0.0)))
     if shape == "box":
         return size / 2 / float(np.abs(direction).max())
     along = abs(float(direction @ normal))
