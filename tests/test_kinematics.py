@@ -66,6 +66,23 @@ def test_fk_of_ik_is_identity_over_the_reachable_workspace(robot: str, u: list[f
     assert np.all(err < 1e-9)
 
 
+def test_a_foot_at_full_extension_is_reachable_by_both_iks() -> None:
+    """HubRobo's leg with its knee straight (at its limit): the law of cosines gives
+    1 + 2e-16 on numpy's path and 1.0 on math's; both IKs reach it with its own joints
+    (found by the property test above: the masks differed)."""
+    kin = KIN["hubrobo"]
+    u = np.zeros(kin.n_joints)
+    u[6:9] = [0.8588757264743412, 0.05464322956027458, 1.0]
+    q = sample_q(kin, u)
+    feet = kin.fk(q)
+    q_ik, reachable = kin.ik(feet)
+    q_tick, reachable_tick = kin.ik_feet(feet.tolist())
+    assert reachable[2] and reachable_tick[2]
+    assert reachable_tick == reachable.tolist()
+    np.testing.assert_allclose(q_ik[6:9], q[6:9], atol=1e-6)
+    np.testing.assert_allclose(q_tick[6:9], q[6:9], atol=1e-6)
+
+
 @pytest.mark.parametrize("robot", ROBOTS)
 @settings(max_examples=100, deadline=None)
 @given(offsets=st.lists(st.floats(-0.3, 0.3), min_size=18, max_size=18))

@@ -40,6 +40,10 @@ from climbd.daemon.contract.profile import Profile
 LIMIT_TOLERANCE = 1e-9
 """Rounding (rad) allowed past a joint limit before IK calls a target unreachable."""
 
+EXTENSION_TOLERANCE = 1e-12
+"""Rounding allowed past a straight knee (the law of cosines' |cos| <= 1): a foot at full
+extension is reachable, whichever float path (numpy or math) computes it."""
+
 CFT = "coxa_femur_tibia"
 ATS = "abduction_thigh_shank"
 
@@ -69,8 +73,8 @@ def rot_rpy(roll: float, pitch: float, yaw: float = 0.0) -> np.ndarray:
 def _two_link(u, w, l2, l3, knee_sign):
     """Planar two-link IK: (first angle, relative second angle, reachable) for point (u, w)."""
     c = (u * u + w * w - (l2 * l2 + l3 * l3)) / (2.0 * l2 * l3)
-    ok = np.abs(c) <= 1.0
-    rel = knee_sign * np.arccos(np.clip(c, -1.0, 1.0) if not ok.all() else c)
+    ok = np.abs(c) <= 1.0 + EXTENSION_TOLERANCE
+    rel = knee_sign * np.arccos(np.clip(c, -1.0, 1.0))
     first = np.arctan2(w, u) - np.arctan2(l3 * np.sin(rel), l2 + l3 * np.cos(rel))
     return first, rel, ok
 
@@ -279,11 +283,11 @@ class Kinematics:
             else:
                 u, w, first = x - l1, math.hypot(y, z), math.atan2(y, -z)
             cos_rel = (u * u + w * w - (l2 * l2 + l3 * l3)) / (2.0 * l2 * l3)
-            if abs(cos_rel) > 1.0:
+            if abs(cos_rel) > 1.0 + EXTENSION_TOLERANCE:
                 q += (math.nan, math.nan, math.nan)
                 ok.append(False)
                 continue
-            rel = k * math.acos(cos_rel)
+            rel = k * math.acos(max(-1.0, min(1.0, cos_rel)))
             second = math.atan2(w, u) - math.atan2(l3 * math.sin(rel), l2 + l3 * math.cos(rel))
             q0 = first * d0 + o0
             q1 = second * d1 + o1
