@@ -148,10 +148,10 @@ def test_the_node_is_the_least_squares_point_nearest_the_axes():
 # --- detection on noise-free views: the issue's figures --------------------------------------
 
 MISSED = {
-    ("box", 3.0, 0.03): "tube length 2.37 % (ends within 15.0 mm)",
-    ("box", 3.0, 0.08): "38 false members (edges of the 240 mm cubes); tube 7.40 %, 35.0 mm",
-    ("plate", 3.0, 0.03): "tube 4.99 %, ends off by 28.4 mm: the plate's faces read as tube",
-    ("plate", 3.0, 0.08): "tube 5.23 %, ends off by 19.7 mm: the plate's faces read as tube",
+    ("box", 3.0, 0.08): (
+        "tube 5.08 %, 33.5 mm: the posts' top 30-34 mm lie hidden under the 240 mm cubes in "
+        "every view (no points), so their tubes end short"
+    ),
 }
 """Cases measured short of the goal (noise-free, this file's views), with the measured worst."""
 
@@ -179,6 +179,17 @@ def test_tube_extent_and_node_to_node_within_the_goal(shape, factor, diameter):
     assert_goal(tube_accuracy(members, frame), node_accuracy(members, frame))
 
 
+def test_the_posts_hidden_under_3x_cubes_meet_the_goal_once_seen_from_below():
+    """The one case short of the goal (MISSED) is what the views see: two more views from
+    0.9 m up show the posts' tops under the 240 mm cubes, and every tube meets the goal
+    (measured 0.42 %, 2.3 mm)."""
+    frame = ts.space_frame("box", 3.0, 0.08)
+    poses = oblique_poses() + oblique_poses((65, 245), height=0.9)
+    scene = ts.render(frame, poses, CAMERA, NOISE_FREE)
+    members = TrussModeller().model(scene.cloud).members
+    assert_goal(tube_accuracy(members, frame), node_accuracy(members, frame))
+
+
 def test_a_partly_occluded_view_keeps_the_goal():
     """A 0.6 x 0.7 m board 0.5 m in front of the left bay hides the middle of its members in
     all three views (from the front); the completion bridges the gaps, the board goes as a
@@ -193,11 +204,11 @@ def test_a_partly_occluded_view_keeps_the_goal():
     assert_goal(tube_accuracy(members, frame), node_accuracy(members, frame))
 
 
-@pytest.mark.parametrize("shape", ["box", "sphere"])
+@pytest.mark.parametrize("shape", ["box", "sphere", "plate"])
 def test_a_member_ending_alone_at_a_connector_gets_the_blobs_centre(shape):
     """A member sticking up from the frame ends on a connector no other member meets: its node
-    falls back to the blob's centre. (On a plate, measured: the tube runs on over the plate's
-    faces, its end 99.6 mm out, and no node is found.)"""
+    falls back to the blob's centre. (On a plate, before the open-slice rule in nodes.py, the
+    tube ran on over the plate's faces, its end 99.6 mm out, and no node was found.)"""
     top = np.array([0.0, 0.8, 2.1])
     nodes = np.vstack([ts.FRAME_NODES, top])
     frame = ts.space_frame(shape, 2.0, 0.05, nodes=nodes, links=(*ts.FRAME_LINKS, (5, 8)))

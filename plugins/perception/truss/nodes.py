@@ -9,6 +9,12 @@ those axes; each member is cut at the nodes on it and its tube ends where the tu
 ends next to each node (``node_members``). A member end meeting no other axis whose tube
 stops short of its completed end, at a blob of points off the tube's surface, gets the blob's
 centre as its node.
+
+Where a tube ends on a connector, the connector's surfaces cross the tube's shell (an oblique
+box face, a plate's faces and rim): their points at the tube's radius, normals blurred, read as
+tube. A solid tube hides its bore, so an axial slice with points well inside the shell is open:
+no tube there. On a sharp surface (the spread of the tube's points about its radius, measured,
+below the fit tolerance) the tube's end stops at the first open slice.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ import numpy as np
 
 from climbd.daemon.contract.messages import TrussNode
 from climbd.plugins.perception.truss.completion import Member
-from climbd.plugins.perception.truss.cylinders import surface_fit
+from climbd.plugins.perception.truss.cylinders import Cylinder, surface_fit
 
 
 def end_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -122,15 +128,20 @@ def junctions(
 @dataclass(frozen=True)
 class Profile:
     """A member's points along its axis, in bins of ``bin_size`` from ``start``: how many lie on
-    the tube's surface and how many lie off it within four radii of the axis (a blob), and the
-    sorted axial positions of the points at the tube's radius whose normals lie within twice the
-    surface angle of radial (``near``: normals blur where the tube meets its connector)."""
+    the tube's surface and how many lie off it within four radii of the axis (a blob). Sorted
+    axial positions, of points whose normals lie within twice the surface angle of radial
+    (normals blur where the tube meets its connector): ``near``, from the shell's thickness
+    inside the tube's radius to the surface distance outside it (voxels straddling the tube and
+    its connector); ``shell``, within the shell's thickness of the radius; and of the ``bore``
+    points, farther inside (none on a shell no sharper than the surface distance)."""
 
     start: float
     bin_size: float
     surface: np.ndarray
     blob: np.ndarray
     near: np.ndarray
+    shell: np.ndarray
+    bore: np.ndarray
 
     def t(self, index: int) -> float:
         """The axial position of a bin's lower edge."""
@@ -166,8 +177,49 @@ def profile(
     edges = np.arange(span[0], span[1] + bin_size, bin_size)
     surface = np.histogram(t[on], edges)[0]
     blob = np.histogram(t[~on & section], edges)[0]
-    near = (off < distance) & (cos > np.cos(np.radians(2 * angle_deg)))
-    return Profile(span[0], bin_size, surface, blob, np.sort(t[near]))
+    thickness = shell_thickness(off[on], floor=bin_size / 4, ceiling=distance)
+    radial = _radial(points[inside], cylinder) - cylinder.radius
+    blurred = cos > np.cos(np.radians(2 * angle_deg))
+    near = blurred & (radial > -thickness) & (radial < distance)
+    bore = radial < -thickness if thickness < distance else np.zeros(len(t), bool)
+    return Profile(
+        span[0],
+        bin_size,
+        surface,
+        blob,
+        np.sort(t[near]),
+        np.sort(t[blurred & (off < thickness)]),
+        np.sort(t[bore]),
+    )
+
+
+def _radial(points: np.ndarray, cylinder: Cylinder) -> np.ndarray:
+    """Distance (m) of each point from the cylinder's axis."""
+    w = points - cylinder.point
+    return np.linalg.norm(w - np.outer(w @ cylinder.axis, cylinder.axis), axis=1)
+
+
+def shell_thickness(off: np.ndarray, *, floor: float, ceiling: float) -> float:
+    """How far (m) a tube's surface points stray from its radius, given their distances ``off``
+    from it: three robust standard deviations (1.4826 times their median), within ``floor``
+    (voxel centroids lie that near the surface they sample) and ``ceiling`` (the fit's
+    tolerance: a noisy or poorly fitted shell)."""
+    if len(off) == 0:
+        return ceiling
+    return float(np.clip(3 * 1.4826 * np.median(off), floor, ceiling))
+
+
+def open_slices(prof: Profile, lo: float, hi: float, outward: int) -> np.ndarray:
+    """Axial positions in (lo, hi) of bore points with at least as many bore points as shell
+    points within half a bin of them ``outward`` (+1/-1, towards the node): slices with no
+    tube across them (a solid tube hides its bore), where a connector's surface crosses the
+    tube's shell or the tube's end cap faces out."""
+    bore = prof.bore[(prof.bore > lo) & (prof.bore < hi)]
+    ends = (bore, bore + outward * prof.bin_size / 2)
+    a, b = np.minimum(*ends), np.maximum(*ends)
+    inner = np.searchsorted(prof.bore, b, "right") - np.searchsorted(prof.bore, a)
+    shell = np.searchsorted(prof.shell, b, "right") - np.searchsorted(prof.shell, a)
+    return bore[inner >= shell]
 
 
 def tube_end(
@@ -177,8 +229,8 @@ def tube_end(
     (+1/-1) from ``clearance`` off the node (tubes meeting there cannot interpenetrate), find
     the first bin whose surface count, smoothed over three bins, reaches half the tube's
     typical count ``reference``; from its inner edge, walk back towards the node over points at
-    the tube's radius less than two bins apart (a gap rule on those points alone), not nearer
-    the node than ``clearance``."""
+    the tube's radius (``Profile.near``) less than two bins apart (a gap rule on those points
+    alone), not nearer the node than ``clearance`` nor into an open slice (``open_slices``)."""
     smooth = np.convolve(prof.surface, np.ones(3) / 3, "same")
     last = len(smooth) - 1
     i = prof.index(node + inward * clearance)
@@ -186,10 +238,12 @@ def tube_end(
         i += inward
     if inward > 0:
         body = prof.t(i + 1)
-        towards = prof.near[(prof.near > node) & (prof.near <= body)][::-1]
+        stop = max(open_slices(prof, node, body, -1), default=node)
+        towards = prof.near[(prof.near > stop) & (prof.near <= body)][::-1]
     else:
         body = prof.t(i)
-        towards = prof.near[(prof.near < node) & (prof.near >= body)]
+        stop = min(open_slices(prof, body, node, +1), default=node)
+        towards = prof.near[(prof.near < stop) & (prof.near >= body)]
     if len(towards) == 0:
         return body
     end = float(towards[0])
@@ -238,9 +292,10 @@ class NodeRules:
 def node_members(
     members: Sequence[Member], points: np.ndarray, normals: np.ndarray, rules: NodeRules
 ) -> list[Member]:
-    """Members cut at the nodes on their axes, each with its tube extent (t0, t1) and nodes;
-    a member meeting no node whose middle lies within ``reach`` of one is dropped (an edge of a
-    large connector, fitted as a cylinder)."""
+    """Members cut at the nodes on their axes, each with its tube extent (t0, t1) and nodes.
+    Dropped as the edges of a large connector, fitted as cylinders: a member meeting no node
+    whose middle lies within ``reach`` of one, and a member lying within ``reach`` of a node it
+    does not meet (the edges of a cube meet at its corners)."""
     nodes = junctions(members, reach=rules.reach, angle_deg=rules.angle_deg, radius=rules.radius)
     centres = np.array([node for node, _ in nodes]).reshape(-1, 3)
     cut = []
@@ -251,8 +306,19 @@ def node_members(
         middle = 0.5 * (member.p0 + member.p1)
         if not on and (np.linalg.norm(centres - middle, axis=1) < rules.reach).any():
             continue
+        apart = np.array([k not in joined for _, joined in nodes], bool)
+        if (_within(member, centres[apart]) < rules.reach).any():
+            continue
         cut += _cut(member, on, points, normals, rules)
     return cut
+
+
+def _within(member: Member, centres: np.ndarray) -> np.ndarray:
+    """The farther of a member's two ends from each of ``centres`` (m): the radius around each
+    centre that holds the whole member."""
+    return np.maximum(
+        np.linalg.norm(centres - member.p0, axis=1), np.linalg.norm(centres - member.p1, axis=1)
+    )
 
 
 def _foreign(
