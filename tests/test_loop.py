@@ -65,6 +65,19 @@ def test_overrun_is_counted_and_the_schedule_skips_ahead() -> None:
     assert seen[6:] == pytest.approx([0.08, 0.09, 0.10, 0.11])
 
 
+def test_a_loop_run_in_chunks_keeps_one_schedule() -> None:
+    """A rig that runs the loop ten ticks at a time (the twin rigs between perception frames)
+    gets the same deadlines as one call: each call carries on the schedule, not restarting it
+    at the clock's present time (which ticked 10 times in 9 periods)."""
+    clock = SteppedClock()
+    seen: list[float] = []
+    loop = ControlLoop(100.0, clock, lambda t, dt: seen.append(t))
+    while loop.ticks < 50:
+        loop.run(max_ticks=loop.ticks + 10)
+    assert seen == pytest.approx([k * 0.01 for k in range(50)], abs=1e-12)
+    assert clock.now() == pytest.approx(0.49)
+
+
 def test_on_advance_steps_a_twin_in_lock_step() -> None:
     spans: list[tuple[float, float]] = []
     clock = SteppedClock(on_advance=lambda t0, t1: spans.append((t0, t1)))

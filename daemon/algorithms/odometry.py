@@ -49,7 +49,8 @@ encoders' ~1 mm at the foot, below the 4 mm a step's slip puts in the twin."""
 SLIP_FEET = 5
 """Feet down from which a slip is judged: of four, the three left fit exactly, so nothing checks
 the choice, and two feet sliding together put the largest residual on a third that held (HubRobo's
-crawl under G/6 over 5 m: drift 4.4 % against 1.1 %, bench/odometry.py --ablate)."""
+crawl under G/6, five 3 m walks of gait variants: worst 2.7 % judged from five, 17.7-21.2 % from
+four; bench/odometry.py --ablate, BENCHMARKS.md)."""
 STILL_ACCEL = 0.05
 """A specific force within this fraction of gravity's counts as gravity alone (tilt observable)."""
 GRAVITY_TIME = 5.0
@@ -147,9 +148,10 @@ class LegOdometry:
     def from_profile(cls, profile: Profile, kinematics: Kinematics | None = None) -> LegOdometry:
         """The odometry of ``profile``: its feet roll on ``foot_radius`` unless they are
         grippers. A gripper's spines do not roll, and HubRobo's feet under G/6 turn in place
-        rather than roll (too light to turn against the servos): over 5 m with the crawl's
-        sway at 0.4, 0.1 % as point feet against 1.8 % rolling; the WidowX's roll at 1 g,
-        1.2 % against 1.5 % (bench/odometry.py --ablate)."""
+        rather than roll (too light to turn against the servos): over 3 m with the crawl's
+        sway at 0.4, 0.0 % as point feet against 1.8 % rolling, worst of five gait variants
+        2.7 % against 3.4 %. The WidowX: 1.2 % rolling, 1.0 % as point feet over 5 m
+        (bench/odometry.py --ablate)."""
         radius = 0.0 if has_grippers(profile) else profile.foot_radius or 0.0
         return cls(kinematics or Kinematics(profile), foot_radius=radius)
 

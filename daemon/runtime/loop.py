@@ -165,6 +165,8 @@ class ControlLoop:
         self.idle = idle
         self.timing = TimingWindow()
         self.ticks = 0
+        self._start: float | None = None
+        self._k = 0
         self._stop = threading.Event()
 
     def stop(self) -> None:
@@ -178,13 +180,17 @@ class ControlLoop:
         return self.timing.stats(self.rate_hz)
 
     def run(self, max_ticks: int | None = None) -> None:
-        """Run ticks until stopped; each waits for its absolute deadline first."""
+        """Run ticks until stopped; each waits for its absolute deadline first. The schedule
+        starts at the first call and carries on across calls, so a rig running the loop in
+        chunks ticks once a period (restarting it at each call's present time ticked n times
+        in n - 1 periods: bench/stepped_chunks.py)."""
         clock, period, tick, timing = self.clock, self.period, self.tick, self.timing
         idle = self.idle
-        start = clock.now()
-        k = 0
+        if self._start is None:
+            self._start = clock.now()
+        start = self._start
         while not self._stop.is_set() and (max_ticks is None or self.ticks < max_ticks):
-            deadline = start + k * period
+            deadline = start + self._k * period
             if idle is not None:
                 idle(deadline)
             clock.sleep_until(deadline)
@@ -193,7 +199,7 @@ class ControlLoop:
             done = clock.now()
             timing.add(woke - deadline, done - woke)
             self.ticks += 1
-            k += 1
-            if done > start + k * period:
+            self._k += 1
+            if done > start + self._k * period:
                 timing.overruns += 1
-                k = max(k, int((done - start) / period))
+                self._k = max(self._k, int((done - start) / period))
