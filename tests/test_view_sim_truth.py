@@ -108,7 +108,11 @@ def test_a_stepped_sim_runs_view_gets_the_true_joists(tmp_path: Path, endpoint: 
         view.wait_for("robot 'widowx' heard", timeout=60)
         # the twin's truth comes once a simulated second: beside another twin test on a
         # loaded CI machine, 30 s of wall time once passed without one
-        _, joists = asyncio.run(first_on(port, "/truth/joists", time.monotonic() + 90))
+        try:
+            _, joists = asyncio.run(first_on(port, "/truth/joists", time.monotonic() + 90))
+        except AssertionError as e:  # what the twin and the view said: the flake's evidence
+            said = "".join(robot.lines[-40:]) + "--- view ---\n" + "".join(view.lines[-20:])
+            raise AssertionError(f"{e}\n--- robot ---\n{said}") from e
         channels, data = asyncio.run(foxglove_client(port, time.monotonic() + 4))
     finally:
         robot.stop()
