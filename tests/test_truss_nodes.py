@@ -30,7 +30,15 @@ CAMERA = ts.DepthCamera().scaled(0.75)
 """Three quarters of the Kinect 2 resolution: the same cases meet the goal as at the full one
 (measured), in about half the time."""
 NOISE_FREE = ts.DepthNoise(
-    a=0.0, b=0.0, c=0.0, flying=0.0, dropout=0.0, pose_translation=0.0, pose_rotation=0.0
+    a=0.0,
+    b=0.0,
+    c=0.0,
+    flying=0.0,
+    dropout=0.0,
+    grazing_from_deg=90.0,
+    grazing_to_deg=90.0,
+    pose_translation=0.0,
+    pose_rotation=0.0,
 )
 AIM = np.array([-0.4, 0.0, 0.95])
 """The middle of the default space frame (m)."""

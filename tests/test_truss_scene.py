@@ -115,3 +115,30 @@ def test_flying_pixels_appear_only_on_depth_edges():
     assert len(moved) > 0
     assert set(moved[:, 1]) == {24}
     assert ((noisy[:, 24] >= 1.0) & (noisy[:, 24] <= 3.0)).all()
+
+
+def test_grazing_surfaces_lose_their_returns():
+    """A floor seen by a level camera 0.5 m above it: rows whose true incidence (the ray
+    against the floor's normal, tan = range along the axis / height) is under the grazing
+    onset keep every return, rows past its end lose every one, and in between the share
+    lost follows the linear ramp."""
+    camera = ts.DepthCamera()
+    height = 0.3
+    v = np.arange(camera.height, dtype=float)
+    below = v - camera.ppy
+    z = np.where(below > 0, height * camera.fy / np.maximum(below, 1e-9), 0.0)
+    z[(z < camera.min_range) | (z > camera.max_range)] = 0.0
+    depth = np.repeat(z[:, None], camera.width, axis=1)
+    noise = ts.DepthNoise(a=0, b=0, c=0, flying=0, dropout=0)
+    noisy = ts.add_noise(depth, camera, noise, np.random.default_rng(0))
+    incidence = np.degrees(np.arctan2(z, height))
+    kept = (noisy > 0).sum(axis=1) / camera.width
+    rows = (z > 0) & (np.roll(z, 1) > 0) & (np.roll(z, -1) > 0)
+    assert rows.sum() > 20
+    lost = 1.0 - kept
+    ramp = np.clip((incidence - 70.0) / 15.0, 0.0, 1.0)
+    assert (lost[rows & (incidence < 70.0)] == 0.0).all()
+    assert (lost[rows & (incidence > 85.0)] == 1.0).all()
+    middle = rows & (incidence > 72.0) & (incidence < 83.0)
+    assert middle.sum() >= 3
+    np.testing.assert_allclose(lost[middle], ramp[middle], atol=0.1)

@@ -126,6 +126,10 @@ class DepthNoise:
     ``flying`` is the chance that a pixel on a depth edge (neighbour step > ``edge_step``)
     takes a depth between foreground and background (0.2: what the driver's edge-aware
     filter, on by default in libfreenect2, lets through); ``dropout`` the chance of no return.
+    Grazing surfaces return less: off depth edges (a second difference over ``edge_step``;
+    a steep plane steps evenly), the chance of no return grows linearly from
+    0 at ``grazing_from_deg`` of incidence to 1 at ``grazing_to_deg`` (time-of-flight and
+    stereo sensors lose surfaces seen nearly edge-on).
     ``pose_translation``/``pose_rotation`` (m, rad) perturb each view's reported pose, as
     mapping drift does.
     """
@@ -136,6 +140,8 @@ class DepthNoise:
     flying: float = 0.2
     edge_step: float = 0.05
     dropout: float = 0.01
+    grazing_from_deg: float = 70.0
+    grazing_to_deg: float = 85.0
     pose_translation: float = 0.002
     pose_rotation: float = np.radians(0.1)
 
@@ -542,7 +548,8 @@ def depth_image(geometry: TrussGeometry, pose: np.ndarray, camera: DepthCamera) 
 
 
 def add_noise(depth: np.ndarray, camera: DepthCamera, noise: DepthNoise, rng) -> np.ndarray:
-    """Kinect-2-like noise on a depth image: range/incidence sigma, flying pixels, dropouts."""
+    """Kinect-2-like noise on a depth image: range/incidence sigma, flying pixels, dropouts,
+    no returns from grazing surfaces."""
     z = depth.copy()
     valid = z > 0
     gy, gx = np.gradient(np.where(valid, z, np.nan))
@@ -558,6 +565,15 @@ def add_noise(depth: np.ndarray, camera: DepthCamera, noise: DepthNoise, rng) ->
     edge = valid & (far - depth > noise.edge_step) & (rng.random(z.shape) < noise.flying)
     z[edge] = depth[edge] + rng.random(np.count_nonzero(edge)) * (far[edge] - depth[edge])
     z[rng.random(z.shape) < noise.dropout] = 0.0
+    if noise.grazing_from_deg >= 90.0:  # off: no draw, so the other noise is as without it
+        return z
+    incidence = np.degrees(np.arccos(cos_incidence))
+    span = max(noise.grazing_to_deg - noise.grazing_from_deg, 1e-9)
+    grazing = np.clip((incidence - noise.grazing_from_deg) / span, 0.0, 1.0)
+    left, right, up, down = neighbours
+    bend = np.maximum(np.abs(left + right - 2 * depth), np.abs(up + down - 2 * depth))
+    jump = bend > noise.edge_step  # a depth edge, not a steep plane (flying pixels are there)
+    z[valid & ~jump & (rng.random(z.shape) < grazing)] = 0.0
     return z
 
 
