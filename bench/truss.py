@@ -306,8 +306,7 @@ def frame_scene(shape: str, factor: float, diameter: float, noisy: bool, seed: i
         ts.look_at_pose(FRAME_AIM + [3.0 * np.cos(a), 2.6 * np.sin(a), 1.35], FRAME_AIM)
         for a in np.radians([20, 110, 200, 290])
     ]
-    quiet = ts.DepthNoise(0.0, 0.0, 0.0, 0.0, dropout=0.0, pose_translation=0.0, pose_rotation=0.0)
-    return ts.render(frame, poses, noise=ts.DepthNoise() if noisy else quiet, seed=seed)
+    return ts.render(frame, poses, noise=ts.DepthNoise() if noisy else ts.NO_NOISE, seed=seed)
 
 
 def frame_errors(detected: list, geometry: ts.TrussGeometry) -> tuple[Accuracy, Accuracy | None]:

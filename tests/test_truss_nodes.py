@@ -29,17 +29,6 @@ from climbd.plugins.perception.truss.nodes import axes_point
 CAMERA = ts.DepthCamera().scaled(0.75)
 """Three quarters of the Kinect 2 resolution: the same cases meet the goal as at the full one
 (measured), in about half the time."""
-NOISE_FREE = ts.DepthNoise(
-    a=0.0,
-    b=0.0,
-    c=0.0,
-    flying=0.0,
-    dropout=0.0,
-    grazing_from_deg=90.0,
-    grazing_to_deg=90.0,
-    pose_translation=0.0,
-    pose_rotation=0.0,
-)
 AIM = np.array([-0.4, 0.0, 0.95])
 """The middle of the default space frame (m)."""
 
@@ -182,7 +171,7 @@ def _cases():
 @pytest.mark.parametrize(("shape", "factor", "diameter"), list(_cases()))
 def test_tube_extent_and_node_to_node_within_the_goal(shape, factor, diameter):
     frame = ts.space_frame(shape, factor, diameter)
-    scene = ts.render(frame, oblique_poses(), CAMERA, NOISE_FREE)
+    scene = ts.render(frame, oblique_poses(), CAMERA, ts.NO_NOISE)
     members = TrussModeller().model(scene.cloud).members
     assert_goal(tube_accuracy(members, frame), node_accuracy(members, frame))
 
@@ -193,7 +182,7 @@ def test_the_posts_hidden_under_3x_cubes_meet_the_goal_once_seen_from_below():
     (measured 0.42 %, 2.3 mm)."""
     frame = ts.space_frame("box", 3.0, 0.08)
     poses = oblique_poses() + oblique_poses((65, 245), height=0.9)
-    scene = ts.render(frame, poses, CAMERA, NOISE_FREE)
+    scene = ts.render(frame, poses, CAMERA, ts.NO_NOISE)
     members = TrussModeller().model(scene.cloud).members
     assert_goal(tube_accuracy(members, frame), node_accuracy(members, frame))
 
@@ -205,7 +194,7 @@ def test_a_partly_occluded_view_keeps_the_goal():
     board = ts.Block(np.array([0.5, -0.4, 1.0]), np.eye(3), np.array([0.01, 0.3, 0.35]))
     frame = ts.space_frame("sphere", 2.0, 0.05, occluder=board)
     poses = oblique_poses((-40, 0, 40))
-    scene = ts.render(frame, poses, CAMERA, NOISE_FREE)
+    scene = ts.render(frame, poses, CAMERA, ts.NO_NOISE)
     facing_board = np.abs(scene.cloud[:, 0] - 0.51) < 0.005
     assert facing_board.sum() > 1000  # the board is in view, in front of the frame
     members = TrussModeller().model(scene.cloud).members
@@ -220,7 +209,7 @@ def test_a_member_ending_alone_at_a_connector_gets_the_blobs_centre(shape):
     top = np.array([0.0, 0.8, 2.1])
     nodes = np.vstack([ts.FRAME_NODES, top])
     frame = ts.space_frame(shape, 2.0, 0.05, nodes=nodes, links=(*ts.FRAME_LINKS, (5, 8)))
-    scene = ts.render(frame, oblique_poses(), CAMERA, NOISE_FREE)
+    scene = ts.render(frame, oblique_poses(), CAMERA, ts.NO_NOISE)
     members = TrussModeller().model(scene.cloud).members
     (alone,) = [m for m in members if max(m.p0[2], m.p1[2]) > 1.6]
     ends = sorted(alone.ends, key=lambda p: p[2])
@@ -258,7 +247,7 @@ def test_with_depth_noise_the_measured_figures_hold():
 def test_the_plugin_publishes_tube_extents_and_nodes():
     """Through the plugin and the wire: each member's node ends and each node's reach."""
     frame = ts.space_frame("box", 2.0, 0.05)
-    scene = ts.render(frame, oblique_poses(), CAMERA.scaled(2 / 3), NOISE_FREE)
+    scene = ts.render(frame, oblique_poses(), CAMERA.scaled(2 / 3), ts.NO_NOISE)
     plugin = TrussPerception(TrussConfig(model_every=len(scene.views)))
     outputs = [plugin.process_cloud(v.points, v.body, v.body.stamp) for v in scene.views]
     message = decode(encode(outputs[-1]), TrussMembers)

@@ -66,7 +66,7 @@ def test_ray_cast_depth_matches_mujoco_mj_multiray():
 
 def test_points_of_a_noise_free_view_lie_on_the_geometry():
     geometry = ts.five_member()
-    quiet = ts.DepthNoise(a=0, b=0, c=0, flying=0, dropout=0, pose_translation=0, pose_rotation=0)
+    quiet = ts.NO_NOISE
     scene = ts.render(geometry, camera=CAMERA, noise=quiet, poses=ts.orbit_poses(geometry, 2))
     cloud = scene.cloud
     above = cloud[cloud[:, 2] > 1e-4]

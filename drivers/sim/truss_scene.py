@@ -146,6 +146,20 @@ class DepthNoise:
     pose_rotation: float = np.radians(0.1)
 
 
+NO_NOISE = DepthNoise(
+    a=0.0,
+    b=0.0,
+    c=0.0,
+    flying=0.0,
+    dropout=0.0,
+    grazing_from_deg=90.0,
+    grazing_to_deg=90.0,
+    pose_translation=0.0,
+    pose_rotation=0.0,
+)
+"""Exact depth and poses: the geometry alone."""
+
+
 @dataclass
 class View:
     """One depth view: body-frame points (m) and the body pose reported with it."""
