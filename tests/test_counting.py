@@ -219,7 +219,11 @@ def test_commands_and_feet_are_published_at_the_state_rate(robot, robots) -> Non
         len(feet),
         expected,
     )
-    assert {f.stamp for f in feet} <= {c.stamp for c in commands}, "feet of a tick with no command"
+    # telemetry goes congestion DROP (docs/topics.md): a loaded machine loses a few samples of
+    # either topic, as the counts above allow; a tick publishing feet without its command
+    # would show as many feet unmatched
+    unmatched = {f.stamp for f in feet} - {c.stamp for c in commands}
+    assert len(unmatched) <= 0.1 * expected, f"{len(unmatched)} feet of ticks with no command"
     q = np.array([c.position for c in stand + commands])
     assert q.shape[1] == len(profile.joints)
     assert np.all((q >= lower - 1e-9) & (q <= upper + 1e-9)), "a command beyond a joint limit"
