@@ -68,16 +68,23 @@ class Proc:
             raise
 
 
-async def foxglove_client(port: int, until: float) -> tuple[dict, dict[int, list[bytes]]]:
+async def foxglove_client(
+    port: int, until: float, wanted: frozenset[str] = frozenset()
+) -> tuple[dict, dict[int, list[bytes]]]:
     """Speak the Foxglove WebSocket protocol: take the advertised channels, subscribe to all,
-    and collect message data until every channel sent twice or ``until`` (monotonic s)."""
+    and collect message data until every channel sent twice, or every ``wanted`` topic sent
+    once and two seconds passed, or ``until`` (monotonic s)."""
     uri = f"ws://127.0.0.1:{port}"
     async with websockets.connect(uri, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
         assert ws.subprotocol in SUBPROTOCOLS
         channels: dict[int, dict] = {}
         data: dict[int, list[bytes]] = {}
         server_info = None
+        enough = time.monotonic() + 2.0
         while time.monotonic() < until:
+            heard = {channels[c]["topic"] for c in data if c in channels}
+            if wanted and wanted <= heard and time.monotonic() > enough:
+                break
             try:
                 frame = await asyncio.wait_for(ws.recv(), 0.2)
             except asyncio.TimeoutError:
