@@ -32,8 +32,8 @@ from climbd.plugins.perception.truss.nodes import connectors, end_distance
 CAMERA = ts.DepthCamera().scaled(0.5)
 NO_GRAZING = ts.DepthNoise(grazing_from_deg=90.0, grazing_to_deg=90.0)
 """The generator's noise without its loss of returns from grazing surfaces: the acceptance
-figures below were set on it. With that loss, seven members at seed 7 split a post where a
-diagonal's coupler crosses it (``test_grazing_loss_splits_a_post_at_a_coupler``)."""
+figures below were set on it; they hold with that loss too
+(``test_grazing_loss_keeps_a_post_whole_at_a_coupler``)."""
 
 
 def _tube_points(p0, p1, radius, rng, noise=0.0, spacing=0.005, visible=np.pi, facing=None):
@@ -289,15 +289,10 @@ def test_the_paper_gap_rule_finds_every_member_at_its_measured_accuracy(
     assert accuracy.mean("midpoint_error") <= midpoint_error
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="measured: the post at y = -0.6 m splits at z 0.26-0.34 m, where the diagonal's "
-    "coupler crosses it (a 77 mm gap the merge, 30 mm on the axis, does not bridge): 1 false "
-    "member, the post and the diagonal 19-21 % short; 2 of seeds 0-15 fail so",
-)
-def test_grazing_loss_splits_a_post_at_a_coupler():
+def test_grazing_loss_keeps_a_post_whole_at_a_coupler():
     """Seven members with the generator's full noise (grazing surfaces lose their returns),
-    seed 7: the acceptance figures."""
+    seed 7, where the post at y = -0.6 m once split at the diagonal's coupler: the acceptance
+    figures. Measured: seeds 0-15 all meet them, mean length error 0.59-0.96 % (0.89 % here)."""
     scene = ts.render(ts.seven_member(), camera=CAMERA, noise=ts.DepthNoise(), seed=7)
     model = TrussModeller(TrussConfig(seed=7)).model(scene.cloud)
     truth = [(t.p0, t.p1, t.radius) for t in scene.members]

@@ -64,6 +64,21 @@ def surface_fit(
     return np.abs(distance - cylinder.radius), cos
 
 
+def spread(points: np.ndarray, cylinder: Cylinder) -> float:
+    """The spread (m) of points about a cylinder's surface: one robust standard deviation
+    (1.4826 times the median distance from it), the depth noise a fit's radius carries."""
+    w = points - cylinder.point
+    radial = w - np.outer(w @ cylinder.axis, cylinder.axis)
+    return float(1.4826 * np.median(np.abs(np.sqrt(_rowdot(radial, radial)) - cylinder.radius)))
+
+
+def within_radii(points: np.ndarray, cylinder: Cylinder, low: float, high: float) -> bool:
+    """The fitted radius lies within [low, high], widened by the points' spread about it:
+    depth noise pushes a tube's points off its surface, and the fit's radius outwards."""
+    slack = spread(points, cylinder)
+    return low - slack <= cylinder.radius <= high + slack
+
+
 def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise dot products of two N x 3 arrays."""
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
@@ -184,7 +199,7 @@ def segment_cylinders(
             segment is None
             or len(segment.indices) < min_points
             or segment.t1 - segment.t0 < min_length
-            or not radius_min <= segment.cylinder.radius <= radius_max
+            or not within_radii(points[segment.indices], segment.cylinder, radius_min, radius_max)
         ):
             failures += 1
             continue
@@ -217,8 +232,8 @@ def _scores(
 
 GROW_POINTS = 1500
 """Points used by the refits while a segment grows (every k-th inlier); final fits use all."""
-GROW_REFITS = 2
-GROW_ITERATIONS = 3
+GROW_ROUNDS = 6
+"""Most refits of a segment on its longest run of inliers, while the run grows."""
 
 
 def _grow(
@@ -230,7 +245,8 @@ def _grow(
     cos_limit: float,
     segment_gap: float,
 ) -> Segment | None:
-    """Refine a hypothesis on its inliers twice, then keep the longest gap-free run along it."""
+    """Refine a hypothesis on its inliers twice, then grow its longest gap-free run along it;
+    again from the run's cross-section recentred (``_recentred``); the longer run wins."""
     pool_points, pool_normals = points[pool], normals[pool]
     for _ in range(2):
         off, cos = surface_fit(pool_points, pool_normals, cylinder)
@@ -238,14 +254,61 @@ def _grow(
         if inliers.sum() < 8:
             return None
         cylinder = refine(pool_points[inliers], cylinder, max_points=GROW_POINTS)
-    off, cos = surface_fit(pool_points, pool_normals, cylinder)
-    inliers = pool[(off < distance) & (cos > cos_limit)]
-    if len(inliers) < 8:
+    grown = _longest_run(points, normals, pool, cylinder, distance, cos_limit, segment_gap)
+    if grown is None:
         return None
-    t = (points[inliers] - cylinder.point) @ cylinder.axis
-    run = inliers[max(_axial_runs(t, segment_gap), key=len)]
+    start = _recentred(pool_points, grown, distance)
+    if start is None:
+        return grown
+    again = _longest_run(points, normals, pool, start, distance, cos_limit, segment_gap)
+    if again is not None and len(again.indices) > len(grown.indices):
+        return again
+    return grown
+
+
+def _longest_run(
+    points: np.ndarray,
+    normals: np.ndarray,
+    pool: np.ndarray,
+    cylinder: Cylinder,
+    distance: float,
+    cos_limit: float,
+    segment_gap: float,
+) -> Segment | None:
+    """The longest gap-free run of the cylinder's inliers along it, refitted on the run while
+    the run grows (a noisy hypothesis's axis is off: its inliers break into short runs)."""
+    pool_points, pool_normals = points[pool], normals[pool]
+    run = np.zeros(0, int)
+    for _ in range(GROW_ROUNDS):
+        off, cos = surface_fit(pool_points, pool_normals, cylinder)
+        inliers = pool[(off < distance) & (cos > cos_limit)]
+        if len(inliers) < 8:
+            break
+        t = (points[inliers] - cylinder.point) @ cylinder.axis
+        longest = inliers[max(_axial_runs(t, segment_gap), key=len)]
+        if len(longest) <= len(run):
+            break
+        run = longest
+        cylinder = refine(points[run], cylinder, max_points=GROW_POINTS)
     if len(run) < 8:
         return None
-    cylinder = refine(points[run], cylinder, max_points=GROW_POINTS)
     t = (points[run] - cylinder.point) @ cylinder.axis
     return Segment(cylinder, float(t.min()), float(t.max()), run)
+
+
+def _recentred(points: np.ndarray, segment: Segment, distance: float) -> Cylinder | None:
+    """The segment's cylinder moved to the centroid of the points inside it over its extent,
+    with their median distance from that axis as radius: a start for a refit that escapes a
+    wide cylinder fitted to one side of a noisy tube (the other side lies inside it). None
+    without such points."""
+    cylinder = segment.cylinder
+    w = points - cylinder.point
+    t = w @ cylinder.axis
+    radial = np.linalg.norm(w - np.outer(t, cylinder.axis), axis=1)
+    inside = points[(t >= segment.t0) & (t <= segment.t1) & (radial < cylinder.radius + distance)]
+    if len(inside) == 0:
+        return None
+    centre = inside.mean(axis=0)
+    w = inside - centre
+    radial = np.linalg.norm(w - np.outer(w @ cylinder.axis, cylinder.axis), axis=1)
+    return Cylinder(centre, cylinder.axis, float(np.median(radial)))

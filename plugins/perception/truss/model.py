@@ -32,6 +32,7 @@ from climbd.plugins.perception.truss.cylinders import (
     refine,
     segment_cylinders,
     surface_fit,
+    within_radii,
 )
 from climbd.plugins.perception.truss.nodes import NodeRules, node_members
 from climbd.plugins.perception.truss.planes import accept_plane, find_planes, plane_heights
@@ -323,12 +324,13 @@ class TrussModeller:
 
     def _refit(self, member: Member, points: np.ndarray, normals: np.ndarray) -> Member:
         """Refit the member's cylinder on all its surface points and re-project its end points
-        (kept as it was if the refit leaves the configured radius limits)."""
+        (kept as it was if the refit leaves the radius limits, widened by the points' spread)."""
+        c = self.config
         surface = self._surface(member, points, normals)
-        if len(surface) < self.config.min_member_points:
+        if len(surface) < c.min_member_points:
             return member
         cylinder = refine(points[surface], member.cylinder)
-        if not self.config.radius_min <= cylinder.radius <= self.config.radius_max:
+        if not within_radii(points[surface], cylinder, c.radius_min, c.radius_max):
             return member
         t = (np.array([member.p0, member.p1]) - cylinder.point) @ cylinder.axis
         return Member(cylinder, float(t.min()), float(t.max()), member.indices, member.pieces)

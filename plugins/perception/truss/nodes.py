@@ -26,7 +26,7 @@ import numpy as np
 
 from climbd.daemon.contract.messages import TrussNode
 from climbd.plugins.perception.truss.completion import Member
-from climbd.plugins.perception.truss.cylinders import Cylinder, surface_fit
+from climbd.plugins.perception.truss.cylinders import Cylinder, spread, surface_fit
 
 
 def end_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -98,12 +98,19 @@ def _closest_on_axes(a: Member, b: Member) -> tuple[float, float, float]:
 
 
 def junctions(
-    members: Sequence[Member], *, reach: float, angle_deg: float, radius: float
+    members: Sequence[Member],
+    *,
+    reach: float,
+    angle_deg: float,
+    radius: float,
+    slack: Sequence[float],
 ) -> list[tuple[np.ndarray, list[int]]]:
     """Nodes where member axes meet: pairs of members at ``angle_deg`` or more whose axes pass
-    within half their mean radius (scaffold tubes crossing at a coupler pass at the radii sum),
-    at points within ``reach`` (m) of both members' extents, grouped within ``radius`` (m).
-    Each node is the least-squares point nearest its members' axes, with their indices."""
+    within half their mean radius (scaffold tubes crossing at a coupler pass at the radii sum)
+    plus both members' ``slack`` (m; the spread of their points: noisy fits' axes stray by
+    about that), at points within ``reach`` (m) of both members' extents, grouped within
+    ``radius`` (m). Each node is the least-squares point nearest its members' axes, with
+    their indices."""
     meets, pairs = [], []
     for i, a in enumerate(members):
         for j in range(i + 1, len(members)):
@@ -113,7 +120,8 @@ def junctions(
             ta, tb, gap = _closest_on_axes(a, b)
             near_a = a.t0 - reach <= ta <= a.t1 + reach
             near_b = b.t0 - reach <= tb <= b.t1 + reach
-            if near_a and near_b and gap < 0.25 * (a.cylinder.radius + b.cylinder.radius):
+            tolerance = 0.25 * (a.cylinder.radius + b.cylinder.radius) + slack[i] + slack[j]
+            if near_a and near_b and gap < tolerance:
                 meets.append(a.cylinder.point + ta * a.cylinder.axis)
                 pairs.append((i, j))
     nodes = []
@@ -296,7 +304,13 @@ def node_members(
     Dropped as the edges of a large connector, fitted as cylinders: a member meeting no node
     whose middle lies within ``reach`` of one, and a member lying within ``reach`` of a node it
     does not meet (the edges of a cube meet at its corners)."""
-    nodes = junctions(members, reach=rules.reach, angle_deg=rules.angle_deg, radius=rules.radius)
+    nodes = junctions(
+        members,
+        reach=rules.reach,
+        angle_deg=rules.angle_deg,
+        radius=rules.radius,
+        slack=[spread(points[m.indices], m.cylinder) for m in members],
+    )
     centres = np.array([node for node, _ in nodes]).reshape(-1, 3)
     cut = []
     for k, member in enumerate(members):
