@@ -64,12 +64,18 @@ def surface_fit(
     return np.abs(distance - cylinder.radius), cos
 
 
+def robust_sigma(off: np.ndarray) -> float:
+    """One robust standard deviation (m) of distances ``off`` from a surface: 1.4826 times
+    their median (the normal distribution's MAD scale), blind to a few outliers."""
+    return float(1.4826 * np.median(np.abs(off)))
+
+
 def spread(points: np.ndarray, cylinder: Cylinder) -> float:
-    """The spread (m) of points about a cylinder's surface: one robust standard deviation
-    (1.4826 times the median distance from it), the depth noise a fit's radius carries."""
+    """The spread (m) of points about a cylinder's surface (``robust_sigma``): the depth noise
+    a fit's radius carries."""
     w = points - cylinder.point
     radial = w - np.outer(w @ cylinder.axis, cylinder.axis)
-    return float(1.4826 * np.median(np.abs(np.sqrt(_rowdot(radial, radial)) - cylinder.radius)))
+    return robust_sigma(np.sqrt(_rowdot(radial, radial)) - cylinder.radius)
 
 
 def within_radii(points: np.ndarray, cylinder: Cylinder, low: float, high: float) -> bool:

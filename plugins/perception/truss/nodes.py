@@ -26,7 +26,7 @@ import numpy as np
 
 from climbd.daemon.contract.messages import TrussNode
 from climbd.plugins.perception.truss.completion import Member
-from climbd.plugins.perception.truss.cylinders import Cylinder, spread, surface_fit
+from climbd.plugins.perception.truss.cylinders import Cylinder, robust_sigma, spread, surface_fit
 
 
 def end_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -209,12 +209,12 @@ def _radial(points: np.ndarray, cylinder: Cylinder) -> np.ndarray:
 
 def shell_thickness(off: np.ndarray, *, floor: float, ceiling: float) -> float:
     """How far (m) a tube's surface points stray from its radius, given their distances ``off``
-    from it: three robust standard deviations (1.4826 times their median), within ``floor``
-    (voxel centroids lie that near the surface they sample) and ``ceiling`` (the fit's
-    tolerance: a noisy or poorly fitted shell)."""
+    from it: three robust standard deviations (``robust_sigma``), within ``floor`` (voxel
+    centroids lie that near the surface they sample) and ``ceiling`` (the fit's tolerance: a
+    noisy or poorly fitted shell)."""
     if len(off) == 0:
         return ceiling
-    return float(np.clip(3 * 1.4826 * np.median(off), floor, ceiling))
+    return float(np.clip(3 * robust_sigma(off), floor, ceiling))
 
 
 def open_slices(prof: Profile, lo: float, hi: float, outward: int) -> np.ndarray:
