@@ -311,6 +311,8 @@ class TrussModeller:
         for _ in range(c.completion_passes - 1):
             refitted = self._refit(member, points, normals)
             surface = self._surface(refitted, points, normals)
+            if len(surface) == 0:  # none on its refitted surface: nothing to slide from
+                break
             member = slide(Segment(refitted.cylinder, refitted.t0, refitted.t1, surface))
         return member
 
