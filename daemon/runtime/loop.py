@@ -188,18 +188,21 @@ class ControlLoop:
         idle = self.idle
         if self._start is None:
             self._start = clock.now()
-        start = self._start
-        while not self._stop.is_set() and (max_ticks is None or self.ticks < max_ticks):
-            deadline = start + self._k * period
-            if idle is not None:
-                idle(deadline)
-            clock.sleep_until(deadline)
-            woke = clock.now()
-            tick(deadline, period)
-            done = clock.now()
-            timing.add(woke - deadline, done - woke)
-            self.ticks += 1
-            self._k += 1
-            if done > start + self._k * period:
-                timing.overruns += 1
-                self._k = max(self._k, int((done - start) / period))
+        start, k = self._start, self._k
+        try:
+            while not self._stop.is_set() and (max_ticks is None or self.ticks < max_ticks):
+                deadline = start + k * period
+                if idle is not None:
+                    idle(deadline)
+                clock.sleep_until(deadline)
+                woke = clock.now()
+                tick(deadline, period)
+                done = clock.now()
+                timing.add(woke - deadline, done - woke)
+                self.ticks += 1
+                k += 1
+                if done > start + k * period:
+                    timing.overruns += 1
+                    k = max(k, int((done - start) / period))
+        finally:
+            self._k = k
