@@ -53,7 +53,7 @@ update): the box space frame (2x connectors, 48 mm tubes) from the four oblique 
 
     .venv/bin/python bench/truss.py [--repeat 5] [--peer-iterations 3000]
         [--baseline-iterations 2000] [--no-scaffold] [--gap-rule paper absolute]
-        [--gap-epsilon 1e-5] [--frames] [--frame-timing]
+        [--gap-epsilon 1e-5] [--frames] [--no-baselines] [--frame-timing]
 """
 
 from __future__ import annotations
@@ -350,7 +350,9 @@ def frame_row(shape: str, noise: str, method: str, results: list) -> str:
 def baselines(args: argparse.Namespace) -> list[tuple[str, Baseline, int]]:
     """The two baselines (row label, model function, iterations), both given the member count.
     pyransac3d's label says why it finds nothing: its axis comes from 3 points (module
-    docstring)."""
+    docstring); none with ``--no-baselines``."""
+    if args.no_baselines:
+        return []
     return [
         (
             f"pyransac3d Cylinder ({args.peer_iterations} it., count given; 3-point axis)",
@@ -467,6 +469,11 @@ def main() -> None:
         "--frames",
         action="store_true",
         help="nodes as features: space frames with box, sphere and plate connectors (issue 37)",
+    )
+    parser.add_argument(
+        "--no-baselines",
+        action="store_true",
+        help="ours alone (the baselines take most of a --frames run)",
     )
     parser.add_argument(
         "--frame-timing",
