@@ -70,12 +70,17 @@ def robust_sigma(off: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(off)))
 
 
+def axis_distance(points: np.ndarray, cylinder: Cylinder) -> np.ndarray:
+    """Distance (m) of each point from the cylinder's axis line."""
+    w = points - cylinder.point
+    radial = w - np.outer(w @ cylinder.axis, cylinder.axis)
+    return np.sqrt(_rowdot(radial, radial))
+
+
 def spread(points: np.ndarray, cylinder: Cylinder) -> float:
     """The spread (m) of points about a cylinder's surface (``robust_sigma``): the depth noise
     a fit's radius carries."""
-    w = points - cylinder.point
-    radial = w - np.outer(w @ cylinder.axis, cylinder.axis)
-    return robust_sigma(np.sqrt(_rowdot(radial, radial)) - cylinder.radius)
+    return robust_sigma(axis_distance(points, cylinder) - cylinder.radius)
 
 
 def within_radii(points: np.ndarray, cylinder: Cylinder, low: float, high: float) -> bool:
@@ -260,34 +265,33 @@ def _grow(
         if inliers.sum() < 8:
             return None
         cylinder = refine(pool_points[inliers], cylinder, max_points=GROW_POINTS)
-    grown = _longest_run(points, normals, pool, cylinder, distance, cos_limit, segment_gap)
+    tolerances = (distance, cos_limit, segment_gap)
+    grown = _longest_run(pool_points, pool_normals, cylinder, *tolerances)
     if grown is None:
         return None
     start = _recentred(pool_points, grown, distance)
-    if start is None:
-        return grown
-    again = _longest_run(points, normals, pool, start, distance, cos_limit, segment_gap)
-    if again is not None and len(again.indices) > len(grown.indices):
-        return again
-    return grown
+    if start is not None:
+        again = _longest_run(pool_points, pool_normals, start, *tolerances)
+        if again is not None and len(again.indices) > len(grown.indices):
+            grown = again
+    return Segment(grown.cylinder, grown.t0, grown.t1, pool[grown.indices])
 
 
 def _longest_run(
     points: np.ndarray,
     normals: np.ndarray,
-    pool: np.ndarray,
     cylinder: Cylinder,
     distance: float,
     cos_limit: float,
     segment_gap: float,
 ) -> Segment | None:
-    """The longest gap-free run of the cylinder's inliers along it, refitted on the run while
-    the run grows (a noisy hypothesis's axis is off: its inliers break into short runs)."""
-    pool_points, pool_normals = points[pool], normals[pool]
+    """The longest gap-free run of the cylinder's inliers along it (indices into ``points``),
+    refitted on the run while the run grows (a noisy hypothesis's axis is off: its inliers
+    break into short runs)."""
     run = np.zeros(0, int)
     for _ in range(GROW_ROUNDS):
-        off, cos = surface_fit(pool_points, pool_normals, cylinder)
-        inliers = pool[(off < distance) & (cos > cos_limit)]
+        off, cos = surface_fit(points, normals, cylinder)
+        inliers = np.flatnonzero((off < distance) & (cos > cos_limit))
         if len(inliers) < 8:
             break
         t = (points[inliers] - cylinder.point) @ cylinder.axis
@@ -308,13 +312,11 @@ def _recentred(points: np.ndarray, segment: Segment, distance: float) -> Cylinde
     wide cylinder fitted to one side of a noisy tube (the other side lies inside it). None
     without such points."""
     cylinder = segment.cylinder
-    w = points - cylinder.point
-    t = w @ cylinder.axis
-    radial = np.linalg.norm(w - np.outer(t, cylinder.axis), axis=1)
+    t = (points - cylinder.point) @ cylinder.axis
+    radial = axis_distance(points, cylinder)
     inside = points[(t >= segment.t0) & (t <= segment.t1) & (radial < cylinder.radius + distance)]
     if len(inside) == 0:
         return None
     centre = inside.mean(axis=0)
-    w = inside - centre
-    radial = np.linalg.norm(w - np.outer(w @ cylinder.axis, cylinder.axis), axis=1)
-    return Cylinder(centre, cylinder.axis, float(np.median(radial)))
+    radius = np.median(axis_distance(inside, Cylinder(centre, cylinder.axis, 0.0)))
+    return Cylinder(centre, cylinder.axis, float(radius))

@@ -26,7 +26,12 @@ import numpy as np
 
 from climbd.daemon.contract.messages import TrussNode
 from climbd.plugins.perception.truss.completion import Member
-from climbd.plugins.perception.truss.cylinders import Cylinder, robust_sigma, spread, surface_fit
+from climbd.plugins.perception.truss.cylinders import (
+    axis_distance,
+    robust_sigma,
+    spread,
+    surface_fit,
+)
 
 
 def end_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -186,7 +191,7 @@ def profile(
     surface = np.histogram(t[on], edges)[0]
     blob = np.histogram(t[~on & section], edges)[0]
     thickness = shell_thickness(off[on], floor=bin_size / 4, ceiling=distance)
-    radial = _radial(points[inside], cylinder) - cylinder.radius
+    radial = axis_distance(points[inside], cylinder) - cylinder.radius
     blurred = cos > np.cos(np.radians(2 * angle_deg))
     near = blurred & (radial > -thickness) & (radial < distance)
     bore = radial < -thickness if thickness < distance else np.zeros(len(t), bool)
@@ -199,12 +204,6 @@ def profile(
         np.sort(t[blurred & (off < thickness)]),
         np.sort(t[bore]),
     )
-
-
-def _radial(points: np.ndarray, cylinder: Cylinder) -> np.ndarray:
-    """Distance (m) of each point from the cylinder's axis."""
-    w = points - cylinder.point
-    return np.linalg.norm(w - np.outer(w @ cylinder.axis, cylinder.axis), axis=1)
 
 
 def shell_thickness(off: np.ndarray, *, floor: float, ceiling: float) -> float:
