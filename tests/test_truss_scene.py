@@ -66,8 +66,7 @@ def test_ray_cast_depth_matches_mujoco_mj_multiray():
 
 def test_points_of_a_noise_free_view_lie_on_the_geometry():
     geometry = ts.five_member()
-    quiet = ts.NO_NOISE
-    scene = ts.render(geometry, camera=CAMERA, noise=quiet, poses=ts.orbit_poses(geometry, 2))
+    scene = ts.render(geometry, camera=CAMERA, noise=ts.NO_NOISE, poses=ts.orbit_poses(geometry, 2))
     cloud = scene.cloud
     above = cloud[cloud[:, 2] > 1e-4]
     gaps = np.full(len(above), np.inf)
@@ -118,7 +117,7 @@ def test_flying_pixels_appear_only_on_depth_edges():
 
 
 def test_grazing_surfaces_lose_their_returns():
-    """A floor seen by a level camera 0.5 m above it: rows whose true incidence (the ray
+    """A floor seen by a level camera 0.3 m above it: rows whose true incidence (the ray
     against the floor's normal, tan = range along the axis / height) is under the grazing
     onset keep every return, rows past its end lose every one, and in between the share
     lost follows the linear ramp."""
