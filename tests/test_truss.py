@@ -92,6 +92,23 @@ def test_radius_fit_on_r_is_unbiased_on_a_half_visible_noisy_tube():
     assert max(angles) < 0.2
 
 
+@pytest.mark.parametrize("along", [0.0, 0.5, 1.0])
+def test_a_fit_started_far_along_the_axis_converges(along):
+    """A start whose axis point lies ``along`` m past the points' middle, 2 deg off the axis:
+    the fit tilts the axis about the points' centroid, as its Jacobian assumes, and lands on
+    the true tube (a tilt about the far start point diverged from 0.5 m on)."""
+    rng = np.random.default_rng(1)
+    points = _tube_points([0, 0, 0], [0, 0, 1.0], 0.024, rng, visible=np.pi)
+    tilt = np.radians(2.0)
+    start = Cylinder(
+        np.array([0.004, -0.003, 0.5 + along]), np.array([np.sin(tilt), 0, np.cos(tilt)]), 0.03
+    )
+    fit = refine(points, start)
+    assert _angle_deg(fit.axis, np.array([0, 0, 1.0])) < 1e-3
+    assert fit.radius == pytest.approx(0.024, abs=1e-5)
+    assert np.hypot(*fit.point[:2]) < 1e-5
+
+
 @pytest.mark.parametrize(
     ("distances", "reach", "open_ended"),
     [

@@ -10,10 +10,12 @@ incompleteness the sliding bounding box repairs.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 from scipy.spatial import cKDTree
 
 
@@ -46,22 +48,50 @@ class Segment:
 
 def perpendicular_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing ``axis`` to a right-handed orthonormal frame."""
-    x, y, z = axis
-    u = np.array([0.0, z, -y]) if abs(x) < 0.9 else np.array([-z, 0.0, x])
-    u /= np.sqrt(u @ u)
-    v = np.array([y * u[2] - z * u[1], z * u[0] - x * u[2], x * u[1] - y * u[0]])
+    u, v = axis_frame(axis)[1:]
     return u, v
+
+
+def axis_frame(axis: np.ndarray) -> np.ndarray:
+    """Rows: the unit ``axis`` and two unit vectors completing it to a right-handed frame
+    (scalar arithmetic: called per Gauss-Newton iteration on small fits)."""
+    x, y, z = axis.tolist()
+    if abs(x) < 0.9:
+        norm = math.sqrt(y * y + z * z)
+        ux, uy, uz = 0.0, z / norm, -y / norm
+    else:
+        norm = math.sqrt(x * x + z * z)
+        ux, uy, uz = -z / norm, 0.0, x / norm
+    return np.array(
+        [
+            [x, y, z],
+            [ux, uy, uz],
+            [y * uz - z * uy, z * ux - x * uz, x * uy - y * ux],
+        ]
+    )
 
 
 def surface_fit(
     points: np.ndarray, normals: np.ndarray, cylinder: Cylinder
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per point: |distance to axis - r| (m) and |cos| of its normal to the radial direction."""
+    radial, cos = surface_offset(points, normals, cylinder)
+    return np.abs(radial, out=radial), cos
+
+
+def surface_offset(
+    points: np.ndarray, normals: np.ndarray, cylinder: Cylinder
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per point: distance to axis - r (m; negative inside the surface) and |cos| of its normal
+    to the radial direction (the radial vector w - (w.a)a is never formed: its length and its
+    dot with the normal follow from w.w, w.a, w.n and n.a)."""
     w = points - cylinder.point
-    radial = w - np.outer(w @ cylinder.axis, cylinder.axis)
-    distance = np.sqrt(_rowdot(radial, radial))
-    cos = np.abs(_rowdot(radial, normals)) / np.maximum(distance, 1e-12)
-    return np.abs(distance - cylinder.radius), cos
+    along = w @ cylinder.axis
+    distance = np.sqrt(np.maximum(_rowdot(w, w) - along * along, 0.0))
+    normal_radial = _rowdot(w, normals) - along * (normals @ cylinder.axis)
+    cos = np.abs(normal_radial) / np.maximum(distance, 1e-12)
+    distance -= cylinder.radius
+    return distance, cos
 
 
 def robust_sigma(off: np.ndarray) -> float:
@@ -95,36 +125,50 @@ def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
+STEP_TOLERANCE = 1e-4
+"""A fit has converged when no step moves the axis point or the radius by 0.1 mm or turns the
+axis by 0.1 mrad: a tenth of the depth noise and of the voxel the cloud is sampled at."""
+
+
 def refine(
     points: np.ndarray, cylinder: Cylinder, iterations: int = 8, max_points: int | None = None
 ) -> Cylinder:
-    """Least-squares cylinder on the geometric residual d_i - r (Gauss-Newton, 5 parameters);
-    on every k-th point when there are more than ``max_points``."""
+    """Least-squares cylinder on the geometric residual d_i - r (Gauss-Newton, 5 parameters:
+    the axis point's and the axis's moves along u, v perpendicular to it, and r); on every k-th
+    point when there are more than ``max_points``. The points are centred once, so their axial
+    coordinates have zero mean (tilts decouple from shifts) and an iteration is a handful of
+    array operations: its fits run on a few hundred points, where call overhead dominates."""
     if max_points is not None and len(points) > max_points:
         points = points[:: -(-len(points) // max_points)]
-    point, axis, radius = cylinder.point.copy(), cylinder.axis.copy(), cylinder.radius
+    origin = points.mean(axis=0)
+    centred = np.ascontiguousarray((points - origin).T)
+    point, axis, radius = cylinder.point - origin, cylinder.axis, cylinder.radius
+    # a guard against singular fits: 1e-9 of a bound on the normal matrix's trace, 2n + sum t^2
+    damping = np.eye(5) * (1e-12 + 1e-9 * (2 * len(points) + np.einsum("ij,ij", centred, centred)))
     jacobian = np.empty((5, len(points)))
     jacobian[4] = -1.0
     for _ in range(iterations):
-        u, v = perpendicular_basis(axis)
-        t, pu, pv = np.array([axis, u, v]) @ (points - point).T
-        t -= t.mean()
-        distance = np.maximum(np.sqrt(pu * pu + pv * pv), 1e-12)
-        np.divide(pu, -distance, out=jacobian[0])
-        np.divide(pv, -distance, out=jacobian[1])
-        np.multiply(t, jacobian[0], out=jacobian[2])
-        np.multiply(t, jacobian[1], out=jacobian[3])
-        normal = jacobian @ jacobian.T
-        normal[np.diag_indices(5)] += 1e-12 + 1e-9 * np.trace(normal)
-        step = np.linalg.solve(normal, jacobian @ (radius - distance))
-        point = point + step[0] * u + step[1] * v
-        axis = axis + step[2] * u + step[3] * v
-        axis /= np.sqrt(axis @ axis)
-        radius += step[4]
-        if np.abs(step).max() < 1e-5:
+        point = point - axis * (point @ axis)  # the centroid's foot: tilts turn about it
+        frame = axis_frame(axis)
+        np.matmul(frame[0], centred, out=jacobian[2])
+        across = frame[1:] @ centred - (frame[1:] @ point)[:, None]
+        distance = np.sqrt(across[0] * across[0] + across[1] * across[1])
+        np.maximum(distance, 1e-12, out=distance)
+        np.divide(across, -distance, out=jacobian[:2])
+        np.multiply(jacobian[2], jacobian[:2], out=jacobian[2:4])
+        normal = jacobian @ jacobian.T + damping
+        _, step, info = lapack.dposv(normal, jacobian @ (radius - distance))
+        if info != 0:
             break
-    point = point + axis * ((points - point) @ axis).mean()
-    return Cylinder(point, axis, float(radius))
+        moves = step[:4].reshape(2, 2) @ frame[1:]
+        point = point + moves[0]
+        axis = axis + moves[1]
+        axis = axis / np.sqrt(axis @ axis)
+        radius += float(step[4])
+        if np.abs(step).max() < STEP_TOLERANCE:
+            break
+    point = point - axis * (point @ axis)
+    return Cylinder(point + origin, axis, float(radius))
 
 
 def hypotheses(
@@ -147,11 +191,13 @@ def hypotheses(
     return centres, axes, radii, valid
 
 
-def _axial_runs(t: np.ndarray, gap: float) -> list[np.ndarray]:
-    """Indices (into t) of runs of axial coordinates without a gap above ``gap``."""
+def _longest_axial_run(t: np.ndarray, gap: float) -> np.ndarray:
+    """Indices (into t) of the longest run of axial coordinates without a gap above ``gap``
+    (the first of equally long runs)."""
     order = np.argsort(t)
-    breaks = np.flatnonzero(np.diff(t[order]) > gap) + 1
-    return np.split(order, breaks)
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(t[order]) > gap) + 1, [len(t)]))
+    k = int(np.argmax(np.diff(bounds)))
+    return order[bounds[k] : bounds[k + 1]]
 
 
 def segment_cylinders(
@@ -295,7 +341,7 @@ def _longest_run(
         if len(inliers) < 8:
             break
         t = (points[inliers] - cylinder.point) @ cylinder.axis
-        longest = inliers[max(_axial_runs(t, segment_gap), key=len)]
+        longest = inliers[_longest_axial_run(t, segment_gap)]
         if len(longest) <= len(run):
             break
         run = longest

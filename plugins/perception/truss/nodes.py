@@ -26,12 +26,7 @@ import numpy as np
 
 from climbd.daemon.contract.messages import TrussNode
 from climbd.plugins.perception.truss.completion import Member
-from climbd.plugins.perception.truss.cylinders import (
-    axis_distance,
-    robust_sigma,
-    spread,
-    surface_fit,
-)
+from climbd.plugins.perception.truss.cylinders import robust_sigma, spread, surface_offset
 
 
 def end_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -184,14 +179,14 @@ def profile(
     if foreign is not None:
         inside &= ~foreign
     t = t[inside]
-    off, cos = surface_fit(points[inside], normals[inside], cylinder)
+    radial, cos = surface_offset(points[inside], normals[inside], cylinder)
+    off = np.abs(radial)
     on = (off < distance) & (cos > np.cos(np.radians(angle_deg)))
     section = off + cylinder.radius < 4 * cylinder.radius
     edges = np.arange(span[0], span[1] + bin_size, bin_size)
     surface = np.histogram(t[on], edges)[0]
     blob = np.histogram(t[~on & section], edges)[0]
     thickness = shell_thickness(off[on], floor=bin_size / 4, ceiling=distance)
-    radial = axis_distance(points[inside], cylinder) - cylinder.radius
     blurred = cos > np.cos(np.radians(2 * angle_deg))
     near = blurred & (radial > -thickness) & (radial < distance)
     bore = radial < -thickness if thickness < distance else np.zeros(len(t), bool)
