@@ -48,27 +48,20 @@ class Segment:
 
 def perpendicular_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing ``axis`` to a right-handed orthonormal frame."""
-    u, v = axis_frame(axis)[1:]
-    return u, v
+    _, u, v = _frame_rows(*axis.tolist())
+    return np.array(u), np.array(v)
 
 
-def axis_frame(axis: np.ndarray) -> np.ndarray:
-    """Rows: the unit ``axis`` and two unit vectors completing it to a right-handed frame
-    (scalar arithmetic: called per Gauss-Newton iteration on small fits)."""
-    x, y, z = axis.tolist()
+def _frame_rows(x: float, y: float, z: float) -> tuple[tuple[float, float, float], ...]:
+    """The unit axis (x, y, z) and two unit vectors completing it to a right-handed frame, in
+    scalars (called per Gauss-Newton iteration on small fits)."""
     if abs(x) < 0.9:
         norm = math.sqrt(y * y + z * z)
         ux, uy, uz = 0.0, z / norm, -y / norm
     else:
         norm = math.sqrt(x * x + z * z)
         ux, uy, uz = -z / norm, 0.0, x / norm
-    return np.array(
-        [
-            [x, y, z],
-            [ux, uy, uz],
-            [y * uz - z * uy, z * ux - x * uz, x * uy - y * ux],
-        ]
-    )
+    return (x, y, z), (ux, uy, uz), (y * uz - z * uy, z * ux - x * uz, x * uy - y * ux)
 
 
 def surface_fit(
@@ -135,40 +128,57 @@ def refine(
 ) -> Cylinder:
     """Least-squares cylinder on the geometric residual d_i - r (Gauss-Newton, 5 parameters:
     the axis point's and the axis's moves along u, v perpendicular to it, and r); on every k-th
-    point when there are more than ``max_points``. The points are centred once, so their axial
-    coordinates have zero mean (tilts decouple from shifts) and an iteration is a handful of
-    array operations: its fits run on a few hundred points, where call overhead dominates."""
+    point when there are more than ``max_points``. The points are centred once and the axis
+    turns about the centroid's foot on it, where the Jacobian's tilt terms pivot. Its fits run
+    on a few hundred points, where call overhead dominates: the pose is kept in scalars and an
+    iteration is one product of a 3 x 4 frame with the homogeneous points and the normal
+    equations."""
     if max_points is not None and len(points) > max_points:
         points = points[:: -(-len(points) // max_points)]
     origin = points.mean(axis=0)
-    centred = np.ascontiguousarray((points - origin).T)
-    point, axis, radius = cylinder.point - origin, cylinder.axis, cylinder.radius
+    homogeneous = np.ones((4, len(points)))
+    homogeneous[:3] = (points - origin).T
+    px, py, pz = (cylinder.point - origin).tolist()
+    ax, ay, az = cylinder.axis.tolist()
+    radius = cylinder.radius
     # a guard against singular fits: 1e-9 of a bound on the normal matrix's trace, 2n + sum t^2
-    damping = np.eye(5) * (1e-12 + 1e-9 * (2 * len(points) + np.einsum("ij,ij", centred, centred)))
+    spread2 = float(np.einsum("ij,ij", homogeneous[:3], homogeneous[:3]))
+    damping = np.eye(5) * (1e-12 + 1e-9 * (2 * len(points) + spread2))
     jacobian = np.empty((5, len(points)))
     jacobian[4] = -1.0
+    across = np.empty((3, len(points)))
     for _ in range(iterations):
-        point = point - axis * (point @ axis)  # the centroid's foot: tilts turn about it
-        frame = axis_frame(axis)
-        np.matmul(frame[0], centred, out=jacobian[2])
-        across = frame[1:] @ centred - (frame[1:] @ point)[:, None]
-        distance = np.sqrt(across[0] * across[0] + across[1] * across[1])
+        along = px * ax + py * ay + pz * az  # the centroid's foot: tilts turn about it
+        px, py, pz = px - along * ax, py - along * ay, pz - along * az
+        (_, _, _), (ux, uy, uz), (vx, vy, vz) = _frame_rows(ax, ay, az)
+        frame = np.array(
+            [
+                [ax, ay, az, 0.0],
+                [ux, uy, uz, -(ux * px + uy * py + uz * pz)],
+                [vx, vy, vz, -(vx * px + vy * py + vz * pz)],
+            ]
+        )
+        np.matmul(frame, homogeneous, out=across)
+        distance = np.hypot(across[1], across[2])
         np.maximum(distance, 1e-12, out=distance)
-        np.divide(across, -distance, out=jacobian[:2])
-        np.multiply(jacobian[2], jacobian[:2], out=jacobian[2:4])
-        normal = jacobian @ jacobian.T + damping
+        np.divide(across[1:], -distance, out=jacobian[:2])
+        np.multiply(across[0], jacobian[:2], out=jacobian[2:4])
+        normal = jacobian @ jacobian.T
+        normal += damping
         _, step, info = lapack.dposv(normal, jacobian @ (radius - distance))
         if info != 0:
             break
-        moves = step[:4].reshape(2, 2) @ frame[1:]
-        point = point + moves[0]
-        axis = axis + moves[1]
-        axis = axis / np.sqrt(axis @ axis)
-        radius += float(step[4])
-        if np.abs(step).max() < STEP_TOLERANCE:
+        s0, s1, s2, s3, s4 = step.tolist()
+        px, py, pz = px + s0 * ux + s1 * vx, py + s0 * uy + s1 * vy, pz + s0 * uz + s1 * vz
+        ax, ay, az = ax + s2 * ux + s3 * vx, ay + s2 * uy + s3 * vy, az + s2 * uz + s3 * vz
+        norm = math.sqrt(ax * ax + ay * ay + az * az)
+        ax, ay, az = ax / norm, ay / norm, az / norm
+        radius += s4
+        if max(abs(s0), abs(s1), abs(s2), abs(s3), abs(s4)) < STEP_TOLERANCE:
             break
-    point = point - axis * (point @ axis)
-    return Cylinder(point + origin, axis, float(radius))
+    along = px * ax + py * ay + pz * az
+    point = np.array([px - along * ax, py - along * ay, pz - along * az]) + origin
+    return Cylinder(point, np.array([ax, ay, az]), float(radius))
 
 
 def hypotheses(
