@@ -301,6 +301,9 @@ GROW_POINTS = 1500
 """Points used by the refits while a segment grows (every k-th inlier); final fits use all."""
 GROW_ROUNDS = 6
 """Most refits of a segment on its longest run of inliers, while the run grows."""
+GROW_REACH = 0.15
+"""How far (m) outside a hypothesis's surface a segment may grow: its refits turn the axis by
+a few degrees at most, 0.15 m at 2 m from where it started."""
 
 
 def _grow(
@@ -312,8 +315,9 @@ def _grow(
     cos_limit: float,
     segment_gap: float,
 ) -> Segment | None:
-    """Refine a hypothesis on its inliers twice, then grow its longest gap-free run along it;
-    again from the run's cross-section recentred (``_recentred``); the longer run wins."""
+    """Refine a hypothesis on its inliers twice, then grow its longest gap-free run along it
+    among the pool's points within ``GROW_REACH`` of its surface; again from the run's
+    cross-section recentred (``_recentred``); the longer run wins."""
     pool_points, pool_normals = points[pool], normals[pool]
     for _ in range(2):
         off, cos = surface_fit(pool_points, pool_normals, cylinder)
@@ -321,6 +325,8 @@ def _grow(
         if inliers.sum() < 8:
             return None
         cylinder = refine(pool_points[inliers], cylinder, max_points=GROW_POINTS)
+    near = np.flatnonzero(axis_distance(pool_points, cylinder) < cylinder.radius + GROW_REACH)
+    pool, pool_points, pool_normals = pool[near], pool_points[near], pool_normals[near]
     tolerances = (distance, cos_limit, segment_gap)
     grown = _longest_run(pool_points, pool_normals, cylinder, *tolerances)
     if grown is None:
