@@ -155,7 +155,9 @@ class TrussModeller:
         cloud = np.asarray(cloud, dtype=float)
         if cloud.ndim != 2 or cloud.shape[1] != 3:
             raise ValueError(f"truss: cloud must be N x 3, got shape {cloud.shape}")
-        cloud = cloud[np.isfinite(cloud).all(axis=1)]
+        finite = np.isfinite(cloud).all(axis=1)
+        if not finite.all():
+            cloud = cloud[finite]
         if len(cloud) > c.max_points:
             cloud = self._decimated(cloud)
         rng = np.random.default_rng(c.seed)
