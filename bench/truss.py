@@ -49,20 +49,30 @@ sparse: 2.9 % worst tube length against 0.3 % on the whole cloud, 1x spheres).
 
 ``--frame-timing`` times ours alone against the goal (<= 100 ms median per 100k-point
 update): the box space frame (2x connectors, 48 mm tubes) from the four oblique views with
-``DepthNoise()``, 100 000 points drawn; median, min and max of ``--repeat`` runs.
+``DepthNoise()``, 100 000 points drawn; median, min and max of ``--repeat`` runs. With
+``--against REV`` it times the modeller of ``REV`` (``git archive``) beside this tree's on the
+same saved cloud instead, in two processes taking turns update by update (the order swapped
+each pair), and prints both distributions and the paired new / old ratios: on this shared,
+noisy machine, a ratio from neighbouring updates holds where separate runs drift by 30 %.
 
     .venv/bin/python bench/truss.py [--repeat 5] [--peer-iterations 3000]
         [--baseline-iterations 2000] [--no-scaffold] [--gap-rule paper absolute]
-        [--gap-epsilon 1e-5] [--frames] [--no-baselines] [--frame-timing]
+        [--gap-epsilon 1e-5] [--frames] [--no-baselines] [--frame-timing [--against REV]]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import random
 import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
 import time
 from collections.abc import Callable
+from io import BytesIO
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +96,21 @@ RADIUS_RANGE = (TrussConfig().radius_min, TrussConfig().radius_max)
 BASELINE_COS = float(np.cos(np.radians(25.0)))
 BASELINE_MIN_POINTS = 30
 BASELINE_GAP = 0.1
+ROOT = Path(__file__).resolve().parent.parent
+FRAME_WORKER = """
+import sys, time
+import numpy as np
+from climbd.plugins.perception.truss import TrussConfig, TrussModeller
+cloud = np.load(sys.argv[1])
+modeller = TrussModeller(TrussConfig(seed=int(sys.argv[2])))
+modeller.model(cloud)
+print("ready", flush=True)
+for _ in sys.stdin:
+    start = time.process_time()
+    modeller.model(cloud)
+    print(time.process_time() - start, flush=True)
+"""
+"""One modeller in its own process: a warm-up, then one timed update (CPU s) per input line."""
 FRAME_AIM = np.array([-0.4, 0.0, 0.95])
 """The middle of the default space frame (m), which the oblique views look down on."""
 
@@ -367,14 +392,19 @@ def baselines(args: argparse.Namespace) -> list[tuple[str, Baseline, int]]:
     ]
 
 
+def timing_frame(seed: int) -> tuple[ts.TrussScene, np.ndarray]:
+    """The time goal's frame: the box space frame (2x connectors, 48 mm tubes) from the four
+    oblique views with ``DepthNoise()``, and 100 000 points drawn from its merged cloud."""
+    scene = frame_scene("box", 2.0, 0.048, True, seed)
+    rng = np.random.default_rng(seed)
+    return scene, scene.cloud[rng.choice(len(scene.cloud), POINTS, replace=False)]
+
+
 def frame_timing(args: argparse.Namespace) -> None:
-    """The time goal (<= 100 ms median per 100k-point update): ours on the box space frame
-    (2x connectors, 48 mm tubes) from the four oblique views with ``DepthNoise()``, 100 000
-    points drawn from the merged cloud; wall and CPU time of each of ``--repeat`` runs after
-    a warm-up, their median, min and max, with the load average around them."""
-    scene = frame_scene("box", 2.0, 0.048, True, args.seed)
-    rng = np.random.default_rng(args.seed)
-    cloud = scene.cloud[rng.choice(len(scene.cloud), POINTS, replace=False)]
+    """The time goal (<= 100 ms median per 100k-point update) on ``timing_frame``: wall and
+    CPU time of each of ``--repeat`` runs after a warm-up, their median, min and max, with
+    the load average around them."""
+    scene, cloud = timing_frame(args.seed)
     modeller = TrussModeller(TrussConfig(seed=args.seed))
     modeller.model(cloud)  # warm-up
     print(f"load average before: {load_average()}")
@@ -395,6 +425,59 @@ def frame_timing(args: argparse.Namespace) -> None:
         print(
             f"{name}: median {statistics.median(ms):.0f}, min {min(ms):.0f}, max {max(ms):.0f}; "
             + " ".join(f"{v:.0f}" for v in ms)
+        )
+
+
+def frame_timing_against(args: argparse.Namespace) -> None:
+    """``timing_frame`` modelled by ``REV``'s modeller and this tree's, ``--repeat`` pairs of
+    updates taken in turns by two warm processes; CPU ms of each and the paired ratios."""
+    _, cloud = timing_frame(args.seed)
+    archive = subprocess.run(
+        ["git", "archive", args.against], cwd=ROOT, check=True, capture_output=True
+    ).stdout
+    with tempfile.TemporaryDirectory() as scratch, tarfile.open(fileobj=BytesIO(archive)) as tar:
+        old_tree = Path(scratch) / "climbd"  # the one import name, from PYTHONPATH
+        tar.extractall(old_tree, filter="data")
+        frame = Path(scratch) / "cloud.npy"
+        np.save(frame, cloud)
+        workers = {}
+        for which, path in (("old", scratch), ("new", "")):
+            workers[which] = subprocess.Popen(
+                [sys.executable, "-c", FRAME_WORKER, str(frame), str(args.seed)],
+                cwd=old_tree if which == "old" else ROOT,
+                env=dict(os.environ, PYTHONPATH=path),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+            )
+        for worker in workers.values():
+            if worker.stdout.readline().strip() != "ready":
+                raise SystemExit("a modeller process failed to start")
+        print(f"load average before: {load_average()}")
+        ms: dict[str, list[float]] = {"old": [], "new": []}
+        for k in range(args.repeat):
+            for which in ("old", "new") if k % 2 == 0 else ("new", "old"):
+                workers[which].stdin.write("go\n")
+                workers[which].stdin.flush()
+                ms[which].append(1000 * float(workers[which].stdout.readline()))
+        for worker in workers.values():
+            worker.stdin.close()
+            worker.wait()
+        print(f"load average after: {load_average()}")
+    ratios = [new / old for old, new in zip(ms["old"], ms["new"], strict=True)]
+    print(f"\n{args.repeat} pairs of updates, {len(cloud)} points, CPU ms; vs {args.against}\n")
+    print("| modeller | median | p10 | p90 | min | max |")
+    print("|---|---|---|---|---|---|")
+    for name, values in (
+        (args.against, ms["old"]),
+        ("this tree", ms["new"]),
+        ("new / old", ratios),
+    ):
+        p10, p50, p90 = np.percentile(values, [10, 50, 90])
+        digits = 3 if name == "new / old" else 1
+        print(
+            f"| {name} | {p50:.{digits}f} | {p10:.{digits}f} | {p90:.{digits}f} "
+            f"| {min(values):.{digits}f} | {max(values):.{digits}f} |"
         )
 
 
@@ -480,7 +563,15 @@ def main() -> None:
         action="store_true",
         help="time ours alone on a 100k-point frame of the box space frame (the time goal)",
     )
+    parser.add_argument(
+        "--against",
+        metavar="REV",
+        help="with --frame-timing: time REV's modeller beside this tree's, update by update",
+    )
     args = parser.parse_args()
+    if args.frame_timing and args.against:
+        frame_timing_against(args)
+        return
     if args.frame_timing:
         frame_timing(args)
         return
