@@ -65,9 +65,8 @@ def from_segment(segment: Segment) -> Member:
 
 def _box_coordinates(points: np.ndarray, cylinder: Cylinder) -> np.ndarray:
     """Points in the member's frame: (along the axis, along u, along v)."""
-    u, v = perpendicular_basis(cylinder.axis)
-    w = points - cylinder.point
-    return np.column_stack([w @ cylinder.axis, w @ u, w @ v])
+    frame = np.array([cylinder.axis, *perpendicular_basis(cylinder.axis)])
+    return points @ frame.T - frame @ cylinder.point
 
 
 GapRule = Literal["paper", "absolute"]

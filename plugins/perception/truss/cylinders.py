@@ -317,7 +317,8 @@ def _grow(
 ) -> Segment | None:
     """Refine a hypothesis on its inliers twice, then grow its longest gap-free run along it
     among the pool's points within ``GROW_REACH`` of its surface; again from the run's
-    cross-section recentred (``_recentred``); the longer run wins."""
+    cross-section recentred (``_recentred``); the longer run wins, unless its bore holds as
+    many points as its surface (``_bore_points``)."""
     pool_points, pool_normals = points[pool], normals[pool]
     for _ in range(2):
         off, cos = surface_fit(pool_points, pool_normals, cylinder)
@@ -336,7 +337,20 @@ def _grow(
         again = _longest_run(pool_points, pool_normals, start, *tolerances)
         if again is not None and len(again.indices) > len(grown.indices):
             grown = again
+    if _bore_points(pool_points, grown, distance) >= len(grown.indices):
+        return None
     return Segment(grown.cylinder, grown.t0, grown.t1, pool[grown.indices])
+
+
+def _bore_points(points: np.ndarray, segment: Segment, distance: float) -> int:
+    """How many of ``points`` lie in the segment's bore (nearer its axis than r - ``distance``,
+    within its extent). A tube's solid shell hides its bore (a fifth of its surface inliers at
+    most, in the noisy space frames); a cylinder drawn through a volume of scattered points
+    has more inside it than on it (three times as many in a cube of uniform noise)."""
+    cylinder = segment.cylinder
+    t = (points - cylinder.point) @ cylinder.axis
+    inside = axis_distance(points, cylinder) < cylinder.radius - distance
+    return int((inside & (t >= segment.t0) & (t <= segment.t1)).sum())
 
 
 def _longest_run(
