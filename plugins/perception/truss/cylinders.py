@@ -186,7 +186,7 @@ def hypotheses(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Cylinders through pairs of oriented points: centres, axes, radii, and a validity mask."""
     axes = np.cross(n1, n2)
-    norm = np.linalg.norm(axes, axis=1)
+    norm = np.sqrt(np.einsum("ij,ij->i", axes, axes))
     valid = norm > np.sin(np.radians(10.0))
     axes = axes / np.maximum(norm, 1e-12)[:, None]
     # centre c = p1 + s n1 = p2 + q n2 (+ k axis): solve the 2x2 normal equations of s, q

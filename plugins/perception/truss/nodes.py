@@ -342,15 +342,18 @@ def _foreign(
     the others (r / tan(θ / 2) from the node), stays."""
     foreign = np.zeros(len(points), bool)
     for node, others in meeting:
-        close = np.flatnonzero(np.linalg.norm(points - node, axis=1) < rules.reach)
-        w = points[close] - node
+        offsets = points - node
+        close = np.flatnonzero(np.einsum("ij,ij->i", offsets, offsets) < rules.reach**2)
+        w = offsets[close]
+        w2 = np.einsum("ij,ij->i", w, w)
         along_own = np.abs(w @ member.cylinder.axis)
         for other in others:
             axis = other.cylinder.axis
             side = np.sign((0.5 * (other.p0 + other.p1) - node) @ axis)
             t = w @ axis
-            radial = np.linalg.norm(w - np.outer(t, axis), axis=1)
-            inside = (radial < other.cylinder.radius + rules.distance) & (side * t > along_own)
+            inside = (w2 - t * t < (other.cylinder.radius + rules.distance) ** 2) & (
+                side * t > along_own
+            )
             foreign[close[inside]] = True
     return foreign
 
