@@ -141,7 +141,9 @@ class Profile:
     (normals blur where the tube meets its connector): ``near``, from the shell's thickness
     inside the tube's radius to the surface distance outside it (voxels straddling the tube and
     its connector); ``shell``, within the shell's thickness of the radius; and of the ``bore``
-    points, farther inside (none on a shell no sharper than the surface distance)."""
+    points, farther inside. ``open_points``: the bore points a slice needs to be open (1 on a
+    sharp shell; ``NOISY_OPEN_POINTS`` on one as thick as the surface distance, where a stray
+    return may lie inside)."""
 
     start: float
     bin_size: float
@@ -150,6 +152,7 @@ class Profile:
     near: np.ndarray
     shell: np.ndarray
     bore: np.ndarray
+    open_points: int
 
     def t(self, index: int) -> float:
         """The axial position of a bin's lower edge."""
@@ -189,7 +192,7 @@ def profile(
     thickness = shell_thickness(off[on], floor=bin_size / 4, ceiling=distance)
     blurred = cos > np.cos(np.radians(2 * angle_deg))
     near = blurred & (radial > -thickness) & (radial < distance)
-    bore = radial < -thickness if thickness < distance else np.zeros(len(t), bool)
+    bore = radial < -thickness
     return Profile(
         span[0],
         bin_size,
@@ -198,7 +201,14 @@ def profile(
         np.sort(t[near]),
         np.sort(t[blurred & (off < thickness)]),
         np.sort(t[bore]),
+        1 if thickness < distance else NOISY_OPEN_POINTS,
     )
+
+
+NOISY_OPEN_POINTS = 3
+"""Bore points within half a bin that open a slice of a noisy shell: on the noisy space frames,
+one or two stray returns inside thin tubes cut them short (1x balls of 30 mm tubes: 6 % and
+63 mm), three or more only where a connector's face crosses the bore."""
 
 
 def shell_thickness(off: np.ndarray, *, floor: float, ceiling: float) -> float:
@@ -213,15 +223,15 @@ def shell_thickness(off: np.ndarray, *, floor: float, ceiling: float) -> float:
 
 def open_slices(prof: Profile, lo: float, hi: float, outward: int) -> np.ndarray:
     """Axial positions in (lo, hi) of bore points with at least as many bore points as shell
-    points within half a bin of them ``outward`` (+1/-1, towards the node): slices with no
-    tube across them (a solid tube hides its bore), where a connector's surface crosses the
-    tube's shell or the tube's end cap faces out."""
+    points (and ``open_points``) within half a bin of them ``outward`` (+1/-1, towards the
+    node): slices with no tube across them (a solid tube hides its bore), where a connector's
+    surface crosses the tube's shell or the tube's end cap faces out."""
     bore = prof.bore[(prof.bore > lo) & (prof.bore < hi)]
     ends = (bore, bore + outward * prof.bin_size / 2)
     a, b = np.minimum(*ends), np.maximum(*ends)
     inner = np.searchsorted(prof.bore, b, "right") - np.searchsorted(prof.bore, a)
     shell = np.searchsorted(prof.shell, b, "right") - np.searchsorted(prof.shell, a)
-    return bore[inner >= shell]
+    return bore[(inner >= shell) & (inner >= prof.open_points)]
 
 
 def tube_end(
