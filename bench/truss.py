@@ -347,7 +347,8 @@ def frame_errors(detected: list, geometry: ts.TrussGeometry) -> tuple[Accuracy, 
 
 
 def frame_row(shape: str, noise: str, method: str, results: list) -> str:
-    """One table row: found/false over the frames, and the mean and worst errors of each kind."""
+    """One table row: found/false over the frames, the mean and worst errors of each kind, and
+    how many tubes meet the goal (tube extent within 2 % in length and 20 mm at its ends)."""
     found = sum(t.found for t, _ in results)
     total = sum(len(t.members) for t, _ in results)
     false = sum(t.false_members for t, _ in results)
@@ -369,7 +370,15 @@ def frame_row(shape: str, noise: str, method: str, results: list) -> str:
         stat(1, "end_error", 1000, "max", 1),
         stat(0, "angle_error_deg", 1, "max", 2),
     ]
-    return f"| {shape} | {noise} | {method} | {found}/{total} | {false} | {' | '.join(cells)} |"
+    goal = sum(
+        e.detected is not None and e.relative_length_error <= 0.02 and e.end_error <= 0.02
+        for tubes, _ in results
+        for e in tubes.members
+    )
+    return (
+        f"| {shape} | {noise} | {method} | {found}/{total} | {false} | {' | '.join(cells)} "
+        f"| {goal}/{total} |"
+    )
 
 
 def baselines(args: argparse.Namespace) -> list[tuple[str, Baseline, int]]:
@@ -488,8 +497,8 @@ def frames_table(args: argparse.Namespace) -> None:
     lines = [
         "| connector | noise | method | found | false | tube len err % mean | max "
         "| tube end err mm max | node len err % mean | max | node end err mm max "
-        "| axis err deg max |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| axis err deg max | tubes within 2 % and 20 mm |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for shape in ("box", "sphere", "plate"):
         for noisy in (False, True):
