@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,7 +38,13 @@ from climbd.daemon.runtime.loop import SteppedClock
 from climbd.drivers.fake import FakeJointBus
 from climbd.drivers.sim.worlds import INCH
 from climbd.plugins.gaits.joist_climb import InPlaceTurn, JoistClimb, JoistClimbConfig, Phase
-from climbd.plugins.gaits.joist_crossing import Bar, CrossingGeometry, CrossingPlan, support_margin
+from climbd.plugins.gaits.joist_crossing import (
+    Bar,
+    CrossingError,
+    CrossingGeometry,
+    CrossingPlan,
+    support_margin,
+)
 
 WIDOWX = profiles.load(stock_profiles()["widowx"])
 DT = 0.01
@@ -391,6 +398,24 @@ def test_a_plan_keeps_its_tolerance_so_a_drift_inside_it_needs_no_replan():
             assert plan.margin((moved,), phase) >= -1e-9, (phase, shift)
     nearer = Bar(bar.face - 0.03, bar.width, bar.height)
     assert plan.margin((nearer,), 0) < 0.0
+
+
+def test_a_refused_crossing_says_which_leg_and_by_how_much():
+    """A 12 cm joist from the stand: no body height gives a plan, and the planner's reason names
+    the front leg waiting to cross with how much of its margins its best foothold keeps (0.7 of
+    6 mm at a 0.155 m body, bench/joist_heights.py), so the go-round has its numbers."""
+    kin = Kinematics(WIDOWX)
+    feet = kin.stand_feet()
+    ground = np.column_stack([feet[:, :2], np.zeros(len(feet))])
+    with pytest.raises(CrossingError) as refused:
+        _plan_on((Bar(0.31, 0.04, 0.12),), ground, -float(feet[0, 2]))
+    reason = str(refused.value)
+    assert "0.155 m: stuck at body x 0.175 m (leg rf cannot step: its best foothold keeps" in reason
+    kept, need = (
+        float(x) for x in re.findall(r"keeps (-?[\d.]+) mm of the ([\d.]+) mm", reason)[0]
+    )
+    assert need == pytest.approx(1000 * JoistClimbConfig().plan_tolerance)
+    assert 0.0 < kept < need
 
 
 def test_a_plan_moved_onto_a_joist_found_nearer_keeps_its_feet_and_crosses():

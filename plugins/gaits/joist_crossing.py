@@ -268,6 +268,15 @@ SPREADS = np.array([0.0, 0.03, 0.06])
 LINK_SAMPLES = np.linspace(0.0, 1.0, 7)[:, None]
 
 
+@dataclass(frozen=True)
+class Refusal:
+    """A leg's refused swing: the best margin (m) its reachable candidate footholds keep, -inf
+    when none is in reach, and the ``floor`` (m) a swing from that pose must keep."""
+
+    margin: float
+    floor: float
+
+
 class CrossingPlan:
     """Builds and plays the free-gait crossing: ``sample(t)`` gives body, feet and stance.
     ``recovery`` is the body shift (m, along x) of its first move, backing out of a margin the
@@ -482,10 +491,15 @@ class CrossingPlan:
         reach, _, _ = self.chains.solve(local, joints=False, legs=[leg])
         sel = np.flatnonzero(reach[..., 0].all(axis=1))
         if not len(sel):
+            self.refused[leg] = Refusal(-np.inf, 0.0)
             return None
         margin = self.check(bodies[sel], ground[sel], stance, [leg])
-        good = np.flatnonzero(margin >= self._floor(bodies[:1, :1], ground[:1, :1], stance, [leg]))
-        return paths[sel[good[0]]] if len(good) else None
+        floor = self._floor(bodies[:1, :1], ground[:1, :1], stance, [leg])
+        good = np.flatnonzero(margin >= floor)
+        if not len(good):
+            self.refused[leg] = Refusal(float(margin.max()), floor)
+            return None
+        return paths[sel[good[0]]]
 
     def _blocked(self, leg: int, body: np.ndarray, feet: np.ndarray, lead: float) -> bool:
         """Whether a bar lies between ``leg``'s foot and ``LOOK_AHEAD`` past its goal (home +
@@ -503,8 +517,22 @@ class CrossingPlan:
                 return True
         return False
 
+    def _refusal(self, leg: int) -> str:
+        """Why ``leg``'s last swing was refused, for the planner's error: how much of its
+        margins the best reachable foothold keeps, or that none is in reach."""
+        refusal = self.refused.get(leg)
+        if refusal is None:
+            return ""
+        if refusal.margin == -np.inf:
+            return ": no foothold in reach"
+        return (
+            f": its best foothold keeps {refusal.margin * 1000:.1f} mm of the "
+            f"{refusal.floor * 1000:.1f} mm its margins need"
+        )
+
     def _build(self, feet: np.ndarray, height: float, climb: float) -> list[Move]:
         g, p = self.g, self.p
+        self.refused: dict[int, Refusal] = {}
         moves: list[Move] = []
         body = np.array([0.0, 0.0, height])
         last = max(g.bars, key=lambda bar: bar.face)
@@ -569,10 +597,11 @@ class CrossingPlan:
                 continue
             if homing:
                 break
-            stuck = self.chains.kin.leg_names[order[0]]
+            stuck = (blocked or order)[0]
             raise CrossingError(
-                f"stuck at body x {body[0]:.3f} m (leg {stuck} cannot step, the body cannot "
-                f"advance) over a {last.height:.3f} m joist"
+                f"stuck at body x {body[0]:.3f} m (leg {self.chains.kin.leg_names[stuck]} "
+                f"cannot step{self._refusal(stuck)}, the body cannot advance) over a "
+                f"{last.height:.3f} m joist"
             )
         else:
             raise CrossingError(f"no crossing within {MAX_PHASES} phases")
