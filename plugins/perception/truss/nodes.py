@@ -186,9 +186,10 @@ def profile(
     off = np.abs(radial)
     on = (off < distance) & (cos > np.cos(np.radians(angle_deg)))
     section = off + cylinder.radius < 4 * cylinder.radius
-    edges = np.arange(span[0], span[1] + bin_size, bin_size)
-    surface = np.histogram(t[on], edges)[0]
-    blob = np.histogram(t[~on & section], edges)[0]
+    bins = len(np.arange(span[0], span[1] + bin_size, bin_size)) - 1
+    index = np.clip(((t - span[0]) / bin_size).astype(np.intp), 0, bins - 1)
+    surface = np.bincount(index[on], minlength=bins)
+    blob = np.bincount(index[~on & section], minlength=bins)
     thickness = shell_thickness(off[on], floor=bin_size / 4, ceiling=distance)
     blurred = cos > np.cos(np.radians(2 * angle_deg))
     near = blurred & (radial > -thickness) & (radial < distance)
