@@ -73,21 +73,27 @@ def ball_normals(points: np.ndarray, voxel: float, reach: float) -> tuple[np.nda
     within ``reach`` voxels of each point's, and how many other points that ball holds.
 
     A look-up of the voxel keys instead of a KD-tree query (one point per voxel, so the
-    neighbourhood is a fixed set of voxels); the ball sums of the moments are one sparse product.
+    neighbourhood is a fixed set of voxels), of half the ball's offsets: voxel b lies in a's
+    ball as a lies in b's, so the pairs found (a sparse upper matrix U) give the ball sums of
+    the moments as m + U m + U^T m.
     """
     keys = _voxel_keys(points, voxel)
     order = np.argsort(keys)
     keys = keys[order]
-    query = keys + _ball_offsets(reach)[:, None]  # rows ascending: a near-linear search
+    offsets = _ball_offsets(reach)
+    query = keys + offsets[offsets > 0][:, None]  # rows ascending: a near-linear search
     slot = np.minimum(np.searchsorted(keys, query), len(keys) - 1)
     hit = (keys[slot] == query).T
-    count = hit.sum(axis=1)
-    ball = sparse.csr_matrix(
-        (np.ones(int(count.sum())), slot.T[hit], np.concatenate([[0], np.cumsum(count)])),
+    pairs = hit.sum(axis=1)
+    partner = slot.T[hit]
+    upper = sparse.csr_matrix(
+        (np.ones(len(partner)), partner, np.concatenate([[0], np.cumsum(pairs)])),
         shape=(len(keys), len(keys)),
     )
     x, y, z = (points[order] - points.mean(axis=0)).T
-    sums = ball @ np.column_stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z])
+    own = np.column_stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z])
+    sums = own + upper @ own + upper.T @ own
+    count = 1 + pairs + np.bincount(partner, minlength=len(keys))
     moments = _covariances(list(sums[:, 3:].T), count, sums[:, :3] / count[:, None])
     normals, neighbours = np.empty_like(points), np.empty_like(count)
     normals[order], neighbours[order] = smallest_eigenvectors(moments), count - 1
