@@ -76,11 +76,8 @@ def surface_offset(
     points: np.ndarray, normals: np.ndarray, cylinder: Cylinder
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per point: distance to axis - r (m; negative inside the surface) and |cos| of its normal
-    to the radial direction (the radial vector w - (w.a)a is never formed: its length and its
-    dot with the normal follow from w.w, w.a, w.n and n.a)."""
-    w = points - cylinder.point
-    along = w @ cylinder.axis
-    distance = np.sqrt(np.maximum(_rowdot(w, w) - along * along, 0.0))
+    to the radial direction (its dot with the normal follows from w.n and n.a, ``_around``)."""
+    w, along, distance = _around(points, cylinder)
     normal_radial = _rowdot(w, normals) - along * (normals @ cylinder.axis)
     cos = np.abs(normal_radial) / np.maximum(distance, 1e-12)
     distance -= cylinder.radius
@@ -95,9 +92,15 @@ def robust_sigma(off: np.ndarray) -> float:
 
 def axis_distance(points: np.ndarray, cylinder: Cylinder) -> np.ndarray:
     """Distance (m) of each point from the cylinder's axis line."""
+    return _around(points, cylinder)[2]
+
+
+def _around(points: np.ndarray, cylinder: Cylinder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's offset w from the cylinder's axis point, its axial coordinate w.a and its
+    distance from the axis, sqrt(w.w - (w.a)^2): the radial vector is never formed."""
     w = points - cylinder.point
-    radial = w - np.outer(w @ cylinder.axis, cylinder.axis)
-    return np.sqrt(_rowdot(radial, radial))
+    along = w @ cylinder.axis
+    return w, along, np.sqrt(np.maximum(_rowdot(w, w) - along * along, 0.0))
 
 
 def spread(points: np.ndarray, cylinder: Cylinder) -> float:
@@ -348,8 +351,8 @@ def _bore_points(points: np.ndarray, segment: Segment, distance: float) -> int:
     most, in the noisy space frames); a cylinder drawn through a volume of scattered points
     has more inside it than on it (three times as many in a cube of uniform noise)."""
     cylinder = segment.cylinder
-    t = (points - cylinder.point) @ cylinder.axis
-    inside = axis_distance(points, cylinder) < cylinder.radius - distance
+    _, t, radial = _around(points, cylinder)
+    inside = radial < cylinder.radius - distance
     return int((inside & (t >= segment.t0) & (t <= segment.t1)).sum())
 
 
@@ -388,8 +391,7 @@ def _recentred(points: np.ndarray, segment: Segment, distance: float) -> Cylinde
     wide cylinder fitted to one side of a noisy tube (the other side lies inside it). None
     without such points."""
     cylinder = segment.cylinder
-    t = (points - cylinder.point) @ cylinder.axis
-    radial = axis_distance(points, cylinder)
+    _, t, radial = _around(points, cylinder)
     inside = points[(t >= segment.t0) & (t <= segment.t1) & (radial < cylinder.radius + distance)]
     if len(inside) == 0:
         return None

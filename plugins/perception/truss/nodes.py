@@ -13,8 +13,9 @@ centre as its node.
 Where a tube ends on a connector, the connector's surfaces cross the tube's shell (an oblique
 box face, a plate's faces and rim): their points at the tube's radius, normals blurred, read as
 tube. A solid tube hides its bore, so an axial slice with points well inside the shell is open:
-no tube there. On a sharp surface (the spread of the tube's points about its radius, measured,
-below the fit tolerance) the tube's end stops at the first open slice.
+no tube there, and the tube's end stops at the first open slice. On a noisy surface (the spread
+of the tube's points about its radius as wide as the fit tolerance) a slice needs several such
+points to be open (``NOISY_OPEN_POINTS``).
 """
 
 from __future__ import annotations
