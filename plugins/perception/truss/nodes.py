@@ -297,10 +297,11 @@ def hidden_end(prof: Profile, end: float, node: float, inward: int, clearance: f
         return end
     bins = (depth // prof.bin_size).astype(np.intp)
     per_bin = np.bincount(bins)
-    first = int(np.argmax(per_bin >= k))
-    half = max(k, 0.5 * np.median(per_bin[per_bin > 0]))
+    least = 2 * k - 1  # past the strays (a sharp shell has none)
+    first = int(np.argmax(per_bin >= least))
+    half = max(least, 0.5 * np.median(per_bin[per_bin > 0]))
     dense = int(np.argmax(per_bin >= half))
-    if per_bin[first] < k or dense - first > 1:
+    if per_bin[first] < least or dense - first > 1:
         return end
     gap = float(np.sort(depth[bins == first])[k - 1])
     if k > 1 and gap < 2 * prof.bin_size:  # a noisy end strays that far either way
