@@ -158,15 +158,14 @@ issue 37) starts no second fit."""
 FIT_ROUNDS = 4
 SETTLED_COS = float(np.cos(np.radians(0.1)))
 """A refit picks the support's points on its cylinder's surface and refines the cylinder on
-them, up to ``FIT_ROUNDS`` times while the axis turns by more than 0.1 degrees: the points
-on a tilted axis's surface keep most of its tilt (a noisy 30 mm transom: 2.9 degrees, then
-2.5, 2.2, 2.0 over one round per completion pass)."""
+them, up to ``FIT_ROUNDS`` times while the axis turns by more than 0.1 degrees: the points on
+a tilted axis's surface keep most of its tilt (one round per completion pass left a noisy
+30 mm tube of the space frame 2 degrees off)."""
 RESTART_GAIN = 1.1
 """How many times the surface points of a member's own refit a refit from its support's
-principal axis must hold to replace it: a tilted fit holds a fraction of its tube's points
-(the 7-member scaffold's transom, 4.5 degrees off at seed 0: 76 against 86, then 107 against
-141); fits of one tube differ by a few points, which a connector's points can tip (a space
-frame's diagonal: 1617 against 1618, and 0.3 degrees off)."""
+principal axis must hold to replace it: a tilted fit holds a fraction of its tube's points,
+while two fits of one tube differ by a few points, which a connector's points can tip
+(``bench/truss_seeds.py``; ``tests/test_truss_nodes.py``'s diagonals with 1.0)."""
 
 
 class TrussModeller:
