@@ -285,11 +285,14 @@ def hidden_end(prof: Profile, end: float, node: float, inward: int, clearance: f
     overhangs the tube hides its last centimetres from views on its far side (3x cubes on
     80 mm posts seen from above: 30-34 mm). Walking from the end towards the node (``inward``,
     +1/-1, goes from the node to the tube), the connector's points (farther out than the tube's
-    surface) start at the face: the first bin with ``open_points`` of them. A face is an edge:
+    surface) start at the face: the first bin with 2k - 1 of them or more (past strays; k, the
+    ``open_points``, is 1 on a sharp shell), at its k-th point nearest the tube. A face is an
+    edge:
     within two bins they reach half their median count per bin (a ball thins towards its
     silhouette, and its own underside is what is hidden there), and they reach out from the
-    axis by at least the gap. The gap holds fewer than ``open_points`` points on or inside the
-    tube's surface; the end stays ``clearance`` off the node."""
+    axis by at least the gap. The gap holds fewer than k points on or inside the tube's surface,
+    and on a noisy shell spans two bins at least (a noisy end strays that far either way); the
+    end stays ``clearance`` off the node."""
     k = prof.open_points
     keep = ((prof.wide - node) * inward >= 0) & ((prof.wide - end) * inward < 0)
     depth = (end - prof.wide[keep]) * inward
@@ -297,14 +300,14 @@ def hidden_end(prof: Profile, end: float, node: float, inward: int, clearance: f
         return end
     bins = (depth // prof.bin_size).astype(np.intp)
     per_bin = np.bincount(bins)
-    least = 2 * k - 1  # past the strays (a sharp shell has none)
+    least = 2 * k - 1
     first = int(np.argmax(per_bin >= least))
     half = max(least, 0.5 * np.median(per_bin[per_bin > 0]))
     dense = int(np.argmax(per_bin >= half))
     if per_bin[first] < least or dense - first > 1:
         return end
     gap = float(np.sort(depth[bins == first])[k - 1])
-    if k > 1 and gap < 2 * prof.bin_size:  # a noisy end strays that far either way
+    if k > 1 and gap < 2 * prof.bin_size:
         return end
     edge = (bins >= first) & (bins <= dense)
     if prof.wide_reach[keep][edge].max() < gap:
