@@ -287,8 +287,7 @@ def hidden_end(prof: Profile, end: float, node: float, inward: int, clearance: f
     +1/-1, goes from the node to the tube), the connector's points (farther out than the tube's
     surface) start at the face: the first bin with 2k - 1 of them or more (past strays; k, the
     ``open_points``, is 1 on a sharp shell), at its k-th point nearest the tube. A face is an
-    edge:
-    within two bins they reach half their median count per bin (a ball thins towards its
+    edge: within two bins they reach half their median count per bin (a ball thins towards its
     silhouette, and its own underside is what is hidden there), and they reach out from the
     axis by at least the gap. The gap holds fewer than k points on or inside the tube's surface,
     and on a noisy shell spans two bins at least (a noisy end strays that far either way); the
