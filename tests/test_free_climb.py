@@ -442,7 +442,7 @@ class GatedPlans:
         self.gates: list[threading.Event] = []
         self.threads: set[threading.Thread] = set()
         self.checks: set[int] = set()
-        plan, feasible = planner.plan, planner.feasible
+        plan, feasible = planner.plan, planner.feasible_steps
 
         def gated_plan(*args):
             self.threads.add(threading.current_thread())
@@ -455,7 +455,7 @@ class GatedPlans:
             self.checks.add(threading.get_ident())
             return feasible(*args)
 
-        planner.plan, planner.feasible = gated_plan, recorded_feasible
+        planner.plan, planner.feasible_steps = gated_plan, recorded_feasible
 
     def wait_started(self, n: int) -> None:
         """Wait (in the test, not in a tick) until the worker has begun plan number ``n``."""

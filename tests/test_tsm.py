@@ -7,7 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from climbd.plugins.gaits.tsm import tumble_stability_margin, tumble_stability_margins
+from climbd.plugins.gaits.tsm import (
+    stance_margins,
+    tumble_stability_margin,
+    tumble_stability_margins,
+)
 
 SQUARE = np.array([[0.1, 0.1, 0.0], [-0.1, 0.1, 0.0], [-0.1, -0.1, 0.0], [0.1, -0.1, 0.0]])
 UP = np.array([0.0, 0.0, 1.0])
@@ -50,3 +54,20 @@ def test_margins_of_many_coms_are_the_level_ground_distances():
     margins = tumble_stability_margins(coms, SQUARE, force, 0.0, UP)
     np.testing.assert_allclose(margins, [0.07, 0.05, -0.02], atol=1e-12)
     assert tumble_stability_margins(coms, SQUARE[:1], force, 9.0, UP).tolist() == [-np.inf] * 3
+
+
+def test_stances_at_once_are_each_stance_on_its_own():
+    """Three triangles of the square (contacts given in any order), two CoMs each: the
+    batched margins are the level-ground distances of each CoM to its own triangle's edges."""
+    force = np.array([0.0, 0.0, -10.0])
+    stances = np.stack([SQUARE[[0, 1, 2]], SQUARE[[3, 1, 0]], SQUARE[[1, 3, 2]]])
+    coms = np.array(
+        [
+            [[-0.05, 0.05, 0.06], [0.0, 0.05, 0.06]],  # the second nearest the diagonal y = x
+            [[0.05, 0.05, 0.06], [0.05, 0.09, 0.06]],  # the second 0.01 below the edge y = 0.1
+            [[-0.05, -0.05, 0.06], [-0.09, -0.05, 0.06]],  # the second 0.01 off x = -0.1
+        ]
+    )
+    margins = stance_margins(coms, stances, force, 0.0, UP)
+    d = 0.05 / math.sqrt(2)
+    np.testing.assert_allclose(margins, [[0.05, d], [0.05, 0.01], [0.05, 0.01]], atol=1e-12)

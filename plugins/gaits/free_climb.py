@@ -70,7 +70,7 @@ from climbd.daemon.contract.messages import (
 )
 from climbd.daemon.contract.plugins import GaitPlugin
 from climbd.daemon.contract.profile import Profile
-from climbd.plugins.gaits.tsm import tumble_stability_margin, tumble_stability_margins
+from climbd.plugins.gaits.tsm import stance_margins, tumble_stability_margin
 
 NORMAL = np.array([0.0, 0.0, 1.0])
 GOAL = np.array([1.0, 0.0, 0.0])
@@ -158,17 +158,26 @@ def stance_key(feet: np.ndarray) -> tuple[float, ...]:
     return tuple(np.round(feet[:, :2], 4).ravel().tolist())
 
 
+def diagonal_crossings(feet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Intersections (n, 2) of the diagonals rf–lr and rr–lf of stances (n, 4, ≥2), and
+    whether they cross (both within their segments); where they do not, the point is NaN."""
+    a, b = feet[:, 0, :2], feet[:, 2, :2]
+    c, d = feet[:, 1, :2], feet[:, 3, :2]
+    e, f, g = b - a, c - d, c - a
+    det = e[:, 0] * f[:, 1] - f[:, 0] * e[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = (g[:, 0] * f[:, 1] - f[:, 0] * g[:, 1]) / det
+        v = (e[:, 0] * g[:, 1] - g[:, 0] * e[:, 1]) / det
+    crosses = (np.abs(det) >= 1e-12) & (u > 0.0) & (u < 1.0) & (v > 0.0) & (v < 1.0)
+    point = a + u[:, None] * e
+    point[~crosses] = np.nan
+    return point, crosses
+
+
 def diagonal_crossing(feet: np.ndarray) -> np.ndarray | None:
     """Intersection (x, y) of the diagonals rf–lr and rr–lf, or None if they do not cross."""
-    a, b = feet[0, :2], feet[2, :2]
-    c, d = feet[1, :2], feet[3, :2]
-    m = np.column_stack((b - a, c - d))
-    if abs(np.linalg.det(m)) < 1e-12:
-        return None
-    u, v = np.linalg.solve(m, c - a)
-    if not (0.0 < u < 1.0 and 0.0 < v < 1.0):
-        return None
-    return a + u * (b - a)
+    point, crosses = diagonal_crossings(np.asarray(feet, float)[None])
+    return point[0] if crosses[0] else None
 
 
 class LegReach:
@@ -224,16 +233,17 @@ class ClimbPlanner:
 
     def base_for(self, feet: np.ndarray) -> np.ndarray | None:
         """Base whose CoM projects along gravity onto the diagonals' crossing (§3.3)."""
-        crossing = diagonal_crossing(feet)
-        if crossing is None:
-            return None
+        base, crosses = self.bases_for(np.asarray(feet, float)[None])
+        return base[0] if crosses[0] else None
+
+    def bases_for(self, feet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``base_for`` of stances (n, 4, 3): bases (n, 3), NaN where the diagonals do not
+        cross, and whether they do."""
+        crossing, crosses = diagonal_crossings(feet)
         h = self.config.base_height
         shift = -h * self.down[:2] / -self.down[2]
-        return np.array([crossing[0] + shift[0], crossing[1] + shift[1], h])
-
-    def reachable(self, feet: np.ndarray, base: np.ndarray) -> np.ndarray:
-        """Per-leg reachability of wall-frame feet from a base position (IK within limits)."""
-        return self.kinematics.ik(feet - base)[1]
+        base = np.column_stack((crossing + shift, np.full(len(feet), h)))
+        return base, crosses
 
     def tsm(self, com: np.ndarray, stance: np.ndarray) -> float:
         """Tumble Stability Margin (m) of the gripping ``stance`` feet with the CoM at ``com``."""
@@ -259,45 +269,56 @@ class ClimbPlanner:
         self, feet: np.ndarray, base: np.ndarray, limb: int, target: np.ndarray
     ) -> Step | None:
         """The step of ``limb`` to ``target`` with the base at its furthest feasible lead, or
-        None if the new diagonals do not cross or, at every lead, a foot leaves its reach along
-        the base's path or the TSM of the three holding limbs falls below its margin (0 on the
-        crossing, ``lead_margin`` ahead of it)."""
-        new = feet.copy()
-        new[limb] = target
-        crossing = self.base_for(new)
-        if crossing is None:
-            return None
-        for lead in self.leads():
-            margin = self.config.lead_margin if lead > 0.0 else 0.0
-            step = self._swing(feet, base, limb, target, crossing + lead * GOAL, margin)
-            if step is not None:
-                return step
-        return None
+        None (see ``feasible_steps``)."""
+        steps = self.feasible_steps(feet, base, np.array([limb]), np.asarray(target, float)[None])
+        return steps[0]
 
-    def _swing(
-        self,
-        feet: np.ndarray,
-        base: np.ndarray,
-        limb: int,
-        target: np.ndarray,
-        base_end: np.ndarray,
-        margin: float,
-    ) -> Step | None:
-        """The step of ``limb`` to ``target`` moving the base to ``base_end``, if every foot
-        stays in reach along the path and the holding limbs' TSM stays ≥ ``margin`` (m)."""
-        step = Step(limb, feet[limb].copy(), np.asarray(target, float), base.copy(), base_end)
-        trial = feet.copy()
-        coms = []
-        for s in SWING_SAMPLES:
-            trial[limb], com = self.pose(step, s)
-            if not self.reachable(trial, com).all():
-                return None
-            coms.append(com)
-        stance = np.delete(feet, limb, axis=0)
-        margins = tumble_stability_margins(
-            np.array(coms), stance, self.force, self.config.grip_force, NORMAL
-        )
-        return step if margins.min() >= margin else None
+    def feasible_steps(
+        self, feet: np.ndarray, base: np.ndarray, limbs: np.ndarray, targets: np.ndarray
+    ) -> list[Step | None]:
+        """For each candidate swing of ``limbs[i]`` to ``targets[i]``, the step with the base at
+        its furthest feasible lead beyond the new diagonals' crossing, or None if those
+        diagonals do not cross or, at every lead, a foot leaves its reach at a swing sample
+        (``SWING_SAMPLES``) or the TSM of the three holding limbs falls below its margin (0 on
+        the crossing, ``lead_margin`` ahead of it). All candidates, leads and samples are
+        checked in one vectorised reach and one TSM call per limb."""
+        n = len(limbs)
+        if n == 0:
+            return []
+        new = np.repeat(feet[None], n, axis=0)
+        new[np.arange(n), limbs] = targets
+        crossing, crosses = self.bases_for(new)
+        leads = self.leads()
+        ends = crossing[:, None, :] + leads[None, :, None] * GOAL  # (n, L, 3)
+        k = np.array([smooth(s) for s in SWING_SAMPLES])
+        lift = np.array([swing_lift(s, self.config.swing_height) for s in SWING_SAMPLES])
+        bases = base + k[None, None, :, None] * (ends - base)[:, :, None, :]  # (n, L, S, 3)
+        start = feet[limbs]
+        swung = start[:, None, :] + k[None, :, None] * (targets - start)[:, None, :]
+        swung = swung + lift[None, :, None] * NORMAL  # (n, S, 3)
+        trial = np.broadcast_to(feet[:, None, None, None, :], (len(feet), *bases.shape)).copy()
+        trial[limbs, np.arange(n)] = swung[:, None, :, :]
+        reach = self.reach((trial - bases[None]).reshape(len(feet), -1, 3))
+        reached = reach.reshape(len(feet), *bases.shape[:3]).all(axis=(0, 3))  # (n, L)
+        holding = np.ones((n, len(feet)), bool)
+        holding[np.arange(n), limbs] = False
+        stances = np.repeat(feet[None], n, axis=0)[holding].reshape(n, len(feet) - 1, 3)
+        coms = bases.reshape(n, -1, 3)
+        margins = stance_margins(coms, stances, self.force, self.config.grip_force, NORMAL)
+        margins = margins.reshape(bases.shape[:3]).min(axis=2)
+        needed = np.where(leads > 0.0, self.config.lead_margin, 0.0)
+        ok = reached & (margins >= needed) & crosses[:, None]
+        out: list[Step | None] = []
+        for i in range(n):
+            good = np.flatnonzero(ok[i])
+            out.append(
+                Step(
+                    int(limbs[i]), start[i].copy(), targets[i].copy(), base.copy(), ends[i, good[0]]
+                )
+                if len(good)
+                else None
+            )
+        return out
 
     def options(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> list[np.ndarray]:
         """Per limb, the holds it may grip next: reachable from the current base, within
@@ -342,14 +363,15 @@ class ClimbPlanner:
         key = stance_key(feet) + tuple(np.round(base, 4).tolist())
         steps = self.known.get(key)
         if steps is None:
+            options = self.options(feet, base, holds)
+            limbs = np.repeat(np.arange(len(options)), [len(o) for o in options])
+            targets = np.concatenate(options)
             steps = []
-            for limb, opts in enumerate(self.options(feet, base, holds)):
-                for target in opts:
-                    step = self.feasible(feet, base, limb, target)
-                    if step is not None:
-                        after = feet.copy()
-                        after[limb] = target
-                        steps.append((step, after))
+            for step in self.feasible_steps(feet, base, limbs, targets):
+                if step is not None:
+                    after = feet.copy()
+                    after[step.limb] = step.target
+                    steps.append((step, after))
             if len(self.known) >= KNOWN_POSTURES:
                 self.known.clear()
             self.known[key] = steps

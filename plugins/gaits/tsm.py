@@ -26,15 +26,17 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def ordered(contacts: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Contacts sorted counter-clockwise about ``normal`` (seen from the robot's side)."""
-    centre = contacts.mean(axis=0)
+    """Contacts (…, k, 3) sorted counter-clockwise about ``normal`` (seen from the robot's
+    side), each stance of the leading axes on its own."""
+    centre = contacts.mean(axis=-2, keepdims=True)
     e1 = cross(normal, [1.0, 0.0, 0.0])
     if np.linalg.norm(e1) < 1e-6:
         e1 = cross(normal, [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = cross(normal, e1)
     rel = contacts - centre
-    return contacts[np.argsort(np.arctan2(rel @ e2, rel @ e1))]
+    order = np.argsort(np.arctan2(rel @ e2, rel @ e1), axis=-1)
+    return np.take_along_axis(contacts, order[..., None], axis=-2)
 
 
 def tumble_stability_margin(
@@ -63,15 +65,31 @@ def tumble_stability_margins(
     """TSM (m) for each CoM of ``coms`` (n×3) over the same contacts, force and grips (see
     ``tumble_stability_margin``): the support polygon's axes are worked out once."""
     coms = np.asarray(coms, float)
-    if len(contacts) < 2:
-        return np.full(len(coms), -np.inf)
-    p = ordered(np.asarray(contacts, float), np.asarray(normal, float))
-    q = np.concatenate((p[1:], p[:1]))
+    return stance_margins(coms[None], np.asarray(contacts, float)[None], force, grip_force, normal)[
+        0
+    ]
+
+
+def stance_margins(
+    coms: np.ndarray,
+    contacts: np.ndarray,
+    force: np.ndarray,
+    grip_force: float,
+    normal: np.ndarray,
+) -> np.ndarray:
+    """TSM (m, shaped m×n) of CoMs (m×n×3) over m stances of k gripping contacts each
+    (m×k×3), in one vectorised pass (a planner checks many candidate swings at once)."""
+    coms = np.asarray(coms, float)
+    if contacts.shape[1] < 2:
+        return np.full(coms.shape[:2], -np.inf)
+    p = ordered(contacts, np.asarray(normal, float))  # (m, k, 3)
+    q = np.roll(p, -1, axis=1)
     axis = q - p
-    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    gravity = np.einsum("nij,ij->ni", cross(force, coms[:, None, :] - p[None]), axis)
-    rel = p[None, :, :] - p[:, None, :]
-    along = np.einsum("ikj,ij->ik", rel, axis)
-    distance = np.linalg.norm(rel - along[..., None] * axis[:, None, :], axis=2)
-    grip = grip_force * distance.sum(axis=1)
-    return np.min((gravity + grip) / np.linalg.norm(force), axis=1)
+    axis /= np.linalg.norm(axis, axis=2, keepdims=True)
+    arm = coms[:, :, None, :] - p[:, None, :, :]  # (m, n, k, 3)
+    gravity = np.einsum("mnkj,mkj->mnk", cross(force, arm), axis)
+    rel = p[:, None, :, :] - p[:, :, None, :]  # (m, k axis, k contact, 3)
+    along = np.einsum("mikj,mij->mik", rel, axis)
+    distance = np.linalg.norm(rel - along[..., None] * axis[:, :, None, :], axis=3)
+    grip = grip_force * distance.sum(axis=2)  # (m, k)
+    return np.min((gravity + grip[:, None, :]) / np.linalg.norm(force), axis=2)
