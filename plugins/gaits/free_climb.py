@@ -22,12 +22,18 @@ walks the robot into postures with no step ahead (``limb_rule = "paper"``, measu
 So it selects by what the count stands for:
 the base's progress towards the goal, looking ``horizon`` swings ahead over feasible steps (a
 beam of ``beam`` postures per swing), and takes the first swing of the best sequence; among
-equals, the longer stride. It never returns to one of its recent stances, so it cannot undo a
-step and redo it; a step back is taken only when it leads further.
+equals, the longer stride. It never returns to one of its recent stances (nor does a sequence
+it weighs return to its own), so it cannot undo a step and redo it; a step back is taken only
+when it leads further. It keeps the rest of the sequence it chose and follows it unless the
+next plan finds a better one. Told how long the climb is (``duration``), it looks no further
+than the swings left: a search that looks past the run's end sets up swings that never
+happen, and in 45 s runs that cost it a few centimetres on most maps (bench/free_climb.py,
+the open-ended column).
 
 Its base does not sit on the diagonals' crossing (§3.3): with grippers the TSM stays far above
-zero there (least 0.25 m in the twin), and what bounds the climb is the legs' reach (the stance
-legs left the base 5.6 cm of room up the slope per swing where it advanced 1.1 cm). So each
+zero there (least 0.25 m in the twin), and what bounds the climb is the legs' reach (on the
+crossing, the stance legs left the base 5.6 cm of room up the slope per swing where it
+advanced 1.1 cm; BENCHMARKS.md, bench/free_climb.py). So each
 swing takes the base up to ``max_lead`` beyond the crossing, the furthest lead that keeps
 every foot in reach and the holding grips' TSM ≥ ``lead_margin`` along the swing, which lets
 the front legs reach holds further up.
@@ -35,10 +41,9 @@ the front legs reach holds further up.
 ``limb_rule = "paper"`` selects the paper's own rule instead (``ClimbPlanner._plan_paper``):
 the limb with the most graspable options ahead in its reachable region (§3.1) steps to its
 feasible option with the longest stride towards the goal (§3.2, [9]), so that rule can be
-measured beside the search (bench/free_climb.py): on the test's six maps it climbs 0.110 m
-mean in 45 s (1.16x the periodic gait's 0.095 m; the search 0.152 m), TSM ≥ 0 throughout.
+measured beside the search (bench/free_climb.py, its "paper rule" column).
 
-Planning takes tens to hundreds of milliseconds, so it runs off the control tick: a worker
+Planning takes milliseconds to hundreds of milliseconds, so it runs off the control tick: a worker
 thread (PlanAhead) plans the next swing from the posture the current swing ends in while it
 executes. A swing that ends before its successor's plan is ready leaves the robot holding its
 stance (all four grippers) and the tick says so (``late``); in simulated time (tests, twin,
@@ -97,7 +102,11 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     up to ``max_lead`` (m) up the slope beyond the diagonals' crossing: the furthest of
     ``lead_steps`` evenly spaced leads whose swing keeps every foot in reach and the TSM of
     the holding grips ≥ ``lead_margin`` (m); the periodic gait and the paper's rule keep it on
-    the crossing (§3.3). The holds are
+    the crossing (§3.3). ``duration`` (s) is the time the climb is given (paper 001 §4: 45 s),
+    if it has one: the search then looks no further than the swings left in it, so its last
+    swings take the base as far as they can rather than set up swings that will not happen;
+    0 is open-ended (every plan looks ``horizon`` swings ahead), as is the climb after it.
+    The holds are
     the world model's hold map: those at least ``min_confidence`` sure, each a foot target
     ``foot_radius`` (m, the gripper's contact sphere) above the top perception saw; a swing's
     hold counts as still there while the map has a hold within ``hold_tolerance`` (m) of it."""
@@ -115,12 +124,13 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     hold_tolerance: Annotated[float, msgspec.Meta(gt=0.0)] = 0.01
     foot_radius: Annotated[float, msgspec.Meta(ge=0.0)] = 0.0
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.0
-    horizon: Annotated[int, msgspec.Meta(ge=1)] = 8
-    beam: Annotated[int, msgspec.Meta(ge=1)] = 6
+    horizon: Annotated[int, msgspec.Meta(ge=1)] = 11
+    beam: Annotated[int, msgspec.Meta(ge=1)] = 12
     limb_rule: Literal["search", "paper"] = "search"
-    max_lead: Annotated[float, msgspec.Meta(ge=0.0, le=0.2)] = 0.04
+    max_lead: Annotated[float, msgspec.Meta(ge=0.0, le=0.2)] = 0.08
     lead_steps: Annotated[int, msgspec.Meta(ge=2)] = 4
     lead_margin: Annotated[float, msgspec.Meta(ge=0.0)] = 0.05
+    duration: Annotated[float, msgspec.Meta(ge=0.0)] = 0.0
 
 
 @dataclass(frozen=True)
@@ -180,6 +190,23 @@ def diagonal_crossing(feet: np.ndarray) -> np.ndarray | None:
     return point[0] if crosses[0] else None
 
 
+def path_stances(feet: np.ndarray, path: tuple[Step, ...]) -> set:
+    """The stances (``stance_key``) that ``path``'s swings pass through from ``feet``: a
+    sequence may not return to them, as the gait may not return to a recent stance."""
+    feet = feet.copy()
+    stances = set()
+    for step in path:
+        feet[step.limb] = step.target
+        stances.add(stance_key(feet))
+    return stances
+
+
+def sequence_value(path: tuple[Step, ...]) -> tuple[int, float, float]:
+    """How the search ranks a sequence of swings: by its length (one that ends sooner ranks
+    lower), then how far its base ends towards the goal, then its first swing's stride."""
+    return len(path), float(path[-1].base_end @ GOAL), path[0].stride
+
+
 class LegReach:
     """Reachability (IK within joint limits) of many points per leg in one vectorised call.
 
@@ -227,6 +254,8 @@ class ClimbPlanner:
         self.known: dict[tuple, list[tuple[Step, np.ndarray]]] = {}
         """Feasible steps of the postures searched, for the hold map of ``holds_token``."""
         self.holds_token: int | None = None
+        self.committed: tuple[Step, ...] = ()
+        """The rest of the non-periodic gait's chosen sequence, after the swing it planned."""
         slope = math.radians(config.slope_deg)
         self.down = np.array([-math.sin(slope), 0.0, -math.cos(slope)])
         self.force = config.mass * config.gravity * self.down
@@ -334,15 +363,19 @@ class ClimbPlanner:
             out.append(holds[near[limb] & clear & reach[limb]])
         return out
 
-    def plan(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> Step | None:
-        """The next swing (§3.1-3.2), or None when no limb has any feasible step.
+    def plan(
+        self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray, swings_left: int = 0
+    ) -> Step | None:
+        """The next swing (§3.1-3.2), or None when no limb has any feasible step;
+        ``swings_left`` is how many swings the climb's ``duration`` leaves, this one included
+        (0: open-ended).
 
         A periodic limb that stepped back may not return to the hold it left before some limb
         has taken a stride ahead, so a stuck posture is worked free instead of cycling."""
         if not self.periodic:
             if self.config.limb_rule == "paper":
                 return self._plan_paper(feet, base, holds)
-            return self._plan_free(feet, base, holds)
+            return self._plan_free(feet, base, holds, swings_left)
         options = self.options(feet, base, holds)
         for limb, hold in self.left.items():
             gap = np.linalg.norm(options[limb][:, :2] - hold[:2], axis=1)
@@ -377,30 +410,61 @@ class ClimbPlanner:
             self.known[key] = steps
         return [(step, after) for step, after in steps if stance_key(after) not in barred]
 
-    def _plan_free(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> Step | None:
-        """§3.1 by its aim: the first swing of the feasible sequence (≤ ``horizon`` swings, the
-        ``beam`` postures with the base furthest ahead kept per swing) that takes the base
-        furthest towards the goal; a first swing whose sequences end sooner ranks lower."""
+    def _plan_free(
+        self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray, swings_left: int
+    ) -> Step | None:
+        """§3.1 by its aim: the first swing of the feasible sequence (≤ ``horizon`` swings and
+        ≤ ``swings_left`` if the climb counts them; the ``beam`` postures with the base
+        furthest ahead kept per swing) that takes the base furthest towards the goal; a
+        sequence that ends sooner ranks lower (``sequence_value``). The rest of the
+        sequence chosen is kept: the next plan follows it unless it finds a better one, so a
+        route found once is not lost to a narrower beam from the next posture."""
         first, barred = self._first_steps(feet, base, holds)
         if not first:
+            self.committed = ()
             return None
-        value = [(0, float(step.base_end @ GOAL)) for step, _ in first]
-        level = [(i, after, step.base_end) for i, (step, after) in enumerate(first)]
-        for depth in range(1, self.config.horizon):
-            best: dict[tuple, tuple[int, np.ndarray, np.ndarray]] = {}
-            for i, posture, body in level:
-                for step, after in self.successors(posture, body, holds, barred):
+        level = [((step,), after) for step, after in first]
+        best = max((path for path, _ in level), key=sequence_value)
+        horizon = self.config.horizon
+        if swings_left > 0:
+            horizon = min(horizon, swings_left)
+        for _ in range(1, horizon):
+            reached: dict[tuple, tuple[tuple[Step, ...], np.ndarray]] = {}
+            for path, posture in level:
+                passed = barred | path_stances(feet, path)
+                for step, after in self.successors(posture, path[-1].base_end, holds, passed):
                     key = stance_key(after)
-                    if key not in best or best[key][2] @ GOAL < step.base_end @ GOAL:
-                        best[key] = (i, after, step.base_end)
-            if not best:
+                    if (
+                        key not in reached
+                        or reached[key][0][-1].base_end @ GOAL < step.base_end @ GOAL
+                    ):
+                        reached[key] = (path + (step,), after)
+            if not reached:
                 break
-            level = sorted(best.values(), key=lambda n: -(n[2] @ GOAL))[: self.config.beam]
-            for i, _, body in level:
-                value[i] = max(value[i], (depth, float(body @ GOAL)))
-        pick = max(range(len(first)), key=lambda i: (value[i], first[i][0].stride))
-        step = first[pick][0]
+            level = sorted(reached.values(), key=lambda node: -(node[0][-1].base_end @ GOAL))
+            level = level[: self.config.beam]
+            best = max([best, *(path for path, _ in level)], key=sequence_value)
+        if self._follows(self.committed, feet, base, barred):
+            best = max(best, self.committed, key=sequence_value)
+        self.committed = best[1:]
+        step = best[0]
         return dataclasses.replace(step, regrip=step.stride <= self.config.min_stride)
+
+    def _follows(
+        self, path: tuple[Step, ...], feet: np.ndarray, base: np.ndarray, barred: set
+    ) -> bool:
+        """Whether the committed ``path`` starts from this posture and, over the same hold map,
+        returns to no barred stance."""
+        if not path or not np.allclose(path[0].base_start, base):
+            return False
+        feet = feet.copy()
+        for step in path:
+            if not np.allclose(feet[step.limb], step.start):
+                return False
+            feet[step.limb] = step.target
+            if stance_key(feet) in barred:
+                return False
+        return True
 
     def _first_steps(
         self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray
@@ -417,12 +481,13 @@ class ClimbPlanner:
         return steps, barred
 
     def _remember(self, feet: np.ndarray, holds: np.ndarray) -> set:
-        """The non-periodic gaits' bookkeeping before a plan: forget the known steps if the hold
-        map changed, remember the stance ``feet`` (once, however often it is planned from);
-        returns the recent stances (barred)."""
+        """The non-periodic gaits' bookkeeping before a plan: forget the known steps and the
+        committed sequence if the hold map changed, remember the stance ``feet`` (once, however
+        often it is planned from); returns the recent stances (barred)."""
         token = hash(holds.tobytes())
         if token != self.holds_token:
             self.known.clear()
+            self.committed = ()
             self.holds_token = token
         key = stance_key(feet)
         if not self.recent or self.recent[-1] != key:
@@ -487,15 +552,18 @@ class PlanAhead:
         """A plan has been requested and not yet taken."""
         return self.worker.pending
 
-    def request(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> None:
-        """Start planning the swing from posture (``feet``, ``base``) over ``holds`` on the
-        worker; the inputs are copied and frozen, so the plan depends on nothing else."""
+    def request(
+        self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray, swings_left: int
+    ) -> None:
+        """Start planning the swing from posture (``feet``, ``base``) over ``holds``, with
+        ``swings_left`` in the climb (0: open-ended), on the worker; the inputs are copied and
+        frozen, so the plan depends on nothing else."""
         frozen = []
         for a in (feet, base, holds):
             a = np.array(a, float)
             a.flags.writeable = False
             frozen.append(a)
-        self.worker.request(self.planner.plan, *frozen)
+        self.worker.request(self.planner.plan, *frozen, swings_left)
 
     def take(self) -> tuple[bool, Step | None]:
         """(True, step) once the requested plan is done, else (False, None) without waiting
@@ -556,7 +624,7 @@ class ClimbRunner:
             self._back_off(holds)
         if self.step is None:
             if not self.ahead.requested:
-                self.ahead.request(self.feet, self.base, holds)
+                self.ahead.request(self.feet, self.base, holds, self._swings_left())
             ready, step = self.ahead.take()
             if not ready:
                 return self._still(late=True)
@@ -564,7 +632,7 @@ class ClimbRunner:
             self.reason, self._backing = "", None
             if step is not None:
                 self.steps.append(step)
-                self.ahead.request(*self._after(step), holds)
+                self.ahead.request(*self._after(step), holds, self._swings_left())
         step = self.step
         if step is None:
             return self._still(reason=f"no feasible step over the {len(holds)} holds mapped")
@@ -605,7 +673,15 @@ class ClimbRunner:
         )
         self.step, self.phase, self._backing = back, 0.0, back
         self.steps.append(back)
-        self.ahead.request(*self._after(back), holds)
+        self.ahead.request(*self._after(back), holds, self._swings_left())
+
+    def _swings_left(self) -> int:
+        """Swings the climb's ``duration`` leaves for the next one planned, that one included
+        (0: open-ended, or the duration is spent)."""
+        cfg = self.planner.config
+        if cfg.duration <= 0.0:
+            return 0
+        return max(0, int(cfg.duration // cfg.swing_period) - len(self.steps))
 
     def _after(self, step: Step) -> tuple[np.ndarray, np.ndarray]:
         """Feet and base once ``step`` is done: exactly what ``tick`` reaches at phase 1."""

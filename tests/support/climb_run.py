@@ -3,8 +3,11 @@
 The planner (plugins/gaits/free_climb.py) plans in the wall frame over the map's holds; each
 control tick its feet and base become joint goals through the daemon's IK (the body keeps the
 wall's orientation) and its grips become the twin's grippers, which hold only on hold geoms
-and slip above 9 N. The swing foot aims at its hold from where the body is (as a hold seen
-from the body would be), so the stance legs' sag does not shorten every landing and add up.
+and slip above 9 N. The swing foot aims at its hold from where the body is and how it is
+turned (as a hold seen from the body would be), so the stance legs' sag and the body's tilt
+do not shorten every landing and add up; only its height over the wall stays the plan's (with
+the tilt turned into height too, the foot pressed into the wall and tipped the body further
+over).
 A swing starts only once the twin reports every gripper holding. What is
 logged is the twin's truth: base position, the TSM of the grippers that hold, slips. The next
 swing is planned on the planner's worker thread while the twin executes the current one, and
@@ -21,6 +24,7 @@ import mujoco
 import numpy as np
 
 from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.profile import Profile
 from climbd.daemon.contract.profile import load as load_profile
 from climbd.drivers.sim.model import GRIP_FORCE
@@ -89,6 +93,8 @@ class SlopeClimb:
         base = self.planner.base_for(feet)
         self.runner = ClimbRunner(self.planner, feet, base, PlanAhead(self.planner, wait=True))
         self._place(base, q0)
+        self.level = self.rotation.T @ rotation(self.twin.data.qpos[3:7])
+        """The body's orientation in the wall frame as it stands at the start (the planner's)."""
         self.force = self.mass * (self.rotation.T @ model.opt.gravity)
 
     def _place(self, base: np.ndarray, q: np.ndarray) -> None:
@@ -120,6 +126,10 @@ class SlopeClimb:
         """Planner-frame position of world points (…×3)."""
         return (np.asarray(p) - self.origin) @ self.rotation - [0.0, 0.0, self.z0]
 
+    def tilt(self) -> np.ndarray:
+        """Rotation (wall frame) of the body now from its orientation at the start."""
+        return self.rotation.T @ rotation(self.twin.data.qpos[3:7]) @ self.level.T
+
     def measured_tsm(self) -> float:
         """TSM (m) of the twin now: its CoM, the feet whose grippers hold, its weight."""
         d, r = self.twin.data, self.twin.robot
@@ -143,7 +153,10 @@ class SlopeClimb:
                 tick = runner.tick(dt, self.holds)
                 legs = tick.feet - tick.base
                 if tick.swing is not None:
-                    legs[tick.swing] = tick.feet[tick.swing] - self.to_wall(twin.data.qpos[:3])
+                    tilt = self.tilt()
+                    aim = tick.feet[tick.swing] - self.to_wall(twin.data.qpos[:3])
+                    legs[tick.swing, :2] = (tilt.T @ aim)[:2]
+                    legs[tick.swing, 2] = aim[2]
                 q, reached = self.kin.ik(legs)
                 if not reached.all():  # a swing foot the real base cannot reach: the plan's aim
                     planned, _ = self.kin.ik(tick.feet - tick.base)
