@@ -21,7 +21,8 @@ distance ≥ 0.17 m and ≥ 2× the periodic gait's (the protocol: seeds 0-7, fi
 looking at results; the ratio of mean distances over all of them), its plan ≥ 0.9 of the
 bound on every map, TSM never below 0, no slips.
 
-    .venv/bin/python bench/free_climb.py [--seeds 8] [--seconds 45] [--plot docs/img/free_climb.png]
+    .venv/bin/python bench/free_climb.py [--seeds 8] [--seconds 45] [--jobs 2]
+        [--plot docs/img/free_climb.png]
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -172,6 +174,12 @@ def search_reach(seed: int, swings: int, beam: int = 400) -> float:
     return best - float(start @ GOAL)
 
 
+def climb_map(seed: int, seconds: float) -> tuple[dict[str, Run], float]:
+    """Every gait's climb of map ``seed`` and the bound of the search that knows the end."""
+    runs = {g: run(periodic, seed, seconds, over) for g, (periodic, over) in GAITS.items()}
+    return runs, search_reach(seed, int(seconds // ClimbConfig().swing_period))
+
+
 def plot(logs: dict[str, list[ClimbLog]], path: Path) -> None:
     """Base x and TSM over time for the three gaits (paper 001 Figs. 7 and 8)."""
     import matplotlib
@@ -208,6 +216,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--seconds", type=float, default=45.0)
     parser.add_argument("--plot", type=Path, default=ROOT / "docs" / "img" / "free_climb.png")
+    parser.add_argument("--jobs", type=int, default=1, help="maps climbed at once (processes)")
     args = parser.parse_args()
     logs: dict[str, list[ClimbLog]] = {g: [] for g in GAITS}
     swings: dict[str, list[np.ndarray]] = {g: [] for g in GAITS}
@@ -223,8 +232,10 @@ def main() -> None:
     )
     print("|---" * 19 + "|")
     worst_plan = worst_tick = 0.0
-    for seed in range(args.seeds):
-        runs = {g: run(periodic, seed, args.seconds, over) for g, (periodic, over) in GAITS.items()}
+    seeds = range(args.seeds)
+    with ProcessPoolExecutor(args.jobs) as pool:
+        climbed = pool.map(climb_map, seeds, [args.seconds] * len(seeds))
+    for seed, (runs, reach) in zip(seeds, climbed, strict=True):
         plan_ms = {g: 1e3 * np.asarray(runs[g].plans.samples) for g in ("np", "paper")}
         tick_ms = {g: 1e3 * max(runs[g].ticks.samples) for g in ("np", "paper")}
         worst_plan = max(worst_plan, plan_ms["np"].max())
@@ -237,7 +248,6 @@ def main() -> None:
             f"{dist[g] / dist['p']:.2f}" if dist["p"] > 0 else "inf"
             for g in ("np", "paper", "open")
         )
-        reach = search_reach(seed, int(args.seconds // ClimbConfig().swing_period))
         reaches.append((reach, runs["p"].planned, runs["np"].planned, runs["open"].planned))
         per_swing = {g: 100 * one.swings.mean(axis=0) for g, one in runs.items()}
         cpu = ", ".join(

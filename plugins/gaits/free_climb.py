@@ -418,7 +418,8 @@ class ClimbPlanner:
         furthest ahead kept per swing) that takes the base furthest towards the goal; a
         sequence that ends sooner ranks lower (``sequence_value``). The rest of the
         sequence chosen is kept: the next plan follows it unless it finds a better one, so a
-        route found once is not lost to a narrower beam from the next posture."""
+        route found once is not lost to a narrower beam from the next posture; while the
+        horizon is longer than what is kept, it is weighed with its best next swing added."""
         first, barred = self._first_steps(feet, base, holds)
         if not first:
             self.committed = ()
@@ -445,7 +446,16 @@ class ClimbPlanner:
             level = level[: self.config.beam]
             best = max([best, *(path for path, _ in level)], key=sequence_value)
         if self._follows(self.committed, feet, base, barred):
-            best = max(best, self.committed, key=sequence_value)
+            kept = self.committed
+            if len(kept) < horizon:
+                end = feet.copy()
+                for step in kept:
+                    end[step.limb] = step.target
+                passed = barred | path_stances(feet, kept)
+                more = self.successors(end, kept[-1].base_end, holds, passed)
+                if more:
+                    kept += (max(more, key=lambda n: (n[0].base_end @ GOAL, n[0].stride))[0],)
+            best = max(best, kept, key=sequence_value)
         self.committed = best[1:]
         step = best[0]
         return dataclasses.replace(step, regrip=step.stride <= self.config.min_stride)
