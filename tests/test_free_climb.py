@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
 import math
 import threading
 from pathlib import Path
@@ -448,6 +449,36 @@ def test_plugins_from_entry_points_emit_foot_targets_and_stability(tile):
             assert s.swing < 0 or not s.support[s.swing]
             assert not s.plan_late
         gait.stop()
+
+
+@pytest.mark.parametrize("slope", [30.0, 80.0])
+def test_the_gait_plans_on_the_gravity_its_body_measures(tile, slope, caplog):
+    """At 1 g with grippers that hold nothing (``grip_force`` 0), configured for a 30° wall:
+    on a 30° wall (the body pitched up by 30° in the odometry frame) it climbs; on an 80° wall
+    every step would tumble or leave the legs' reach, so it holds its four grips, says why and
+    logs the slope it measured instead of planning on the configured one."""
+    gait = instantiate(
+        "climbd.gaits", "free_climb", {"gravity": 9.80665, "grip_force": 0.0}, PROFILE, "test"
+    )
+    gait.stepped = True
+    theta = math.radians(slope)
+    pitched = [math.cos(theta / 2), 0.0, -math.sin(theta / 2), 0.0]
+    with caplog.at_level(logging.INFO, logger="climbd.gait.free_climb"):
+        gait.start(
+            BodyState(position=[0.0, 0.0, CFG.base_height], orientation=pitched),
+            KIN.stand_feet(CFG.base_height),
+        )
+    down = [-math.sin(theta), 0.0, -math.cos(theta)]
+    np.testing.assert_allclose(gait.planner.down, down, atol=1e-12)
+    assert ("measured slope 80.0 deg" in caplog.text) == (slope == 80.0)
+    world = {HoldMap.TOPIC: mapped(hold_map(tile, 1), np.zeros(3))}
+    out = [gait.step(i * DT, DT, BodyState(), world, None) for i in range(40)]
+    gait.stop()
+    if slope == 30.0:
+        assert any(not all(o.grip) for o in out)
+    else:
+        assert all(all(o.grip) for o in out)
+        assert gait.last.reason.startswith("no feasible step")
 
 
 def test_config_rejects_unknown_fields():

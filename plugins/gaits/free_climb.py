@@ -85,6 +85,8 @@ SWING_SAMPLES = (0.25, 0.5, 0.75, 1.0)
 """Swing phases at which a step's reach and TSM are checked before it is taken."""
 RECENT = 32
 """Stances the non-periodic gait remembers and does not return to."""
+SLOPE_NOTICE = 2.0
+"""Degrees between the measured and the configured slope beyond which the gait says so."""
 KNOWN_POSTURES = 4096
 """Postures whose feasible steps the non-periodic gait keeps between plans."""
 
@@ -237,9 +239,17 @@ class LegReach:
 
 
 class ClimbPlanner:
-    """Plans swings over a hold map; ``periodic`` picks limbs in a fixed order instead (§3.1)."""
+    """Plans swings over a hold map; ``periodic`` picks limbs in a fixed order instead (§3.1).
+    Gravity acts along ``down`` (wall frame, unit), measured where the robot has a body
+    orientation; without one, along the configured ``slope_deg``."""
 
-    def __init__(self, kinematics: Kinematics, config: ClimbConfig, periodic: bool) -> None:
+    def __init__(
+        self,
+        kinematics: Kinematics,
+        config: ClimbConfig,
+        periodic: bool,
+        down: np.ndarray | None = None,
+    ) -> None:
         self.kinematics = kinematics
         self.reach = LegReach(kinematics.profile)
         self.config = config
@@ -256,8 +266,10 @@ class ClimbPlanner:
         self.holds_token: int | None = None
         self.committed: tuple[Step, ...] = ()
         """The rest of the non-periodic gait's chosen sequence, after the swing it planned."""
-        slope = math.radians(config.slope_deg)
-        self.down = np.array([-math.sin(slope), 0.0, -math.cos(slope)])
+        if down is None:
+            slope = math.radians(config.slope_deg)
+            down = np.array([-math.sin(slope), 0.0, -math.cos(slope)])
+        self.down = np.asarray(down, float) / np.linalg.norm(down)
         self.force = config.mass * config.gravity * self.down
 
     def base_for(self, feet: np.ndarray) -> np.ndarray | None:
@@ -733,15 +745,26 @@ class FreeClimb(GaitPlugin):
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
         """Take the measured feet (body frame) as gripping; the wall frame starts at the base,
-        its axes the body's at start (the body keeps the wall's orientation). Starts the
-        planning worker (a fresh planner: a stopped one may still be finishing)."""
+        its axes the body's at start (the body keeps the wall's orientation), and gravity acts
+        along the odometry frame's down as the body measures it: a wall steeper than
+        ``slope_deg`` gets the TSM of its true slope (a step that would tumble there is not
+        feasible), and the difference is logged. Starts the planning worker (a fresh planner:
+        a stopped one may still be finishing)."""
         self.stop()
         base = np.array([0.0, 0.0, self.config.base_height])
         wall_feet = np.asarray(feet, float) + base
         wall_feet[:, 2] = 0.0
         self.to_wall = rotation(body.orientation).T
         self.origin = np.asarray(body.position, float) - self.to_wall.T @ base
-        self.planner = ClimbPlanner(self.kinematics, self.config, self.periodic)
+        down = self.to_wall @ np.array([0.0, 0.0, -1.0])
+        slope = math.degrees(math.acos(float(np.clip(-down @ NORMAL, -1.0, 1.0))))
+        if abs(slope - self.config.slope_deg) > SLOPE_NOTICE:
+            log.info(
+                "measured slope %.1f deg, configured %.1f deg: planning on the measured gravity",
+                slope,
+                self.config.slope_deg,
+            )
+        self.planner = ClimbPlanner(self.kinematics, self.config, self.periodic, down)
         ahead = PlanAhead(self.planner, wait=self.stepped)
         self.runner = ClimbRunner(self.planner, wall_feet, base, ahead)
 
