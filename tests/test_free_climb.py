@@ -678,6 +678,48 @@ def test_a_hold_lost_mid_swing_is_backed_off_to_the_hold_it_left_keeping_three_g
     runner.close()
 
 
+def test_a_gripper_that_does_not_hold_on_its_new_hold_backs_off_keeping_three_grips(tile):
+    """The first swing's gripper closes but reports no hold: no limb is released while it
+    waits ``grip_wait``; then the limb swings back to the hold it left, the three others
+    holding throughout, the tick naming why; that hold is never planned on again, and a
+    stance gripper that lets go later stops every swing until it holds again."""
+    holds = hold_map(tile, seed=0)
+    runner = _fresh_runner(holds)
+    stand_feet, stand_base = runner.feet.copy(), runner.base.copy()
+    for _ in range(round(CFG.swing_period / DT)):
+        runner.tick(DT, holds, [True] * 4)
+    step = runner.steps[0]
+    assert runner.step is None and runner.feet[step.limb] == pytest.approx(step.target)
+    stance = [k for k in range(4) if k != step.limb]
+    failing = [k != step.limb for k in range(4)]
+    waiting = [runner.tick(DT, holds, failing) for _ in range(round(CFG.grip_wait / DT) - 1)]
+    for tick in waiting:
+        assert tick.swing is None and tick.grip == [True] * 4
+        assert tick.reason == f"gripper of limb {step.limb} does not hold: no limb released"
+    back = [runner.tick(DT, holds, failing) for _ in range(round(CFG.swing_period / DT) + 1)]
+    assert "did not hold when its gripper closed: back to the hold it left" in back[0].reason
+    for tick in back:
+        _holding_rules(tick, stand_feet, stance)
+        assert tick.swing in (None, step.limb)
+    np.testing.assert_allclose(back[-1].feet, stand_feet, atol=1e-12)
+    np.testing.assert_allclose(back[-1].base, stand_base, atol=1e-12)
+    assert runner.missed == 1
+    backed_off = len(runner.steps)
+    for _ in range(round(3 * CFG.swing_period / DT)):
+        runner.tick(DT, holds, [True] * 4)
+    later = runner.steps[backed_off:]
+    assert len(later) >= 2
+    assert all(np.linalg.norm(s.target - step.target) > CFG.hold_tolerance for s in later)
+    while runner.step is not None:
+        runner.tick(DT, holds, [True] * 4)
+    slipped = [k != 0 for k in range(4)]
+    for _ in range(round(2 * CFG.swing_period / DT)):
+        tick = runner.tick(DT, holds, slipped)
+        assert tick.swing is None and tick.grip == [True] * 4
+    assert tick.reason == "gripper of limb 0 does not hold: no limb released"
+    runner.close()
+
+
 def test_with_no_feasible_step_the_four_grippers_hold_and_say_why(tile):
     """A hold map with nothing but the holds the feet grip: the gait holds still on four
     grips, says why, and climbs on once holds ahead are mapped."""

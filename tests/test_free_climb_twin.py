@@ -94,9 +94,9 @@ def test_swing_feet_land_on_their_holds_isolating_the_gait(periodic):
     runner, tick = climb.runner, climb.runner.tick
     landings: list[np.ndarray] = []
 
-    def tick_and_measure(dt, holds):
+    def tick_and_measure(dt, holds, holding):
         before = len(runner.steps)
-        result = tick(dt, holds)
+        result = tick(dt, holds, holding)
         if len(runner.steps) > before > 0 and not runner.steps[before - 1].wait:
             done = runner.steps[before - 1]
             feet = climb.to_wall(climb.twin.data.site_xpos[climb.twin.robot.foot_sites])

@@ -56,6 +56,7 @@ import dataclasses
 import logging
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Annotated, ClassVar, Literal
 
@@ -108,7 +109,8 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     if it has one: the search then looks no further than the swings left in it, so its last
     swings take the base as far as they can rather than set up swings that will not happen;
     0 is open-ended (every plan looks ``horizon`` swings ahead), as is the climb after it.
-    The holds are
+    Where the grippers report whether they hold, a closed gripper that does not hold within
+    ``grip_wait`` (s) fails its hold (see ``ClimbRunner.tick``). The holds are
     the world model's hold map: those at least ``min_confidence`` sure, each a foot target
     ``foot_radius`` (m, the gripper's contact sphere) above the top perception saw; a swing's
     hold counts as still there while the map has a hold within ``hold_tolerance`` (m) of it."""
@@ -133,6 +135,7 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     lead_steps: Annotated[int, msgspec.Meta(ge=2)] = 4
     lead_margin: Annotated[float, msgspec.Meta(ge=0.0)] = 0.05
     duration: Annotated[float, msgspec.Meta(ge=0.0)] = 0.0
+    grip_wait: Annotated[float, msgspec.Meta(gt=0.0)] = 1.0
 
 
 @dataclass(frozen=True)
@@ -634,16 +637,28 @@ class ClimbRunner:
         self.reason = ""
         """Why the runner backs off, while it does."""
         self._backing: Step | None = None
+        self.failed: list[np.ndarray] = []
+        """Holds a gripper closed on without holding: never planned on again."""
+        self.missed = 0
+        """Swings whose gripper did not hold at the end (each backed off)."""
+        self._unheld = 0.0
 
-    def tick(self, dt: float, holds: np.ndarray) -> Tick:
-        """Advance by ``dt`` (s); a swing starts only when the three other grippers hold and
-        its plan is ready; until then the four grippers hold (a ``late`` tick). A swing whose
-        hold has left the map backs off to the hold it left; with no feasible step at all
-        the four grippers hold, and the tick says why."""
+    def tick(self, dt: float, holds: np.ndarray, holding: Sequence[bool] | None = None) -> Tick:
+        """Advance by ``dt`` (s); a swing starts only when the grippers hold and its plan is
+        ready; until then the four grippers hold (a ``late`` tick). A swing whose hold has left
+        the map backs off to the hold it left; with no feasible step at all the four grippers
+        hold, and the tick says why. ``holding`` is what the grippers report (None: they are
+        taken to hold as commanded): between swings, no limb is released while any gripper
+        does not hold; a swing's gripper that does not hold within ``grip_wait`` has failed its
+        hold, and the limb swings back to the hold it left (never planned on again)."""
+        holds = self._usable(holds)
         step = self.step
         lost = step is not None and not step.wait and not self._mapped(step.target, holds)
         if lost and step is not self._backing:
-            self._back_off(holds)
+            self._back_off(holds, "left the hold map mid-swing")
+        if self.step is None and holding is not None and not all(holding):
+            return self._unheld_grips(dt, holds, holding)
+        self._unheld = 0.0
         if self.step is None:
             if not self.ahead.requested:
                 self.ahead.request(self.feet, self.base, holds, self._swings_left())
@@ -675,12 +690,42 @@ class ClimbRunner:
             self.step = None
         return Tick(feet, base, step.limb, grip, margin, reason=self.reason)
 
+    def _unheld_grips(self, dt: float, holds: np.ndarray, holding: Sequence[bool]) -> Tick:
+        """Between swings, a gripper reports it does not hold: the four stay closed; the one
+        the last swing closed gets ``grip_wait`` to hold, then its hold fails and the limb
+        backs off to the hold it left; a stance gripper that lets go holds everything still."""
+        self._unheld += dt
+        open_limbs = [leg for leg, held in enumerate(holding) if not held]
+        last = self.steps[-1] if self.steps else None
+        swung = last is not None and not last.wait and open_limbs == [last.limb]
+        if (
+            not swung
+            or last is self._backing
+            or self._unheld < self.planner.config.grip_wait - 1e-9
+        ):
+            names = ", ".join(str(leg) for leg in open_limbs)
+            return self._still(reason=f"gripper of limb {names} does not hold: no limb released")
+        self.missed += 1
+        self.failed.append(last.target.copy())
+        self.step, self.phase = last, 1.0
+        self._back_off(self._usable(holds), "did not hold when its gripper closed")
+        self._unheld = 0.0
+        return self._still(reason=self.reason)
+
+    def _usable(self, holds: np.ndarray) -> np.ndarray:
+        """The mapped holds less those a gripper failed on (within ``hold_tolerance``)."""
+        holds = np.asarray(holds, float).reshape(-1, 3)
+        if not self.failed or not len(holds):
+            return holds
+        gap = np.linalg.norm(holds[:, None, :] - np.array(self.failed)[None], axis=2)
+        return holds[gap.min(axis=1) > self.planner.config.hold_tolerance]
+
     def _mapped(self, target: np.ndarray, holds: np.ndarray) -> bool:
         """Whether the hold map still has a hold at ``target`` (within ``hold_tolerance``)."""
         gap = np.linalg.norm(np.asarray(holds).reshape(-1, 3) - target, axis=1)
         return bool(gap.size) and float(gap.min()) <= self.planner.config.hold_tolerance
 
-    def _back_off(self, holds: np.ndarray) -> None:
+    def _back_off(self, holds: np.ndarray, why: str) -> None:
         """The swinging limb's hold left the map (occluded, or gone from the wall): swing back
         from where the foot is to the hold it left, which it gripped a moment ago, the base
         back along its path to where the swing began; the three others keep their grips, and
@@ -690,8 +735,7 @@ class ClimbRunner:
         back = Step(step.limb, foot, step.start.copy(), base, step.base_start.copy(), regrip=True)
         x, y = step.target[:2]
         self.reason = (
-            f"limb {step.limb}'s hold at ({x:.3f}, {y:.3f}) m left the hold map mid-swing: "
-            "back to the hold it left"
+            f"limb {step.limb}'s hold at ({x:.3f}, {y:.3f}) m {why}: back to the hold it left"
         )
         self.step, self.phase, self._backing = back, 0.0, back
         self.steps.append(back)
@@ -725,7 +769,9 @@ class ClimbRunner:
 
 
 class FreeClimb(GaitPlugin):
-    """Non-periodic free-climbing gait (paper 001) as a gait plugin over the hold map."""
+    """Non-periodic free-climbing gait (paper 001) as a gait plugin over the hold map. No
+    driver reports its grippers' holds yet, so the plugin takes them to hold as commanded;
+    the runner acts on the reports where it is given them (the twin harness)."""
 
     name: ClassVar[str] = "free_climb"
     Config: ClassVar[type[msgspec.Struct]] = ClimbConfig

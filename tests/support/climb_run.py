@@ -8,7 +8,8 @@ turned (as a hold seen from the body would be), so the stance legs' sag and the 
 do not shorten every landing and add up; only its height over the wall stays the plan's (with
 the tilt turned into height too, the foot pressed into the wall and tipped the body further
 over).
-A swing starts only once the twin reports every gripper holding. What is
+The runner is given what the twin's grippers report: a swing starts only once every gripper
+holds, and one that does not hold on its new hold backs off to the old one. What is
 logged is the twin's truth: base position, the TSM of the grippers that hold, slips. The next
 swing is planned on the planner's worker thread while the twin executes the current one, and
 awaited in simulated time where it is needed (deterministic runs); ``close`` stops the worker.
@@ -41,8 +42,6 @@ from climbd.plugins.gaits.free_climb import (
 from climbd.plugins.gaits.tsm import tumble_stability_margin
 
 HUBROBO = Path(__file__).resolve().parents[2] / "robots" / "hubrobo.toml"
-GRIP_WAIT = 1.0
-"""Longest wait (s) for every gripper to report holding before the next swing."""
 
 
 @dataclass
@@ -142,33 +141,27 @@ class SlopeClimb:
         """Climb for ``seconds`` of simulated time with control period ``dt`` (s)."""
         twin, runner, log = self.twin, self.runner, ClimbLog()
         t0 = twin.time
-        waited = 0.0
         while twin.time - t0 < seconds - 1e-9:
-            if runner.step is None and not twin.holding().all() and waited < GRIP_WAIT:
-                waited += dt
-            else:
-                if runner.step is None and not twin.holding().all():
-                    log.missed += 1
-                waited = 0.0
-                tick = runner.tick(dt, self.holds)
-                legs = tick.feet - tick.base
-                if tick.swing is not None:
-                    tilt = self.tilt()
-                    aim = tick.feet[tick.swing] - self.to_wall(twin.data.qpos[:3])
-                    legs[tick.swing, :2] = (tilt.T @ aim)[:2]
-                    legs[tick.swing, 2] = aim[2]
-                q, reached = self.kin.ik(legs)
-                if not reached.all():  # a swing foot the real base cannot reach: the plan's aim
-                    planned, _ = self.kin.ik(tick.feet - tick.base)
-                    q.reshape(len(legs), 3)[~reached] = planned.reshape(len(legs), 3)[~reached]
-                twin.command(q)
-                twin.grip[:] = tick.grip
+            tick = runner.tick(dt, self.holds, twin.holding().tolist())
+            legs = tick.feet - tick.base
+            if tick.swing is not None:
+                tilt = self.tilt()
+                aim = tick.feet[tick.swing] - self.to_wall(twin.data.qpos[:3])
+                legs[tick.swing, :2] = (tilt.T @ aim)[:2]
+                legs[tick.swing, 2] = aim[2]
+            q, reached = self.kin.ik(legs)
+            if not reached.all():  # a swing foot the real base cannot reach: the plan's aim
+                planned, _ = self.kin.ik(tick.feet - tick.base)
+                q.reshape(len(legs), 3)[~reached] = planned.reshape(len(legs), 3)[~reached]
+            twin.command(q)
+            twin.grip[:] = tick.grip
             twin.advance_to(twin.time + dt)
             log.t.append(twin.time - t0)
             log.x.append(float(self.to_wall(twin.data.qpos[:3])[0]))
             log.tsm.append(self.measured_tsm())
             log.max_load = max(log.max_load, float(twin.grip_load.max()))
         log.slips = int(twin.slips.sum())
+        log.missed = runner.missed
         log.steps = sum(not s.wait for s in runner.steps)
         log.waits = sum(s.wait for s in runner.steps)
         return log
