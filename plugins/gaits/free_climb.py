@@ -43,7 +43,7 @@ the limb with the most graspable options ahead in its reachable region (§3.1) s
 feasible option with the longest stride towards the goal (§3.2, [9]), so that rule can be
 measured beside the search (bench/free_climb.py, its "paper rule" column).
 
-Planning takes milliseconds to hundreds of milliseconds, so it runs off the control tick: a worker
+Planning takes up to a few hundred milliseconds, so it runs off the control tick: a worker
 thread (PlanAhead) plans the next swing from the posture the current swing ends in while it
 executes. A swing that ends before its successor's plan is ready leaves the robot holding its
 stance (all four grippers) and the tick says so (``late``); in simulated time (tests, twin,
@@ -325,7 +325,7 @@ class ClimbPlanner:
         diagonals do not cross or, at every lead, a foot leaves its reach at a swing sample
         (``SWING_SAMPLES``) or the TSM of the three holding limbs falls below its margin (0 on
         the crossing, ``lead_margin`` ahead of it). All candidates, leads and samples are
-        checked in one vectorised reach and one TSM call per limb."""
+        checked in one vectorised reach call and one TSM call."""
         n = len(limbs)
         if n == 0:
             return []
@@ -726,10 +726,11 @@ class ClimbRunner:
         return bool(gap.size) and float(gap.min()) <= self.planner.config.hold_tolerance
 
     def _back_off(self, holds: np.ndarray, why: str) -> None:
-        """The swinging limb's hold left the map (occluded, or gone from the wall): swing back
-        from where the foot is to the hold it left, which it gripped a moment ago, the base
-        back along its path to where the swing began; the three others keep their grips, and
-        the plan made for after the lost swing is replaced by one from after the back-off."""
+        """The swinging limb's hold is lost (``why``: it left the map, occluded or gone from the
+        wall, or the gripper closed on it without holding): swing back from where the foot is
+        to the hold it left, which it gripped a moment ago, the base back along its path to
+        where the swing began; the three others keep their grips, and the plan made for after
+        the lost swing is replaced by one from after the back-off."""
         step = self.step
         foot, base = self.planner.pose(step, self.phase)
         back = Step(step.limb, foot, step.start.copy(), base, step.base_start.copy(), regrip=True)

@@ -64,10 +64,8 @@ def tumble_stability_margins(
 ) -> np.ndarray:
     """TSM (m) for each CoM of ``coms`` (n×3) over the same contacts, force and grips (see
     ``tumble_stability_margin``): the support polygon's axes are worked out once."""
-    coms = np.asarray(coms, float)
-    return stance_margins(coms[None], np.asarray(contacts, float)[None], force, grip_force, normal)[
-        0
-    ]
+    coms, contacts = np.asarray(coms, float), np.asarray(contacts, float)
+    return stance_margins(coms[None], contacts[None], force, grip_force, normal)[0]
 
 
 def stance_margins(
@@ -79,7 +77,7 @@ def stance_margins(
 ) -> np.ndarray:
     """TSM (m, shaped m×n) of CoMs (m×n×3) over m stances of k gripping contacts each
     (m×k×3), in one vectorised pass (a planner checks many candidate swings at once)."""
-    coms = np.asarray(coms, float)
+    coms, contacts = np.asarray(coms, float), np.asarray(contacts, float)
     if contacts.shape[1] < 2:
         return np.full(coms.shape[:2], -np.inf)
     p = ordered(contacts, np.asarray(normal, float))  # (m, k, 3)
