@@ -642,6 +642,11 @@ class ClimbRunner:
         self.missed = 0
         """Swings whose gripper did not hold at the end (each backed off)."""
         self._unheld = 0.0
+        self._asked: int | None = None
+        """The hold map (its hash) of the plan asked for last."""
+        self._stuck: int | None = None
+        """The hold map (its hash) on which no step was feasible from here: not planned on
+        again until the map changes."""
 
     def tick(self, dt: float, holds: np.ndarray, holding: Sequence[bool] | None = None) -> Tick:
         """Advance by ``dt`` (s); a swing starts only when the grippers hold and its plan is
@@ -660,19 +665,22 @@ class ClimbRunner:
             return self._unheld_grips(dt, holds, holding)
         self._unheld = 0.0
         if self.step is None:
+            if self._stuck == hash(holds.tobytes()):
+                return self._still(reason=f"no feasible step over the {len(holds)} holds mapped")
             if not self.ahead.requested:
-                self.ahead.request(self.feet, self.base, holds, self._swings_left())
+                self._request(self.feet, self.base, holds)
             ready, step = self.ahead.take()
             if not ready:
                 return self._still(late=True)
             self.step, self.phase = step, 0.0
             self.reason, self._backing = "", None
-            if step is not None:
-                self.steps.append(step)
-                self.ahead.request(*self._after(step), holds, self._swings_left())
+            if step is None:
+                self._stuck = self._asked
+                return self._still(reason=f"no feasible step over the {len(holds)} holds mapped")
+            self._stuck = None
+            self.steps.append(step)
+            self._request(*self._after(step), holds)
         step = self.step
-        if step is None:
-            return self._still(reason=f"no feasible step over the {len(holds)} holds mapped")
         self.phase = min(1.0, self.phase + dt / self.planner.config.swing_period)
         if step.wait:
             if self.phase >= 1.0:
@@ -740,7 +748,12 @@ class ClimbRunner:
         )
         self.step, self.phase, self._backing = back, 0.0, back
         self.steps.append(back)
-        self.ahead.request(*self._after(back), holds, self._swings_left())
+        self._request(*self._after(back), holds)
+
+    def _request(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> None:
+        """Ask for the plan of the next swing from (``feet``, ``base``) over ``holds``."""
+        self._asked = hash(holds.tobytes())
+        self.ahead.request(feet, base, holds, self._swings_left())
 
     def _swings_left(self) -> int:
         """Swings the climb's ``duration`` leaves for the next one planned, that one included
