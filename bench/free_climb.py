@@ -2,13 +2,14 @@
 
 HubRobo in the MuJoCo twin on ``slope_map`` (30° board, G/6, one hold per graspable point of a
 map tiled from the detection on ClimbLab's real cloud, seeded), base height 0.06 m, swing 4 s
-and 0.02 m, grippers holding only on holds and slipping above 9 N. Each seed runs both gaits
-for ``--seconds`` of simulated time; the periodic gait ([9]) is the baseline and the table
-gives the non-periodic / periodic ratio of the base's travel up the slope (twin truth), the
-least TSM of the grippers that held (twin truth), slips, grips that never engaged, and the
-planner's own (kinematic) travel beside the twin's, the base's mean advance per swing beside
-the room the three stance legs leave it (how far up the slope it could go with them in reach
-and TSM >= 0), the same figures for the non-periodic gait with the paper's own limb rule
+and 0.02 m, grippers holding only on holds and slipping above 9 N. Each seed runs every gait
+for ``--seconds`` of simulated time, the default planner told that time (``duration``); the
+periodic gait ([9]) is the baseline and the table gives the non-periodic / periodic ratio of
+the base's travel up the slope (twin truth), the least TSM of the grippers that held (twin
+truth), slips, grips that never engaged, and the planner's own (kinematic) travel beside the
+twin's, the base's mean advance per swing beside the room the three stance legs leave it (how
+far up the slope it could go with them in reach and TSM >= 0), the same figures for the
+non-periodic gait with the paper's own limb rule
 (``limb_rule = "paper"``: the limb with the most graspable options ahead, its longest feasible
 stride, §3.1-3.3) as a third gait, the default search open-ended (``duration = 0``: it is not
 told when the run ends, so every plan looks its full horizon ahead) as a fourth, how

@@ -105,10 +105,11 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     up to ``max_lead`` (m) up the slope beyond the diagonals' crossing: the furthest of
     ``lead_steps`` evenly spaced leads whose swing keeps every foot in reach and the TSM of
     the holding grips ≥ ``lead_margin`` (m); the periodic gait and the paper's rule keep it on
-    the crossing (§3.3). ``duration`` (s) is the time the climb is given (paper 001 §4: 45 s),
-    if it has one: the search then looks no further than the swings left in it, so its last
-    swings take the base as far as they can rather than set up swings that will not happen;
-    0 is open-ended (every plan looks ``horizon`` swings ahead), as is the climb after it.
+    the crossing (§3.3). ``duration`` (s) is the time the climb is given from the gait's start
+    (paper 001 §4: 45 s), if it has one: the search then looks no further than the swings left
+    in it, so its last swings take the base as far as they can rather than set up swings that
+    will not happen; 0 is open-ended (every plan looks ``horizon`` swings ahead), as is the
+    climb after it.
     Where the grippers report whether they hold, a closed gripper that does not hold within
     ``grip_wait`` (s) fails its hold (see ``ClimbRunner.tick``). The holds are
     the world model's hold map: those at least ``min_confidence`` sure, each a foot target
