@@ -138,3 +138,33 @@ def test_a_hold_removed_from_the_wall_mid_swing_is_backed_off_without_a_slip_iso
         assert min(first.tsm + log.tsm) >= 0.0
     finally:
         climb.close()
+
+
+def test_a_hold_its_gripper_cannot_close_on_is_backed_off_without_a_slip_isolating_the_gait():
+    """Halfway through the first swing its hold stops being graspable (still solid, still
+    mapped): the foot lands, the gripper closes and the twin reports no hold; the runner keeps
+    the other three grips for ``grip_wait``, then swings the foot back to the hold it left,
+    which it grips again, and never plans on the failed hold; no gripper slips and the TSM
+    of the holding grippers stays ≥ 0."""
+    climb = SlopeClimb(periodic=False, seed=0)
+    twin, runner = climb.twin, climb.runner
+    try:
+        first = climb.run(climb.config.swing_period / 2)
+        step = runner.step
+        assert step is not None and not step.wait
+        failed = np.flatnonzero(np.linalg.norm(climb.holds - step.target, axis=1) < 1e-9)
+        geom = twin.model.geom(f"hold_{failed[0]}").id
+        twin.robot.graspable_geoms = twin.robot.graspable_geoms[twin.robot.graspable_geoms != geom]
+        cfg = climb.config
+        log = climb.run(cfg.swing_period / 2 + cfg.grip_wait + cfg.swing_period + 0.3)
+        assert runner.missed == log.missed == 1
+        back = runner.steps[1]
+        np.testing.assert_allclose(back.target, step.start, atol=1e-12)
+        feet = climb.to_wall(twin.data.site_xpos[twin.robot.foot_sites])
+        assert np.linalg.norm(feet[step.limb, :2] - step.start[:2]) < 0.01
+        assert twin.holding()[step.limb]
+        assert all(np.linalg.norm(s.target - step.target) > 1e-9 for s in runner.steps[2:])
+        assert first.slips == log.slips == 0
+        assert min(first.tsm + log.tsm) >= 0.0
+    finally:
+        climb.close()
