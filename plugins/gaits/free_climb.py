@@ -196,17 +196,6 @@ def diagonal_crossing(feet: np.ndarray) -> np.ndarray | None:
     return point[0] if crosses[0] else None
 
 
-def path_stances(feet: np.ndarray, path: tuple[Step, ...]) -> set:
-    """The stances (``stance_key``) that ``path``'s swings pass through from ``feet``: a
-    sequence may not return to them, as the gait may not return to a recent stance."""
-    feet = feet.copy()
-    stances = set()
-    for step in path:
-        feet[step.limb] = step.target
-        stances.add(stance_key(feet))
-    return stances
-
-
 def sequence_value(path: tuple[Step, ...]) -> tuple[int, float, float]:
     """How the search ranks a sequence of swings: by its length (one that ends sooner ranks
     lower), then how far its base ends towards the goal, then its first swing's stride."""
@@ -347,7 +336,7 @@ class ClimbPlanner:
         reached = reach.reshape(len(feet), *bases.shape[:3]).all(axis=(0, 3))  # (n, L)
         holding = np.ones((n, len(feet)), bool)
         holding[np.arange(n), limbs] = False
-        stances = np.repeat(feet[None], n, axis=0)[holding].reshape(n, len(feet) - 1, 3)
+        stances = new[holding].reshape(n, len(feet) - 1, 3)  # the limbs that keep their grip
         coms = bases.reshape(n, -1, 3)
         margins = stance_margins(coms, stances, self.force, self.config.grip_force, NORMAL)
         margins = margins.reshape(bases.shape[:3]).min(axis=2)
@@ -440,34 +429,33 @@ class ClimbPlanner:
         if not first:
             self.committed = ()
             return None
-        level = [((step,), after) for step, after in first]
-        best = max((path for path, _ in level), key=sequence_value)
+        # A node: the sequence so far, the feet after it, the stances it may not enter (the
+        # recent ones and its own: it may not return to them, as the gait may not).
+        level = [((step,), after, barred | {stance_key(after)}) for step, after in first]
+        best = max((path for path, _, _ in level), key=sequence_value)
         horizon = self.config.horizon
         if swings_left > 0:
             horizon = min(horizon, swings_left)
         for _ in range(1, horizon):
-            reached: dict[tuple, tuple[tuple[Step, ...], np.ndarray]] = {}
-            for path, posture in level:
-                passed = barred | path_stances(feet, path)
+            reached: dict[tuple, tuple[tuple[Step, ...], np.ndarray, set]] = {}
+            for path, posture, passed in level:
                 for step, after in self.successors(posture, path[-1].base_end, holds, passed):
                     key = stance_key(after)
                     if (
                         key not in reached
                         or reached[key][0][-1].base_end @ GOAL < step.base_end @ GOAL
                     ):
-                        reached[key] = (path + (step,), after)
+                        reached[key] = (path + (step,), after, passed | {key})
             if not reached:
                 break
             level = sorted(reached.values(), key=lambda node: -(node[0][-1].base_end @ GOAL))
             level = level[: self.config.beam]
-            best = max([best, *(path for path, _ in level)], key=sequence_value)
-        if self._follows(self.committed, feet, base, barred):
-            kept = self.committed
+            best = max([best, *(path for path, _, _ in level)], key=sequence_value)
+        kept = self.committed
+        followed = self._follows(kept, feet, base, barred)
+        if followed is not None:
+            end, passed = followed
             if len(kept) < horizon:
-                end = feet.copy()
-                for step in kept:
-                    end[step.limb] = step.target
-                passed = barred | path_stances(feet, kept)
                 more = self.successors(end, kept[-1].base_end, holds, passed)
                 if more:
                     kept += (max(more, key=lambda n: (n[0].base_end @ GOAL, n[0].stride))[0],)
@@ -478,19 +466,23 @@ class ClimbPlanner:
 
     def _follows(
         self, path: tuple[Step, ...], feet: np.ndarray, base: np.ndarray, barred: set
-    ) -> bool:
-        """Whether the committed ``path`` starts from this posture and, over the same hold map,
-        returns to no barred stance."""
+    ) -> tuple[np.ndarray, set] | None:
+        """If the committed ``path`` starts from this posture and returns to no barred stance
+        (over the same hold map): the feet at its end and the stances it may not enter after
+        it (``barred`` and its own); else None."""
         if not path or not np.allclose(path[0].base_start, base):
-            return False
+            return None
         feet = feet.copy()
+        passed = set(barred)
         for step in path:
             if not np.allclose(feet[step.limb], step.start):
-                return False
+                return None
             feet[step.limb] = step.target
-            if stance_key(feet) in barred:
-                return False
-        return True
+            key = stance_key(feet)
+            if key in passed:
+                return None
+            passed.add(key)
+        return feet, passed
 
     def _first_steps(
         self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray
