@@ -23,7 +23,7 @@ from climbd.daemon.contract.messages import JointCommand, JointState
 from climbd.daemon.contract.profile import load
 from climbd.daemon.runtime.loop import ControlLoop, MonotonicClock
 from climbd.drivers.dynamixel.bus import DynamixelBus
-from climbd.drivers.dynamixel.pipeline import PipelinedPort
+from climbd.drivers.dynamixel.pipeline import PipelinedPort, Request
 from climbd.drivers.dynamixel.schedule import ReadSchedule
 from climbd.drivers.sim.dynamixel import DynamixelEmulator, ServoChain
 
@@ -316,3 +316,27 @@ def test_a_servo_answering_late_is_still_read_in_turn():
     assert not any(h.lost for h in bus.health())
     ages = np.array([s.age for s in states[20:]])
     assert ages[:, 7].max() <= profile.bus.max_state_age
+
+
+def test_a_silent_servo_does_not_stretch_the_adapters_hold():
+    """A reply given up doubles the adapter's hold estimate only until a later reply shows the
+    adapter passed replies on time (the servo was silent, not held): else each read of a
+    silent servo not yet lost doubled every request's expiry, to 32 ms, and its loss came after
+    the state-age bound (a FAULT where a HOLD is due). With no reply after, the doubling stands
+    (a latency timer raised under load)."""
+    bus = DynamixelBus(load(ROOT / "robots" / "widowx.toml"), port="/dev/null")
+    bus._frame, bus._hold = 1e-3, 2e-3
+    state = bus.model.state
+
+    def sent(at: float) -> Request:
+        return Request((0,), state, sent=at, wire=1e-4, parse=lambda: None)
+
+    t = 0.0
+    for _ in range(5):  # the silent servo's read given up, then another's reply, held 2 ms
+        bus._follow_hold(sent(t), t + 0.02, None, prompt=True, behind=False)
+        bus._follow_hold(sent(t + 0.005), t + 0.0081, (sdk.COMM_SUCCESS, {}, 0), True, False)
+        t += 0.01
+    assert bus._hold == pytest.approx(2e-3)
+    bus._follow_hold(sent(t), t + 0.02, None, prompt=True, behind=False)
+    bus._follow_hold(sent(t), t + 0.04, None, prompt=True, behind=False)
+    assert bus._hold == pytest.approx(8e-3)

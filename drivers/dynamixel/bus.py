@@ -269,6 +269,10 @@ class DynamixelBus:
         """How long (s) the adapter holds a reply: measured at open, followed as replies come."""
         self._told = 0.0
         """The hold last logged."""
+        self._doubted: float | None = None
+        """The hold before the replies given up since the last reply came: their doubling
+        stands only until a reply shows whether the adapter held them or their servos are
+        silent."""
         self._sync_reads = 0
         self._errors_due = False
         """2.0: a health block came by sync read; their error status is read next."""
@@ -646,6 +650,27 @@ class DynamixelBus:
                 before * 1e3,
             )
 
+    def _follow_hold(
+        self, request: Request, now: float, parsed: Parsed | None, prompt: bool, behind: bool
+    ) -> None:
+        """Follow the adapter's hold from a request settled in the order owed. One given up
+        (``parsed`` None) doubles it, provisionally: the adapter passes replies in order, so
+        a reply that comes after it shows whether it was held longer or never sent (a silent
+        servo not yet lost, which must not stretch every request's expiry, and so its own
+        detection, to ``MAX_HOLD``). ``behind``: requests were given up before it in this
+        call, so its reply was in already: theirs never came, and it waited, showing no hold.
+        ``prompt``: the reply has just come, so it shows the hold."""
+        if parsed is None:
+            if self._doubted is None:
+                self._doubted = self._hold
+            self._seen_hold(request, now, False)
+            return
+        answered = parsed[0] == sdk.COMM_SUCCESS
+        if self._doubted is not None and (behind or (prompt and answered)):
+            self._hold, self._doubted = self._doubted, None
+        if prompt and answered and not behind:
+            self._seen_hold(request, now, True)
+
     def _parser(self, k: int, item: Item) -> Callable[[], Parsed]:
         """What parses the status of one servo's READ of ``item``."""
 
@@ -692,6 +717,7 @@ class DynamixelBus:
         got = np.zeros(len(self.ids), bool)
         missed = np.zeros(len(self.ids), bool)
         states = (self.model.state, self.model.health)
+        given_up = False
         while self._requests:
             request = self._requests[0]
             try:
@@ -704,8 +730,9 @@ class DynamixelBus:
             self._requests.popleft()
             joints = list(request.joints)
             self.read_schedule.pending[joints] = False
-            if self._frame and (parsed is None or (prompt and parsed[0] == sdk.COMM_SUCCESS)):
-                self._seen_hold(request, now, parsed is not None)
+            if self._frame:
+                self._follow_hold(request, now, parsed, prompt, given_up)
+                given_up |= parsed is None
             result, data, error = parsed or (sdk.COMM_RX_TIMEOUT, {}, 0)
             if result != sdk.COMM_SUCCESS:
                 missed[joints] = True
