@@ -23,7 +23,7 @@ from climbd.daemon.contract.hardware import (
     mount_extrinsics,
 )
 from climbd.daemon.contract.messages import JointCommand, JointHealth, JointState
-from climbd.daemon.contract.profile import DriverConfig, Profile
+from climbd.daemon.contract.profile import DriverConfig, Profile, gripper_servos
 
 
 class FakeConfig(DriverConfig, forbid_unknown_fields=True, kw_only=True):
@@ -36,7 +36,8 @@ class FakeJointBus:
 
     ``freeze`` stops feedback from moving; ``fail_reads``/``fail_writes`` make the next N
     calls raise DriverError; ``lost`` marks joints as not answering; ``temperature`` sets
-    per-joint temperatures for health tests.
+    per-joint temperatures for health tests. A profile's gripper servos hold as soon as they
+    are closed, except on the legs in ``empty_grips`` (closed on nothing).
     """
 
     Config: ClassVar[type[DriverConfig]] = FakeConfig
@@ -50,6 +51,7 @@ class FakeJointBus:
     fail_reads: int = 0
     fail_writes: int = 0
     lost: set[int] = field(default_factory=set)
+    empty_grips: set[int] = field(default_factory=set)
     is_open: bool = False
     torque_on: bool = False
 
@@ -64,6 +66,9 @@ class FakeJointBus:
         self.voltage = np.full(n, (s.min_voltage + s.max_voltage) / 2)
         self.writes = 0
         self._last = None
+        legs = len(self.profile.legs)
+        self.grip: list[bool] | None = [False] * legs if gripper_servos(self.profile) else None
+        """The grippers as the last command left them (None: the profile has none)."""
 
     @classmethod
     def from_profile(cls, profile: Profile, **options) -> FakeJointBus:
@@ -98,6 +103,9 @@ class FakeJointBus:
             position=self.position.tolist(),
             velocity=self.velocity.tolist(),
             effort=[0.0] * len(self.names),
+            holding=None
+            if self.grip is None
+            else [closed and leg not in self.empty_grips for leg, closed in enumerate(self.grip)],
         )
 
     def write(self, command: JointCommand) -> None:
@@ -115,6 +123,8 @@ class FakeJointBus:
         keep = list(self.lost)
         goal[keep] = self.goal[keep]
         self.goal = goal
+        if self.grip is not None and command.grip is not None:
+            self.grip = list(command.grip)
         self.writes += 1
 
     def torque(self, on: bool) -> None:

@@ -114,6 +114,42 @@ def test_failed_gait_holds(widowx) -> None:
     assert rig.bus.torque_on
 
 
+class OpenOneGripper(StillGait):
+    """Keeps the feet, opens leg 0's gripper, and records the holds the control role reports."""
+
+    def start(self, body, feet):
+        super().start(body, feet)
+        self.reported: list[list[bool] | None] = []
+
+    def step(self, t, dt, body, world, command):
+        self.reported.append(body.holding)
+        targets = super().step(t, dt, body, world, command)
+        targets.grip = [False, True, True, True]
+        return targets
+
+
+def test_grips_ride_the_command_and_a_hold_or_estop_never_opens_one(robots) -> None:
+    """HubRobo's grippers close at start, open only as the gait says, stay as the gait left
+    them through a HOLD, and close again at an e-stop (``hold_grip``); the gait sees what the
+    bus reports they hold (a gripper closed on nothing holds nothing)."""
+    profile = profiles.load(robots / "hubrobo.toml")
+    gait = OpenOneGripper(profile=profile)
+    rig = Rig(profile, gait)
+    rig.bus.empty_grips = {3}
+    rig.stand()
+    assert rig.bus.grip == [True] * 4, "a climber's grippers close from the first command"
+    rig.safety.request(Mode.ACTIVE, rig.clock.now())
+    rig.run(0.2)
+    assert rig.bus.grip == [False, True, True, True]
+    assert gait.reported[-1] == [False, True, True, False]
+    rig.safety.hold(rig.clock.now(), "operator")
+    rig.run(0.2)
+    assert rig.safety.mode == Mode.HOLD and rig.bus.grip == [False, True, True, True]
+    rig.controller.on_estop(EStop(engage=True, source="pendant"))
+    rig.run(0.1)
+    assert rig.safety.mode == Mode.ESTOP and rig.bus.grip == [True] * 4
+
+
 @pytest.mark.parametrize(
     "robot,torque_after",
     [("widowx", False), ("hubrobo", True), ("qingzhui", True)],

@@ -16,7 +16,7 @@ import pytest
 
 from climbd.daemon.contract.hardware import DriverError, JointBus
 from climbd.daemon.contract.messages import JointCommand, Mode
-from climbd.daemon.contract.profile import Profile, load, with_bus_options
+from climbd.daemon.contract.profile import Profile, gripper_servos, load, with_bus_options
 from climbd.daemon.runtime.safety import Safety
 from climbd.drivers.dynamixel.bus import DynamixelBus
 from climbd.drivers.dynamixel.config import DynamixelConfig
@@ -91,11 +91,13 @@ def test_goals_reach_servos_within_resolution(rig):
 
 def test_bring_up_sets_return_delay_and_status_level(rig):
     profile, chain, _, _ = rig
+    speeds = {j.id: j.limits.velocity for j in profile.joints}
+    speeds |= {g.id: g.velocity for _, _, g in gripper_servos(profile)}
+    assert set(chain.servos) == set(speeds)
     for s in chain.servos.values():
         assert s.get("return_delay_time") == _dxl(profile).return_delay_us // 2
         assert s.get("status_return_level") == 2
-        limit = next(j for j in profile.joints if j.id == s.ident).limits.velocity
-        assert s.speed_limit == pytest.approx(limit, rel=0.05)
+        assert s.speed_limit == pytest.approx(speeds[s.ident], rel=0.05)
 
 
 def test_bring_up_from_status_level_one():
@@ -160,7 +162,9 @@ def test_servo_lost_mid_run_and_readmitted(rig):
     q = np.zeros(len(joints))
     q[0] = 0.3 * joints[0].limits.upper
     bus.write(JointCommand(position=q.tolist()))
-    measured = _settle(bus, np.where(np.arange(len(joints)) == 4, bus.position, q), 0.01)
+    measured = _settle(
+        bus, np.where(np.arange(len(joints)) == 4, bus.position[: bus.n_joints], q), 0.01
+    )
     assert abs(measured[0] - q[0]) < 0.01  # the other joints keep being served
     safety = Safety(profile)
     safety.request(Mode.STAND, 0.0)
@@ -175,16 +179,16 @@ def test_servo_lost_mid_run_and_readmitted(rig):
 def test_every_servo_lost_then_back(rig):
     """With every servo silent the loop goes on (writes send nothing, no error); all come back."""
     profile, chain, _, bus = rig
-    for joint in profile.joints:
-        chain.silence(joint.id)
+    for ident in chain.servos:
+        chain.silence(ident)
     for _ in range(bus.lost_after):
         bus.read()
     assert all(h.lost for h in bus.health())
     sent = bus.sent
     bus.write(JointCommand(position=np.zeros(len(profile.joints)).tolist()))
     assert bus.sent == sent
-    for joint in profile.joints:
-        chain.silence(joint.id, on=False)
+    for ident in chain.servos:
+        chain.silence(ident, on=False)
     for _ in range(bus.health_every):
         bus.read()
     assert not any(h.lost for h in bus.health())
@@ -274,10 +278,72 @@ def test_bad_commands_are_refused(rig):
     _, _, _, bus = rig
     with pytest.raises(DriverError, match="command has 2 positions"):
         bus.write(JointCommand(position=[0.0, 0.0]))
-    q = [0.0] * len(bus.ids)
+    q = [0.0] * bus.n_joints
     q[3] = math.nan
     with pytest.raises(DriverError, match=bus.names[3]):
         bus.write(JointCommand(position=q))
+
+
+def test_grip_flags_close_and_open_the_gripper_servos_and_holding_is_where_the_fingers_stop():
+    """The gripper servos ride the joints' sync write: closed or open as the command's grip
+    says, kept when a command says nothing. A gripper closed on nothing ends at closed and
+    holds nothing; one whose fingers stop between open and closed holds, once they are still."""
+    profile = _profile("hubrobo")
+    chain = ServoChain.from_profile(profile)
+    grippers = gripper_servos(profile)
+    assert [leg for leg, _, _ in grippers] == [0, 1, 2, 3]
+    rad_per_tick, _ = RESOLUTION[2]
+    with DynamixelEmulator(chain) as emu:
+        bus = DynamixelBus.from_profile(profile, port=emu.port, timeout_margin_ms=MARGIN_MS)
+        bus.open()
+        bus.torque(True)
+        q = np.zeros(len(profile.joints)).tolist()
+        grip = [True, False, True, False]
+        bus.write(JointCommand(position=q, grip=grip))
+        ends = np.array([g.closed if grip[leg] else g.open for leg, _, g in grippers])
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            state = bus.read()
+            fingers = bus.position[bus.n_joints :]
+            if np.max(np.abs(fingers - ends)) <= rad_per_tick:
+                break
+        assert np.max(np.abs(fingers - ends)) <= rad_per_tick, "the fingers reach their ends"
+        assert len(state.position) == len(profile.joints) == len(state.names)
+        assert state.holding == [False] * 4, "closed on nothing, open: no gripper holds"
+        rf = chain.grippers[0]
+        g = grippers[0][2]
+        rf.external = True
+        rf.set_present(angle=(g.open + g.closed) / 2, velocity=1.0)
+        assert bus.read().holding == [False] * 4, "fingers still moving hold nothing yet"
+        rf.set_present(velocity=0.0)
+        assert bus.read().holding == [True, False, False, False]
+        bus.write(JointCommand(position=q))
+        bus.read()
+        assert chain.servo(g.id).goal_angle == pytest.approx(g.closed, abs=rad_per_tick)
+        assert chain.servo(grippers[1][2].id).goal_angle == pytest.approx(
+            grippers[1][2].open, abs=rad_per_tick
+        )
+        with pytest.raises(DriverError, match=rf"{emu.port}.*2 grip flags, robot has 4 legs"):
+            bus.write(JointCommand(position=q, grip=[True, True]))
+        bus.close()
+
+
+def test_a_silent_gripper_servo_is_a_lost_servo_named_for_its_leg():
+    profile = _profile("hubrobo")
+    chain = ServoChain.from_profile(profile)
+    with DynamixelEmulator(chain) as emu:
+        bus = DynamixelBus.from_profile(profile, port=emu.port, timeout_margin_ms=MARGIN_MS)
+        bus.open()
+        chain.silence(chain.grippers[2].ident)
+        for _ in range(bus.lost_after + bus.health_every):
+            state = bus.read()
+        assert [h.name for h in bus.health() if h.lost] == ["lr_gripper"]
+        assert state.holding[2] is False, "a lost gripper is not taken to hold"
+        safety = Safety(profile)
+        safety.request(Mode.STAND, 0.0)
+        safety.judge(bus.health(), 0.1)
+        assert safety.mode == Mode.HOLD and "servo lost: lr_gripper" in safety.reason
+        bus.close()
 
 
 def test_compiled_crc_equals_the_sdks_over_random_packets():

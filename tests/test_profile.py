@@ -100,6 +100,26 @@ MALFORMED = [
         ["$.legs[0].joints[1].id", "duplicate id 1"],
     ),
     (
+        "gripper servo on a joint's id",
+        lambda t: re.sub(
+            r"(links = \[.*\]\n)",
+            r"\1gripper_servo = { id = 3, open = 0.0, closed = 1.0 }\n",
+            t,
+            count=1,
+        ),
+        ["$.legs[0].gripper_servo.id", "duplicate id 3", "rf_femur"],
+    ),
+    (
+        "gripper servo that does not move",
+        lambda t: re.sub(
+            r"(links = \[.*\]\n)",
+            r"\1gripper_servo = { id = 40, open = 0.5, closed = 0.5 }\n",
+            t,
+            count=1,
+        ),
+        ["$.legs[0].gripper_servo", "open != closed", "open=0.5"],
+    ),
+    (
         "leg with two joints",
         lambda t: re.sub(
             r'\[\[legs\.joints\]\]\nname = "rf_tibia"\n(?:(?!\[\[).*\n)*', "", t, count=1

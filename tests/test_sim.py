@@ -184,7 +184,7 @@ def _pull_off(world: str, grip: bool, pull: float) -> float:
     assert twin.foot_contacts().all()
     twin.grip[:] = grip
     push[:] = 0.0
-    twin.advance_to(0.4)
+    twin.advance_to(0.5)  # the gripper servos close the fingers in 0.13 s
     start = twin.body_pose()[0]
     push[:] = pull * normal
     twin.advance_to(1.0)

@@ -31,6 +31,7 @@ class Guard:
         self._bounds = list(zip(self.lower.tolist(), self.upper.tolist(), strict=True))
         self._velocity = [j.limits.velocity for j in joints]
         self._effort = [j.limits.effort for j in joints]
+        self.legs = len(profile.legs)
         self.clamps = 0
 
     def command(self, command: JointCommand) -> JointCommand:
@@ -39,6 +40,10 @@ class Guard:
         command.position = self.limit(command.position)
         command.velocity = self._symmetric(command.velocity, self._velocity, "velocity")
         command.effort = self._symmetric(command.effort, self._effort, "effort")
+        if command.grip is not None and len(command.grip) != self.legs:
+            raise GuardError(
+                f"joint command grip has {len(command.grip)} flags, expected {self.legs} legs"
+            )
         return command
 
     def _symmetric(

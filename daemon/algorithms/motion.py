@@ -55,6 +55,9 @@ class MotionPipeline:
         self._target = [0.0] * n
         self._target_qd = [0.0] * n
         self._streaming = False
+        self.grip: list[bool] | None = None
+        """The grippers' state every command carries: the gait's last ``grip``, kept while no
+        gait steps (a HOLD or e-stop never opens a gripper)."""
 
     @property
     def command(self) -> np.ndarray:
@@ -98,7 +101,7 @@ class MotionPipeline:
             raise MotionError(
                 f"foot targets: expected {kin.n_legs} finite (x, y, z) positions, got {feet!r:.120}"
             )
-        for name in ("stance", "unload"):
+        for name in ("stance", "unload", "grip"):
             flags = getattr(targets, name)
             if flags is not None and len(flags) != kin.n_legs:
                 raise MotionError(
@@ -117,6 +120,8 @@ class MotionPipeline:
         if self._streaming:
             qdd = [(a - b) / dt for a, b in zip(qd, self._target_qd, strict=True)]
         self._target, self._target_qd, self._streaming = q, qd, True
+        if targets.grip is not None:
+            self.grip = list(targets.grip)
         return self._finish(*self.smoother.advance(q, qd, qdd))
 
     def joint_step(self, target_q: np.ndarray, duration: float | None = None) -> JointCommand:
@@ -131,7 +136,7 @@ class MotionPipeline:
 
     def _finish(self, q: list[float], qd: list[float]) -> JointCommand:
         """Feed-forward, then the guard: position, velocity and effort inside the limits."""
-        command = JointCommand(position=q, velocity=qd)
+        command = JointCommand(position=q, velocity=qd, grip=self.grip)
         self._command = q
         if self.feed_forward is not None:
             self.feed_forward(command)

@@ -105,7 +105,8 @@ class JointState(Message):
     ``age`` (s, per joint) says how old each joint's reading is when the tick gets it, for a
     bus that cannot read every joint every tick (Dynamixel Protocol 1.0 behind a USB adapter);
     NaN for a joint the bus has lost (not read; its health says so); empty when every joint
-    was read this tick."""
+    was read this tick. ``holding``, per leg, says which feet's grippers hold something, for
+    a bus that drives grippers (None: it drives none)."""
 
     TOPIC: ClassVar[str] = "state/joints"
     RATE: ClassVar[str] = "control rate (100 Hz WidowX/HubRobo, 1 kHz Qingzhui)"
@@ -114,11 +115,13 @@ class JointState(Message):
     velocity: JointValues = []
     effort: JointValues = []
     age: JointValues = []
+    holding: LegFlags | None = None
 
 
 class JointCommand(Message):
     """Joint command in profile order; torque legs add velocity, feed-forward torque, kp, kd.
-    Compliant position servos' positions include their sag offset (profile bus.stiffness)."""
+    Compliant position servos' positions include their sag offset (profile bus.stiffness).
+    ``grip``, per leg, closes (True) or opens the feet's grippers; None leaves them as they are."""
 
     TOPIC: ClassVar[str] = "state/command"
     RATE: ClassVar[str] = "control rate"
@@ -127,6 +130,7 @@ class JointCommand(Message):
     effort: JointValues | None = None
     kp: JointValues | None = None
     kd: JointValues | None = None
+    grip: LegFlags | None = None
 
 
 class JointHealth(msgspec.Struct, kw_only=True):
@@ -253,6 +257,8 @@ class BodyState(Message):
     pose_variance: Vector = msgspec.field(default_factory=lambda: [0.0] * 6)
     """The diagonal of the pose's covariance: x, y, z (m²), roll, pitch, yaw (rad²); all zero
     when the pose comes with none (a twin's truth, a test)."""
+    holding: LegFlags | None = None
+    """Which feet's grippers hold, as the joint bus reports them; None when it drives none."""
 
 
 class FootTargets(Message):

@@ -94,11 +94,24 @@ class Joint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     limits: Limits
 
 
+class GripperServo(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The servo that closes a foot's gripper, on the joint bus: its device ``id``, its horn
+    angle (rad about the centre) fully ``open`` and fully ``closed`` with nothing between the
+    fingers, and its speed (rad/s). Closed on a hold, the fingers stop short of ``closed``:
+    that is how the bus tells a grip that holds from one that closed on nothing."""
+
+    id: int
+    open: float
+    closed: float
+    velocity: float = 4.0
+
+
 class Leg(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """A 3-DOF leg: mount in the body frame (m), mount yaw (rad), link lengths (m), joints.
 
     ``kind`` names the chain: coxa–femur–tibia (WidowX, HubRobo) or abduction–thigh–shank
-    (Qingzhui, paper 004 eqs. 1–3); ``knee`` is Qingzhui's knee type "a" or "b".
+    (Qingzhui, paper 004 eqs. 1–3); ``knee`` is Qingzhui's knee type "a" or "b";
+    ``gripper_servo`` the servo of the foot's gripper, when one drives it.
     """
 
     name: str
@@ -108,6 +121,7 @@ class Leg(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     joints: list[Joint]
     kind: Literal["coxa_femur_tibia", "abduction_thigh_shank"] = "coxa_femur_tibia"
     knee: Literal["a", "b"] = "a"
+    gripper_servo: GripperServo | None = None
 
 
 class JointBusConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -340,6 +354,15 @@ class Profile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
         return [j.name for j in self.joints]
 
 
+def gripper_servos(profile: Profile) -> list[tuple[int, str, GripperServo]]:
+    """The legs whose gripper a servo drives: (leg index, servo name ``<leg>_gripper``, servo)."""
+    return [
+        (i, f"{leg.name}_gripper", leg.gripper_servo)
+        for i, leg in enumerate(profile.legs)
+        if leg.gripper_servo is not None
+    ]
+
+
 def has_grippers(profile: Profile) -> bool:
     """Whether the robot's feet are grippers: a ``hold_grip`` e-stop policy implies them."""
     return profile.safety.estop_policy == EstopPolicy.HOLD_GRIP
@@ -471,6 +494,28 @@ def validate(profile: Profile) -> Profile:
             ids[joint.id] = joint.name
             _check(joint.name not in names, src, f"{jat}.name", f"duplicate name {joint.name!r}")
             names.add(joint.name)
+        grip = leg.gripper_servo
+        if grip is not None:
+            gat = f"{at}.gripper_servo"
+            _check(
+                grip.id not in ids,
+                src,
+                f"{gat}.id",
+                f"duplicate id {grip.id} (already used by {ids.get(grip.id)!r})",
+            )
+            ids[grip.id] = f"{leg.name}_gripper"
+            _check(
+                math.isfinite(grip.open - grip.closed) and grip.open != grip.closed,
+                src,
+                gat,
+                f"expected finite open != closed, found open={grip.open} closed={grip.closed}",
+            )
+            _check(
+                grip.velocity > 0 and math.isfinite(grip.velocity),
+                src,
+                f"{gat}.velocity",
+                f"expected a finite value > 0, found {grip.velocity}",
+            )
     for i, cam in enumerate(profile.cameras):
         cat = f"$.cameras[{i}]"
         _check_range(cam.fps, CAMERA_FPS, src, f"{cat}.fps", "frames/s")

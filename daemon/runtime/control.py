@@ -49,7 +49,7 @@ from climbd.daemon.contract.messages import (
     ResetRequest,
     SessionClaim,
 )
-from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import Profile, gripper_servos
 from climbd.daemon.runtime.counting import Tally
 from climbd.daemon.runtime.loader import Isolated, slowest
 from climbd.daemon.runtime.safety import Safety
@@ -198,6 +198,9 @@ class Controller:
         self.load = np.zeros(len(profile.legs))
         self.landed = np.zeros(len(profile.legs), bool)
         self.unload = np.zeros(len(profile.legs), bool)
+        self.all_grips = [True] * len(profile.legs) if gripper_servos(profile) else None
+        """Grippers a bus drives start closed (a climber lets go only when its gait says so),
+        and close again at an e-stop or fault under the ``hold_grip`` policy."""
 
     def _sit_joints(self) -> np.ndarray:
         """Joint pose with the body lowered to rest: where a torque_off robot is switched off."""
@@ -334,6 +337,7 @@ class Controller:
             else:
                 self.body = self.odometry.update(q_now, self.stance, t, sample.gyro, sample.accel)
             self._stance_changed = False
+        self.body.holding = state.holding
         if self.fault_reset:
             self.fault_reset = False
             self._clear_faults(t)
@@ -496,9 +500,13 @@ class Controller:
             if not self.safety.torque_on:
                 self._torque(True, t)
             needed = self.feed_forward or self.stiffness
+            grip = self.all_grips if self.motion is None else self.motion.grip
+            if mode in (Mode.ESTOP, Mode.FAULT) and self.safety.policy == EstopPolicy.HOLD_GRIP:
+                grip = self.all_grips
             self.motion = MotionPipeline(
                 self.profile, self.dt, self._feed_forward if needed else None
             )
+            self.motion.grip = grip
             self.motion.start(q if powered is None else powered.command)
         if mode == Mode.STAND:
             self.target = self.stand_q

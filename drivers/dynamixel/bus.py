@@ -8,7 +8,8 @@ A servo that misses its reads in ``lost_after`` ticks in a row is marked lost, s
 on health cycles and re-admitted when it answers. Every device problem is a DriverError naming
 the port. ``clear_faults()`` is the operator's reset: it REBOOTs X-series servos whose latched
 hardware error switched their torque off and torques limp servos again at their present
-position.
+position. The feet's gripper servos (``Leg.gripper_servo``) ride the same writes and reads
+after the joints; a gripper holds when its fingers, told to close, stop short of closed.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 
 from climbd.daemon.contract.hardware import DriverError
 from climbd.daemon.contract.messages import BusSchedule, JointCommand, JointHealth, JointState
-from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import Profile, gripper_servos
 from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.dynamixel.models import MODEL_NAMES, Item, Model, error_names, model
 from climbd.drivers.dynamixel.packet import packet_handler
@@ -56,6 +57,10 @@ IDLE_MARGIN = 3e-4
 MAX_HOLD = 0.032
 """The longest (s) an adapter is taken to hold a reply: twice FTDI's default latency timer."""
 ROUND_TRIP_SAMPLES = 5
+GRIP_STOP = 0.1
+"""rad: fingers stopped this far inside both ends of their travel are closed on something."""
+GRIP_STILL = 0.2
+"""rad/s: fingers slower than this have stopped (a gripper still closing holds nothing yet)."""
 """Reads timed at open to learn the port's round trip."""
 
 
@@ -192,7 +197,9 @@ def check_latency_timer(
 
 
 class DynamixelBus:
-    """The joints of a profile on one Dynamixel bus, in profile order and SI units."""
+    """The joints of a profile on one Dynamixel bus, in profile order and SI units, and the
+    servos of its feet's grippers after them (``Leg.gripper_servo``): the commands' ``grip``
+    closes or opens them, and the state's ``holding`` says which hold something."""
 
     compliant = True
     """Position servos: load deflects them from their goals (the controller's sag offset)."""
@@ -226,12 +233,20 @@ class DynamixelBus:
         self.fast_sync_read = fast_sync_read
         self.timeout_margin_ms = timeout_margin_ms
         joints = profile.joints
-        self.names = [j.name for j in joints]
-        self.ids = [j.id for j in joints]
+        grippers = gripper_servos(profile)
+        self.n_joints = len(joints)
+        self.names = [j.name for j in joints] + [name for _, name, _ in grippers]
+        self.ids = [j.id for j in joints] + [g.id for _, _, g in grippers]
         self.map = TickScale(self.model, joints)
-        self.speed_caps = self.map.speed_ticks(np.array([j.limits.velocity for j in joints]))
+        speeds = [j.limits.velocity for j in joints] + [g.velocity for _, _, g in grippers]
+        self.speed_caps = self.map.speed_ticks(np.array(speeds))
         self.health_every = max(1, round(profile.rate_hz / profile.bus.health_rate_hz))
-        n = len(joints)
+        self.gripper_legs = [i for i, _, _ in grippers]
+        self.grip_open = np.array([g.open for _, _, g in grippers])
+        self.grip_closed = np.array([g.closed for _, _, g in grippers])
+        self.gripping: np.ndarray | None = None
+        """Which grippers the last command closed (None before one said)."""
+        n = len(self.ids)
         self.position = np.zeros(n)
         self.velocity = np.zeros(n)
         self.effort = np.zeros(n)
@@ -501,13 +516,31 @@ class DynamixelBus:
             with self._device("read"):
                 self._read_blocks(self.reads % self.health_every == 0)
             age = []
+        n = self.n_joints
         return JointState(
-            names=self.names,
-            position=self.position.tolist(),
-            velocity=self.velocity.tolist(),
-            effort=self.effort.tolist(),
-            age=age,
+            names=self.names[:n],
+            position=self.position[:n].tolist(),
+            velocity=self.velocity[:n].tolist(),
+            effort=self.effort[:n].tolist(),
+            age=age[:n],
+            holding=self.holding() if self.gripper_legs else None,
         )
+
+    def holding(self) -> list[bool]:
+        """Per leg, whether its gripper holds: its fingers, told to close, stopped short of
+        closed (on a hold) and not at open; a gripper that closed on nothing ends at closed."""
+        n = self.n_joints
+        at, speed = self.position[n:], self.velocity[n:]
+        travel = np.sign(self.grip_closed - self.grip_open)
+        inside = ((at - self.grip_open) * travel > GRIP_STOP) & (
+            (self.grip_closed - at) * travel > GRIP_STOP
+        )
+        closing = np.ones(len(at), bool) if self.gripping is None else self.gripping
+        held = inside & (np.abs(speed) < GRIP_STILL) & closing & ~self.lost[n:]
+        flags = [False] * len(self.profile.legs)
+        for leg, h in zip(self.gripper_legs, held.tolist(), strict=True):
+            flags[leg] = h
+        return flags
 
     # --- reads between ticks ---------------------------------------------------------------
 
@@ -960,15 +993,19 @@ class DynamixelBus:
         return back
 
     def write(self, command: JointCommand) -> None:
-        """One sync write of goal positions (rad, profile order) to every servo not lost."""
+        """One sync write of goal positions (rad, profile order) to every servo not lost, the
+        grippers' goals after the joints' (open or closed as ``command.grip`` says; without
+        it, as the last command said, or where they are)."""
         q = np.asarray(command.position, float)
-        if q.shape != (len(self.ids),):
+        if q.shape != (self.n_joints,):
             raise DriverError(
-                f"{self._where()}: command has {q.size} positions, bus has {len(self.ids)} joints"
+                f"{self._where()}: command has {q.size} positions, bus has {self.n_joints} joints"
             )
         if not np.all(np.isfinite(q)):
             bad = [self.names[k] for k in np.flatnonzero(~np.isfinite(q))]
             raise DriverError(f"{self._where()}: non-finite goal for {', '.join(bad)}")
+        if self.gripper_legs:
+            q = np.concatenate([q, self._grip_goals(command.grip)])
         with self._device("write"):
             wire = self._sync_write(self.model.goal_position, self.map.goal_ticks(q), ~self.lost)
         if self._served:  # the first request rides behind the goals: no reply stands between
@@ -978,6 +1015,19 @@ class DynamixelBus:
             with self._device("read after write"):
                 end = self._tick + 1.0 / self.profile.rate_hz - IDLE_MARGIN
                 self._send_next(now, end, wire)
+
+    def _grip_goals(self, grip: list[bool] | None) -> np.ndarray:
+        """The grippers' goal angles (rad) for a command's per-leg ``grip`` flags."""
+        if grip is not None:
+            if len(grip) != len(self.profile.legs):
+                raise DriverError(
+                    f"{self._where()}: command has {len(grip)} grip flags, "
+                    f"robot has {len(self.profile.legs)} legs"
+                )
+            self.gripping = np.array([grip[leg] for leg in self.gripper_legs], bool)
+        if self.gripping is None:
+            return self.position[self.n_joints :].copy()
+        return np.where(self.gripping, self.grip_closed, self.grip_open)
 
     def torque(self, on: bool) -> None:
         """Torque on (goal = present position first, so nothing jumps) or off, all joints."""

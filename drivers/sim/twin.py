@@ -45,7 +45,7 @@ import mujoco
 import numpy as np
 
 from climbd.daemon.contract.hardware import DepthFrame, ImuSample
-from climbd.daemon.contract.profile import Profile
+from climbd.daemon.contract.profile import Profile, gripper_servos
 from climbd.daemon.contract.profile import load as load_profile
 from climbd.drivers.sim import rest_pose, servos
 from climbd.drivers.sim.camera_process import CameraProcess
@@ -66,6 +66,9 @@ DepthCallback = Callable[[str, DepthFrame], None]
 
 SETTLE_COUNT_TIMEOUT = 5.0
 """Wall seconds the emulated bus has to handle what the driver sent before a step fails."""
+FINGERS_ON_HOLD = 0.5
+"""How far a gripper's fingers close (0 open, 1 closed on nothing) before they grasp a hold
+between them: where they stop while it holds."""
 
 
 @dataclass(frozen=True)
@@ -218,6 +221,15 @@ class Twin:
         self.thermal = servos.ThermalState(np.full(n, 30.0), ambient=30.0)
         self.voltage = 12.0
         self.grip = np.zeros(len(self.profile.legs), bool)
+        self.fingers = np.zeros(len(self.profile.legs))
+        """Per gripper, how far its fingers have closed: 0 open, 1 closed on nothing; they
+        hold a hold at ``FINGERS_ON_HOLD``. A gripper servo moves them at its speed; without one
+        (commands in-process) they follow ``grip`` at once."""
+        travel = np.full(len(self.profile.legs), np.inf)
+        for leg, _, g in gripper_servos(self.profile):
+            travel[leg] = g.velocity / abs(g.closed - g.open)
+        self.finger_rate = travel
+        """Per gripper, its fingers' speed (travel per s)."""
         self.slips = np.zeros(len(self.profile.legs), int)
         """Per gripper, how often it let go under more than GRIP_FORCE."""
         self.slipped = np.zeros(len(self.profile.legs), bool)
@@ -422,13 +434,19 @@ class Twin:
             self._grip_update()
 
     def _grip_update(self) -> None:
-        """Grippers as connect constraints: one engages where its closed gripper's foot touches
-        a graspable geom, and slips (lets go, counted in ``slips``) when the force it needs
+        """Grippers as connect constraints: one engages as its closing fingers reach
+        ``FINGERS_ON_HOLD`` while its foot touches a graspable geom (fingers closed all the way
+        grasp nothing), and slips (lets go, counted in ``slips``) when the force it needs
         exceeds GRIP_FORCE; it engages again only after it has been opened. While it holds, the
         grip replaces the foot's contact (the spines enclose the hold)."""
         d, r, m = self.data, self.robot, self.model
         was = d.eq_active[r.grip_equalities].astype(bool)
         held = was.copy()
+        step = self.finger_rate * self.model.opt.timestep
+        goal = np.where(self.grip, np.where(held, FINGERS_ON_HOLD, 1.0), 0.0)
+        self.fingers += np.clip(goal - self.fingers, -step, step)
+        closed = self.fingers >= FINGERS_ON_HOLD - 1e-9
+        closing = closed & ((self.fingers < 1.0) | np.isinf(self.finger_rate))
         if held.any():
             rows = slice(0, d.ne)
             square = np.bincount(d.efc_id[rows], d.efc_force[rows] ** 2, minlength=m.neq)
@@ -438,7 +456,7 @@ class Twin:
             self.slipped |= slip
             held &= ~slip
         self.slipped &= self.grip
-        engage = self.grip & ~held & ~self.slipped
+        engage = closing & ~held & ~self.slipped
         if engage.any():
             g1, g2 = d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon]
             on_hold = np.concatenate(
@@ -447,7 +465,7 @@ class Twin:
             engage &= np.isin(r.foot_geoms, on_hold)
             for i in np.flatnonzero(engage):
                 m.eq_data[r.grip_equalities[i], 3:6] = d.site_xpos[r.foot_sites[i]]
-        held = (held | engage) & self.grip
+        held = (held | engage) & closed
         self.grip_load[~held] = 0.0
         if (held != was).any():
             d.eq_active[r.grip_equalities] = held
@@ -460,7 +478,9 @@ class Twin:
         self.thermal.advance(self.effort / self.stall, *self._heat, self.model.opt.timestep)
 
     def _read_goals(self) -> None:
-        """Goal position, torque enable, speed and torque limits from the chain's tables."""
+        """Goal position, torque enable, speed and torque limits from the chain's tables; a
+        powered gripper servo whose goal lies past the first quarter of its travel from open
+        closes its gripper (a goal where the fingers stopped on a hold keeps it closed)."""
         for k, servo in enumerate(self.chain.joints):
             self.goal[k] = servo.goal_angle
             self.torque_on[k] = servo.torque_enabled
@@ -468,6 +488,10 @@ class Twin:
             limit = "torque_limit" if servo.spec.protocol == 1 else "pwm_limit"
             cap = servo.get(limit) / servo.spec.fields[limit].default
             self.torque_limit[k] = self.stall[k] * cap
+        for leg, servo in self.chain.grippers.items():
+            g = self.profile.legs[leg].gripper_servo
+            closing = (servo.goal_angle - g.open) / (g.closed - g.open) > 0.25
+            self.grip[leg] = closing and servo.torque_enabled
 
     def _write_present(self) -> None:
         """Present position, speed, load, temperature and voltage into the chain's tables."""
@@ -480,6 +504,18 @@ class Twin:
                 velocity=qd[k],
                 effort=self.effort[k],
                 temperature=self.thermal.temperature[k],
+                voltage=self.voltage,
+            )
+        held = self.holding()
+        for leg, servo in self.chain.grippers.items():
+            g = self.profile.legs[leg].gripper_servo
+            at = self.fingers[leg]
+            goal = (FINGERS_ON_HOLD if held[leg] else 1.0) if self.grip[leg] else 0.0
+            speed = 0.0 if at == goal else np.sign(goal - at) * g.velocity
+            servo.set_present(
+                angle=g.open + at * (g.closed - g.open),
+                velocity=speed * np.sign(g.closed - g.open),
+                temperature=30.0,
                 voltage=self.voltage,
             )
 

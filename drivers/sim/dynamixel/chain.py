@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from climbd.daemon.contract.profile import gripper_servos
 from climbd.drivers.dynamixel.config import DynamixelConfig
 from climbd.drivers.sim.dynamixel import servo as sv
 from climbd.drivers.sim.dynamixel.servo import EmulatedServo
@@ -80,6 +81,8 @@ class ServoChain:
         self.silenced: set[int] = set()
         self.corrupting: dict[int, int | None] = {}
         self.joints: list[EmulatedServo] = []
+        self.grippers: dict[int, EmulatedServo] = {}
+        """The feet's gripper servos by leg index (a profile's ``gripper_servo``s)."""
         self.counts: Counter[int] = Counter()
         self.bytes_in = 0
         self.bytes_out = 0
@@ -88,7 +91,7 @@ class ServoChain:
     @classmethod
     def from_profile(cls, profile, baud: int | None = None, **servo_options) -> ServoChain:
         """One servo per profile joint (the Dynamixel ``model`` of its ``[bus]``), at kinematic
-        zero."""
+        zero, and one per foot gripper's servo, open."""
         bus = DynamixelConfig.from_profile(profile)
         model = model_spec(bus.model)
         if model.protocol != bus.protocol:
@@ -98,8 +101,13 @@ class ServoChain:
             )
         joints = profile.joints
         servos = [EmulatedServo(model, j.id, angle=j.zero_offset, **servo_options) for j in joints]
-        chain = cls(servos, model.protocol, baud or bus.baud)
+        grippers = {
+            leg: EmulatedServo(model, g.id, angle=g.open, **servo_options)
+            for leg, _, g in gripper_servos(profile)
+        }
+        chain = cls([*servos, *grippers.values()], model.protocol, baud or bus.baud)
         chain.joints = servos
+        chain.grippers = grippers
         return chain
 
     def servo(self, ident: int) -> EmulatedServo:
