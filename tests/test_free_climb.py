@@ -614,18 +614,62 @@ def test_planning_runs_off_the_tick_and_stance_holds_while_a_plan_is_late(tile):
 
 def test_hold_map_becomes_wall_frame_foot_targets_with_heights_and_confidence():
     """The gait plans over the world model's map (odometry frame), not over a frame: a map hold
-    seen from a body turned 90° and raised is placed in the wall frame the gait started in,
-    keeps its height over the wall, is raised by the gripper's contact radius, and a hold below
-    ``min_confidence`` is not a foothold."""
+    seen from a body turned 90° and raised is placed where the body sees it from the plan's
+    base, keeps its height over the wall, is raised by the gripper's contact radius, and a hold
+    below ``min_confidence`` is not a foothold."""
     config = ClimbConfig(foot_radius=0.01, min_confidence=0.3)
     gait = instantiate("climbd.gaits", "free_climb", msgspec.to_builtins(config), PROFILE, "t")
     turned = [math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]  # 90° about z
-    gait.start(BodyState(position=[1.0, 2.0, 0.3], orientation=turned), start_feet())
+    body = BodyState(position=[1.0, 2.0, 0.3], orientation=turned)
+    gait.start(body, start_feet())
     ahead = MappedHold(id=1, confidence=0.5, seen=2, age=0.0, position=[1.0, 2.1, 0.27])
     unsure = MappedHold(id=2, confidence=0.2, seen=1, age=0.0, position=[0.9, 2.0, 0.24])
-    gait.step(0.0, DT, BodyState(), {HoldMap.TOPIC: HoldMap(holds=[ahead, unsure])}, None)
+    gait.step(0.0, DT, body, {HoldMap.TOPIC: HoldMap(holds=[ahead, unsure])}, None)
     # 0.1 m along the body's x (odometry +y), 0.03 m above the wall plane the feet stand on
     np.testing.assert_allclose(gait.holds, [[0.1, 0.0, 0.04]], atol=1e-12)
+    gait.stop()
+
+
+def test_holds_stay_under_the_feet_when_the_odometry_frame_shifts_and_a_swing_follows_its_hold():
+    """The odometry frame jumps (a stance re-registered: body estimate and map move together by
+    3 cm): the holds stay where they were for the gait, so its plan stands. A map whose holds
+    moved against the body beyond ``hold_tolerance / 2`` replaces the holds, and the swing in
+    progress aims where its hold, by id, now is; a map without that id leaves the swing's
+    hold unmapped (the runner then backs off). The body is where the plan puts its base."""
+    gait = instantiate("climbd.gaits", "free_climb", {"foot_radius": 0.0}, PROFILE, "t")
+    gait.stepped = True
+    gait.start(BodyState(position=[0.0, 0.0, CFG.base_height]), start_feet())
+    rng = np.random.default_rng(4)
+    tops = np.column_stack([rng.uniform(-0.3, 0.5, (300, 2)), np.zeros(300)])
+    jump = np.array([0.03, -0.01, 0.02])
+
+    def tick(t: float, shift: np.ndarray, moved: int = -1, drop: int = -1) -> None:
+        """A tick with the map seen at ``t``, everything shifted by ``shift``, hold ``moved``
+        12 mm further in x and y, hold ``drop`` gone."""
+        at = tops + shift
+        at[moved] += [0.012, 0.012, 0.0] if moved >= 0 else 0.0
+        holds = [
+            MappedHold(id=k, confidence=1.0, seen=1, age=0.0, position=p.tolist())
+            for k, p in enumerate(at)
+            if k != drop
+        ]
+        base = gait.runner.base if gait.last is None else gait.last.base
+        body = BodyState(position=(base + shift).tolist())
+        gait.step(t, DT, body, {HoldMap.TOPIC: HoldMap(stamp=t, holds=holds)}, None)
+
+    tick(0.0, np.zeros(3))
+    step = gait.runner.step
+    assert step is not None and not step.wait
+    before = gait.holds.copy()
+    tick(1.0, jump)
+    np.testing.assert_allclose(gait.holds, before, atol=1e-12)
+    assert gait.runner.step is step
+    k = int(np.argmin(np.linalg.norm(gait.holds - step.target, axis=1)))
+    tick(2.0, jump, moved=int(gait.hold_ids[k]))
+    np.testing.assert_allclose(gait.runner.step.target, step.target + [0.012, 0.012, 0.0])
+    assert gait.runner.step.limb == step.limb
+    tick(3.0, jump, drop=int(gait.hold_ids[k]))
+    assert "left the hold map" in gait.last.reason
     gait.stop()
 
 

@@ -34,7 +34,7 @@ from climbd.daemon.contract.profile import GripperConfig, ProfileError, load
 from climbd.daemon.runtime.loader import Isolated, instantiate
 from climbd.daemon.runtime.perception_role import PerceptionRole
 from climbd.drivers.sim import truss_scene as ts
-from climbd.plugins.gaits.free_climb import ClimbConfig, FreeClimb
+from climbd.plugins.gaits.free_climb import NORMAL, ClimbConfig, FreeClimb
 from climbd.plugins.perception.truss.grasp import GraspConfig, segment_distances, truss_grasps
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -178,8 +178,8 @@ def test_grasps_become_holds_the_free_climb_planner_picks():
     (step,) = gait.runner.steps
     assert not step.wait
     assert np.linalg.norm(gait.holds - step.target, axis=1).min() < 1e-9
-    target = step.target + gait.origin
-    assert np.linalg.norm(grasp_holds(offered) - target, axis=1).min() < 1e-9
+    centre = grasp_holds(offered) + PROFILE.foot_radius * NORMAL  # the foot's, on the grasp
+    assert np.linalg.norm(centre - step.target, axis=1).min() < 1e-9
 
 
 def test_profile_gripper_is_optional_and_range_checked():

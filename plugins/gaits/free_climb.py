@@ -113,8 +113,10 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     Where the grippers report whether they hold, a closed gripper that does not hold within
     ``grip_wait`` (s) fails its hold (see ``ClimbRunner.tick``). The holds are
     the world model's hold map: those at least ``min_confidence`` sure, each a foot target
-    ``foot_radius`` (m, the gripper's contact sphere) above the top perception saw; a swing's
-    hold counts as still there while the map has a hold within ``hold_tolerance`` (m) of it."""
+    ``foot_radius`` (m, the gripper's contact sphere; unset: the profile's) above the top
+    perception saw, placed from the body as its estimate sees it; a swing's hold counts as
+    still there while the map has a hold within ``hold_tolerance`` (m) of it, and the swing
+    follows it by its id where the map moves it further."""
 
     swing_height: float = 0.02
     swing_period: float = 4.0
@@ -127,7 +129,7 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     min_stride: float = 0.005
     hold_spacing: float = 0.03
     hold_tolerance: Annotated[float, msgspec.Meta(gt=0.0)] = 0.01
-    foot_radius: Annotated[float, msgspec.Meta(ge=0.0)] = 0.0
+    foot_radius: Annotated[float, msgspec.Meta(ge=0.0)] | None = None
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.0
     horizon: Annotated[int, msgspec.Meta(ge=1)] = 11
     beam: Annotated[int, msgspec.Meta(ge=1)] = 12
@@ -713,6 +715,16 @@ class ClimbRunner:
         self._unheld = 0.0
         return self._still(reason=self.reason)
 
+    def retarget(self, target: np.ndarray) -> None:
+        """The swing's hold is seen elsewhere now (the body's estimate moved, not the hold):
+        aim there. A back-off keeps its aim: the hold it left is where its foot gripped."""
+        step = self.step
+        if step is None or step.wait or step is self._backing:
+            return
+        self.step = dataclasses.replace(step, target=np.asarray(target, float).copy())
+        if self.steps and self.steps[-1] is step:
+            self.steps[-1] = self.step
+
     def _usable(self, holds: np.ndarray) -> np.ndarray:
         """The mapped holds less those a gripper failed on (within ``hold_tolerance``)."""
         holds = np.asarray(holds, float).reshape(-1, 3)
@@ -776,9 +788,9 @@ class ClimbRunner:
 
 
 class FreeClimb(GaitPlugin):
-    """Non-periodic free-climbing gait (paper 001) as a gait plugin over the hold map. No
-    driver reports its grippers' holds yet, so the plugin takes them to hold as commanded;
-    the runner acts on the reports where it is given them (the twin harness)."""
+    """Non-periodic free-climbing gait (paper 001) as a gait plugin over the hold map. The
+    runner acts on the grippers' holds as the joint bus reports them (``BodyState.holding``);
+    a bus that drives no grippers reports none, and they are taken to hold as commanded."""
 
     name: ClassVar[str] = "free_climb"
     Config: ClassVar[type[msgspec.Struct]] = ClimbConfig
@@ -788,18 +800,19 @@ class FreeClimb(GaitPlugin):
     def __init__(self, config: ClimbConfig | None = None, profile: object = None) -> None:
         super().__init__(config, profile)
         self.kinematics = Kinematics(profile)
+        radius = self.config.foot_radius
+        self.foot_radius = (profile.foot_radius or 0.0) if radius is None else radius
+        """m: how far above a hold's top the foot's centre grips it."""
         self.planner: ClimbPlanner | None = None
         self.runner: ClimbRunner | None = None
-        self.holds = np.zeros((0, 3))
-        self.to_wall = np.eye(3)
-        self.origin = np.zeros(3)
+        self._forget_map()
         self.last: Tick | None = None
         self.stamp = 0.0
 
     def start(self, body: BodyState, feet: np.ndarray) -> None:
-        """Take the measured feet (body frame) as gripping; the wall frame starts at the base,
-        its axes the body's at start (the body keeps the wall's orientation), and gravity acts
-        along the odometry frame's down as the body measures it: a wall steeper than
+        """Take the measured feet (body frame) as gripping; the wall frame starts under the
+        base, its axes the body's at start (the body keeps the wall's orientation), and gravity
+        acts along the odometry frame's down as the body measures it: a wall steeper than
         ``slope_deg`` gets the TSM of its true slope (a step that would tumble there is not
         feasible), and the difference is logged. Starts the planning worker (a fresh planner:
         a stopped one may still be finishing)."""
@@ -807,9 +820,8 @@ class FreeClimb(GaitPlugin):
         base = np.array([0.0, 0.0, self.config.base_height])
         wall_feet = np.asarray(feet, float) + base
         wall_feet[:, 2] = 0.0
-        self.to_wall = rotation(body.orientation).T
-        self.origin = np.asarray(body.position, float) - self.to_wall.T @ base
-        down = self.to_wall @ np.array([0.0, 0.0, -1.0])
+        down = rotation(body.orientation).T @ np.array([0.0, 0.0, -1.0])
+        self._forget_map()
         slope = math.degrees(math.acos(float(np.clip(-down @ NORMAL, -1.0, 1.0))))
         if abs(slope - self.config.slope_deg) > SLOPE_NOTICE:
             log.info(
@@ -836,9 +848,9 @@ class FreeClimb(GaitPlugin):
     ) -> FootTargets:
         """Foot targets (body frame) of this tick, planned over the latest hold map."""
         seen = world.get(HoldMap.TOPIC)
-        if isinstance(seen, HoldMap):
-            self.holds = self.wall_holds(seen)
-        tick = self.runner.tick(dt, self.holds)
+        if isinstance(seen, HoldMap) and seen.stamp != self.mapped:
+            self.take_map(seen, body)
+        tick = self.runner.tick(dt, self.holds, body.holding)
         if tick.reason and (self.last is None or tick.reason != self.last.reason):
             log.info("%.2f s %s", t, tick.reason)
         self.last = tick
@@ -850,11 +862,46 @@ class FreeClimb(GaitPlugin):
             grip=tick.grip,
         )
 
-    def wall_holds(self, holds: HoldMap) -> np.ndarray:
-        """The map's holds sure enough to grip, as wall-frame foot targets (heights kept)."""
-        sure = [h.position for h in holds.holds if h.confidence >= self.config.min_confidence]
-        tops = (np.reshape(sure, (-1, 3)) - self.origin) @ self.to_wall.T
-        return tops + self.config.foot_radius * NORMAL
+    def _forget_map(self) -> None:
+        """No holds until the next map (a new start has a new wall frame)."""
+        self.holds = np.zeros((0, 3))
+        self.hold_ids = np.zeros(0, np.int64)
+        """The world model's ids of ``holds``, row by row."""
+        self.mapped = -math.inf
+        """The stamp of the hold map ``holds`` came from."""
+
+    def take_map(self, seen: HoldMap, body: BodyState) -> None:
+        """Take a new hold map (``wall_holds``). While the same holds moved less than
+        ``hold_tolerance / 2`` (the estimate's jitter, the body lagging its plan) the current
+        positions stay, and with them the plan and its memory; else the new ones replace them
+        and a swing aims where its hold, by its id, is now (or backs off if it is gone)."""
+        holds, ids = self.wall_holds(seen, body)
+        self.mapped = seen.stamp
+        same = len(ids) == len(self.hold_ids) and np.array_equal(ids, self.hold_ids)
+        calm = 0.5 * self.config.hold_tolerance
+        if same and (not len(ids) or np.abs(holds - self.holds).max() < calm):
+            return
+        step = self.runner.step
+        if step is not None and len(self.holds):
+            gap = np.linalg.norm(self.holds - step.target, axis=1)
+            k = int(np.argmin(gap))
+            again = np.flatnonzero(ids == self.hold_ids[k])
+            if gap[k] <= self.config.hold_tolerance and again.size:
+                self.runner.retarget(holds[again[0]])
+        self.holds, self.hold_ids = holds, ids
+
+    def wall_holds(self, holds: HoldMap, body: BodyState) -> tuple[np.ndarray, np.ndarray]:
+        """The map's holds sure enough to grip, as wall-frame foot targets (heights kept), and
+        their ids: each where the body's estimate now puts it from the body, from the plan's
+        base. A shift of the odometry frame (drift, a re-registered stance) moves the map and
+        the body alike, so the holds stay where the feet that grip them are, and the body's
+        tilt and lag behind its plan turn the aim."""
+        sure = [h for h in holds.holds if h.confidence >= self.config.min_confidence]
+        tops = np.reshape([h.position for h in sure], (-1, 3))
+        seen = (tops - body.position) @ rotation(body.orientation)
+        base = self.runner.base if self.last is None else self.last.base
+        ids = np.array([h.id for h in sure], np.int64)
+        return base + seen + self.foot_radius * NORMAL, ids
 
     def telemetry(self) -> list[Message]:
         """This tick's Stability (TSM, holding limbs, grips) for the control role to publish."""

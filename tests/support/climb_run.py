@@ -64,11 +64,13 @@ class ClimbLog:
         return self.x[-1] - self.x[0]
 
 
-class SlopeClimb:
-    """One climb: a twin of HubRobo on ``slope_map`` with hold map ``seed``, gripping its
-    standing feet, and a periodic or non-periodic planner over the same holds."""
+class SlopeScene:
+    """A twin of HubRobo on ``slope_map`` with hold map ``seed``, its feet on four holds at the
+    stand and its grippers closed; the wall (planner) frame and its holds. ``bus``: the twin
+    serves its Dynamixel servos and grippers on a pty (a driver commands it), else it takes
+    commands in-process."""
 
-    def __init__(self, periodic: bool, seed: int, profile: Profile | None = None) -> None:
+    def __init__(self, seed: int, profile: Profile | None = None, bus: bool = False) -> None:
         self.profile = profile or load_profile(HUBROBO)
         self.kin = Kinematics(self.profile)
         world = load_world("slope_map")
@@ -77,7 +79,7 @@ class SlopeClimb:
         hold_map = msgspec.structs.replace(world.hold_map, seed=seed, extra=feet[:, :2].tolist())
         world = msgspec.structs.replace(world, hold_map=hold_map)
         q0 = self.kin.ik(feet - [0.0, 0.0, ClimbConfig().base_height])[0]
-        self.twin = Twin(self.profile, world, stepped=True, bus=False, initial_joints=q0)
+        self.twin = Twin(self.profile, world, stepped=True, bus=bus, initial_joints=q0)
         model = self.twin.model
         self.mass = float(model.body_subtreemass[self.twin.robot.base_body])
         self.config = ClimbConfig(mass=self.mass, gravity=world.gravity)
@@ -85,22 +87,17 @@ class SlopeClimb:
         r_foot = self.twin.robot.foot_radius
         tops = hold_map_tile(Path(world.source).parent / hold_map.cloud)[:, 2]
         self.z0 = float(tops.mean()) + r_foot
-        holds = hold_map_holds(world)
-        holds[:, 2] += r_foot - self.z0
-        self.holds = holds
-        self.planner = ClimbPlanner(self.kin, self.config, periodic)
-        base = self.planner.base_for(feet)
-        self.runner = ClimbRunner(self.planner, feet, base, PlanAhead(self.planner, wait=True))
-        self._place(base, q0)
-        self.level = self.rotation.T @ rotation(self.twin.data.qpos[3:7])
-        """The body's orientation in the wall frame as it stands at the start (the planner's)."""
+        self.tops = self.to_world(hold_map_holds(world) - [0.0, 0.0, self.z0])
+        """The world's hold tops (m, world frame): ground truth, to score or isolate a gait."""
+        self.holds = self.to_wall(self.tops) + [0.0, 0.0, r_foot]
+        self.start_feet = feet
         self.force = self.mass * (self.rotation.T @ model.opt.gravity)
 
-    def _place(self, base: np.ndarray, q: np.ndarray) -> None:
-        """Put the base at ``base`` (wall frame) with joints ``q``, feet on their holds, and
+    def place(self, feet: np.ndarray, base: np.ndarray) -> None:
+        """Put the base at ``base`` (wall frame) with the feet at ``feet``, on their holds, and
         close the four grippers."""
         twin, d = self.twin, self.twin.data
-        q = self.kin.ik(self.runner.feet - base)[0]
+        q = self.kin.ik(feet - base)[0]
         d.qpos[:3] = self.to_world(base)
         d.qpos[3:7] = self.twin.robot.start[3:]
         d.qpos[self.twin.robot.qpos_adr] = twin.map.hinge(q)
@@ -112,14 +109,12 @@ class SlopeClimb:
         twin.advance_to(0.3)
         if not twin.holding().all():
             raise RuntimeError(f"twin climb: start grips not engaged: {twin.holding()}")
-
-    def close(self) -> None:
-        """Stop the planner's worker thread."""
-        self.runner.close()
+        self.level = self.rotation.T @ rotation(d.qpos[3:7])
+        """The body's orientation in the wall frame as it stands at the start (the planner's)."""
 
     def to_world(self, p: np.ndarray) -> np.ndarray:
-        """World position of a planner-frame point."""
-        return self.origin + self.rotation @ (np.asarray(p) + [0.0, 0.0, self.z0])
+        """World positions of planner-frame points (…×3)."""
+        return self.origin + (np.asarray(p) + [0.0, 0.0, self.z0]) @ self.rotation.T
 
     def to_wall(self, p: np.ndarray) -> np.ndarray:
         """Planner-frame position of world points (…×3)."""
@@ -136,6 +131,23 @@ class SlopeClimb:
         com = self.to_wall(d.subtree_com[r.base_body])
         feet = self.to_wall(d.site_xpos[r.foot_sites])[held]
         return tumble_stability_margin(com, feet, self.force, GRIP_FORCE, NORMAL)
+
+
+class SlopeClimb(SlopeScene):
+    """One climb: the scene's twin and a periodic or non-periodic planner over the same holds,
+    its joint goals and grips set in the twin in-process."""
+
+    def __init__(self, periodic: bool, seed: int, profile: Profile | None = None) -> None:
+        super().__init__(seed, profile)
+        self.planner = ClimbPlanner(self.kin, self.config, periodic)
+        feet = self.start_feet
+        base = self.planner.base_for(feet)
+        self.runner = ClimbRunner(self.planner, feet, base, PlanAhead(self.planner, wait=True))
+        self.place(feet, base)
+
+    def close(self) -> None:
+        """Stop the planner's worker thread."""
+        self.runner.close()
 
     def run(self, seconds: float, dt: float = 0.01) -> ClimbLog:
         """Climb for ``seconds`` of simulated time with control period ``dt`` (s)."""

@@ -1,0 +1,128 @@
+"""Paper 001's free climb through the control role's own path in the twin (issue 36, item 3).
+
+HubRobo's Dynamixel Protocol 2.0 driver talks to the twin's emulated X-series servos and
+gripper servos on a pty; the controller, limit guard and loop run on a stepped clock; the
+``free_climb`` plugin plans on its worker thread, off the tick, and the body it plans from is
+the control role's leg odometry with the twin's IMU. The grippers close and open through the
+driver and the gait acts on what the driver reports they hold.
+
+The hold map reaches the controller as the world model would publish it, in the odometry
+frame at 2 Hz, but built from the world's true holds (``SlopeScene.tops``) placed by the
+body's estimate: a run of this harness isolates the gait from perception. What is logged is
+the twin's truth: base position up the slope, the TSM of the grippers that hold, slips.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from climbd.daemon.algorithms.odometry import TILT_TIME
+from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
+from climbd.daemon.contract.geometry import rotation
+from climbd.daemon.contract.messages import HoldMap, MappedHold, Mode
+from climbd.daemon.runtime.loader import Isolated
+from climbd.daemon.runtime.loop import SteppedClock
+from climbd.daemon.runtime.stack import control_stack
+from climbd.drivers.dynamixel.bus import DynamixelBus
+from climbd.plugins.gaits.free_climb import ClimbConfig, ClimbPlanner, FreeClimb
+from support.climb_run import ClimbLog, SlopeScene
+
+SETTLE = 5 * TILT_TIME
+"""s: standing still before the climb while the odometry's tilt settles on the IMU's gravity
+(the gait takes the wall's slope from it at start)."""
+HOLD_MAP_PERIOD = 0.5
+"""s: how often the hold map reaches the controller (the world model's 2 Hz)."""
+
+
+class DriverClimb(SlopeScene):
+    """The scene's twin serving its bus, and HubRobo's control stack driving it through the
+    Dynamixel driver with the ``free_climb`` gait (``config`` over the scene's mass and
+    gravity)."""
+
+    def __init__(self, seed: int, **config) -> None:
+        super().__init__(seed, bus=True)
+        self.config = ClimbConfig(mass=self.mass, gravity=self.config.gravity, **config)
+        feet = self.start_feet
+        self.place(feet, ClimbPlanner(self.kin, self.config, periodic=False).base_for(feet))
+        twin = self.twin.start()
+        self.bus = DynamixelBus.from_profile(
+            self.profile, port=twin.port, timeout_margin_ms=STEPPED_TIMEOUT_MARGIN_MS
+        )
+        self.bus.open()
+        twin.driver_sent = lambda: self.bus.sent
+        self.gait = FreeClimb(self.config, self.profile)
+        self.clock = SteppedClock(start=twin.time, on_advance=twin.advance_to)
+        self.stack = control_stack(
+            self.profile,
+            self.bus,
+            self.clock,
+            Isolated("free_climb", self.gait),
+            imu=SimpleNamespace(read=twin.imu_sample),
+        )
+        self.left = ""
+        self.releases = 0
+        self.x0 = self.t0 = 0.0
+
+    def hold_map(self) -> HoldMap:
+        """The world's holds in the odometry frame, placed by the body's estimate now."""
+        body = self.stack.controller.body
+        position, quaternion = self.twin.body_pose()
+        seen = (self.tops - position) @ rotation(quaternion)
+        mapped = np.asarray(body.position) + seen @ rotation(body.orientation).T
+        t = self.clock.now()
+        return HoldMap(
+            stamp=t,
+            frame_stamp=t,
+            frame_position=list(body.position),
+            frame_orientation=list(body.orientation),
+            holds=[
+                MappedHold(id=k, confidence=1.0, seen=1, age=0.0, position=p.tolist())
+                for k, p in enumerate(mapped)
+            ],
+        )
+
+    def begin(self) -> None:
+        """Stand, stand still while the tilt settles, then ACTIVE with the first hold map."""
+        stack, safety = self.stack, self.stack.safety
+        if not stack.stand():
+            raise RuntimeError(f"driver climb: the stand did not complete: {safety.reason}")
+        stack.run(SETTLE)
+        stack.controller.on_feature(self.hold_map())
+        if not safety.request(Mode.ACTIVE, self.clock.now(), reason="climb"):
+            raise RuntimeError(f"driver climb: ACTIVE refused: {safety.reason}")
+        self.x0 = float(self.to_wall(self.twin.data.qpos[:3])[0])
+        self.t0 = self.clock.now()
+
+    def run(self, seconds: float) -> ClimbLog:
+        """Climb on for ``seconds`` of simulated time, a hold map every ``HOLD_MAP_PERIOD``;
+        stops early if the robot leaves ACTIVE (``left`` says why). Counts the grippers'
+        releases (``releases``: a gripper the driver opened)."""
+        stack, twin, log = self.stack, self.twin, ClimbLog()
+        period = round(HOLD_MAP_PERIOD * self.profile.rate_hz)
+        end = self.clock.now() + seconds
+        while self.clock.now() < end - 1e-9 and not self.left:
+            stack.controller.on_feature(self.hold_map())
+            for _ in range(period):
+                grip = twin.grip.copy()
+                stack.run(1.0 / self.profile.rate_hz)
+                self.releases += int((grip & ~twin.grip).sum())
+                log.t.append(self.clock.now() - self.t0)
+                log.x.append(float(self.to_wall(twin.data.qpos[:3])[0]) - self.x0)
+                log.tsm.append(self.measured_tsm())
+                log.max_load = max(log.max_load, float(twin.grip_load.max()))
+            if stack.safety.mode != Mode.ACTIVE:
+                self.left = f"{stack.safety.mode.value}: {stack.safety.reason}"
+        runner = self.gait.runner
+        log.slips = int(twin.slips.sum())
+        log.missed = runner.missed
+        log.steps = sum(not s.wait for s in runner.steps)
+        log.waits = sum(s.wait for s in runner.steps)
+        return log
+
+    def close(self) -> None:
+        """Stop the gait's worker, the driver and the twin."""
+        self.gait.stop()
+        self.bus.close()
+        self.twin.stop()
