@@ -66,6 +66,11 @@ def replace_once(text: str, old: str, new: str) -> str:
     return text.replace(old, new, 1)
 
 
+def first_leg_gripper(text: str, servo: str) -> str:
+    """``text`` with a ``gripper_servo = { servo }`` on its first leg."""
+    return re.sub(r"(links = \[.*\]\n)", rf"\1gripper_servo = {{ {servo} }}\n", text, count=1)
+
+
 MALFORMED = [
     # (description, transform of the WidowX profile text, expected fragments of the error)
     ("unknown top-level key", lambda t: "colour = 'red'\n" + t, ["colour", "$"]),
@@ -101,22 +106,12 @@ MALFORMED = [
     ),
     (
         "gripper servo on a joint's id",
-        lambda t: re.sub(
-            r"(links = \[.*\]\n)",
-            r"\1gripper_servo = { id = 3, open = 0.0, closed = 1.0 }\n",
-            t,
-            count=1,
-        ),
+        lambda t: first_leg_gripper(t, "id = 3, open = 0.0, closed = 1.0"),
         ["$.legs[0].gripper_servo.id", "duplicate id 3", "rf_femur"],
     ),
     (
         "gripper servo that does not move",
-        lambda t: re.sub(
-            r"(links = \[.*\]\n)",
-            r"\1gripper_servo = { id = 40, open = 0.5, closed = 0.5 }\n",
-            t,
-            count=1,
-        ),
+        lambda t: first_leg_gripper(t, "id = 40, open = 0.5, closed = 0.5"),
         ["$.legs[0].gripper_servo", "open != closed", "open=0.5"],
     ),
     (
