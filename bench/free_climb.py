@@ -14,8 +14,7 @@ non-periodic gait with the paper's own limb rule
 stride, §3.1-3.3) as a third gait, the default search open-ended (``duration = 0``: it is not
 told when the run ends, so every plan looks its full horizon ahead) as a fourth, how
 far a beam search (beam 400) that knows when the run ends gets on the same map with the
-default planner's steps (kinematic: the most a better choice of swings could reach, over the
-swings that end in time, each after the grippers close: ``swings_in``), and the
+default planner's steps (kinematic: the most a better choice of swings could reach), and the
 CPU time of the non-periodic plans (worker thread; search and paper rule) beside that of the
 runner's ticks (control thread, which no longer plans). Figure (paper Figs. 7 and 8): base x
 and TSM over time for the four gaits, every seed. Goal (#36): the default planner's mean
@@ -40,11 +39,8 @@ import msgspec
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from support.climb_run import HUBROBO, ClimbLog, SlopeClimb  # noqa: E402
+from support.climb_run import ClimbLog, SlopeClimb  # noqa: E402
 
-from climbd.daemon.contract.profile import gripper_servos
-from climbd.daemon.contract.profile import load as load_profile
-from climbd.drivers.sim.twin import FINGERS_ON_HOLD
 from climbd.plugins.gaits.free_climb import (
     GOAL,
     NORMAL,
@@ -182,18 +178,7 @@ def search_reach(seed: int, swings: int, beam: int = 400) -> float:
 def climb_map(seed: int, seconds: float) -> tuple[dict[str, Run], float]:
     """Every gait's climb of map ``seed`` and the bound of the search that knows the end."""
     runs = {g: run(periodic, seed, seconds, over) for g, (periodic, over) in GAITS.items()}
-    return runs, search_reach(seed, swings_in(seconds))
-
-
-def swings_in(seconds: float, tick: float = 0.01) -> int:
-    """Swings that end within ``seconds``, each after the grippers have closed on their holds
-    (the twin's fingers at the gripper servos' speed, seen by the next control ``tick``)."""
-    closing = max(
-        FINGERS_ON_HOLD * abs(g.closed - g.open) / g.velocity
-        for _, _, g in gripper_servos(load_profile(HUBROBO))
-    )
-    swing = ClimbConfig().swing_period
-    return int((seconds - swing) // (swing + closing + tick)) + 1
+    return runs, search_reach(seed, int(seconds // ClimbConfig().swing_period))
 
 
 def plot(logs: dict[str, list[ClimbLog]], path: Path) -> None:

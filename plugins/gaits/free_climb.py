@@ -629,8 +629,6 @@ class ClimbRunner:
         self.step: Step | None = None
         self.phase = 0.0
         self.steps: list[Step] = []
-        self.elapsed = 0.0
-        """Seconds of climb so far (the ticks' ``dt``)."""
         self.reason = ""
         """Why the runner backs off, while it does."""
         self._backing: Step | None = None
@@ -653,7 +651,6 @@ class ClimbRunner:
         taken to hold as commanded): between swings, no limb is released while any gripper
         does not hold; a swing's gripper that does not hold within ``grip_wait`` has failed its
         hold, and the limb swings back to the hold it left (never planned on again)."""
-        self.elapsed += dt
         holds = self._usable(holds)
         step = self.step
         lost = step is not None and not step.wait and not self._mapped(step.target, holds)
@@ -765,19 +762,11 @@ class ClimbRunner:
 
     def _swings_left(self) -> int:
         """Swings the climb's ``duration`` leaves for the next one planned, that one included
-        (0: open-ended, or the duration is spent): those that end in time after the swing under
-        way, each after the mean time the climb has spent between swings so far (grips
-        closing, plans awaited)."""
+        (0: open-ended, or the duration is spent)."""
         cfg = self.planner.config
         if cfg.duration <= 0.0:
             return 0
-        swing = cfg.swing_period
-        moving = self.step is not None
-        done = len(self.steps) - moving
-        between = max(0.0, self.elapsed - done * swing) / max(1, len(self.steps))
-        start = self.elapsed + ((1.0 - self.phase) * swing + between if moving else 0.0)
-        room = cfg.duration - start - swing
-        return max(0, math.floor(room / (swing + between) + 1e-9) + 1) if room >= -1e-9 else 0
+        return max(0, int(cfg.duration // cfg.swing_period) - len(self.steps))
 
     def _after(self, step: Step) -> tuple[np.ndarray, np.ndarray]:
         """Feet and base once ``step`` is done: exactly what ``tick`` reaches at phase 1."""
