@@ -223,13 +223,12 @@ class Twin:
         self.grip = np.zeros(len(self.profile.legs), bool)
         self.fingers = np.zeros(len(self.profile.legs))
         """Per gripper, how far its fingers have closed: 0 open, 1 closed on nothing; they
-        hold a hold at ``FINGERS_ON_HOLD``. A gripper servo moves them at its speed; without one
-        (commands in-process) they follow ``grip`` at once."""
-        travel = np.full(len(self.profile.legs), np.inf)
-        for leg, _, g in gripper_servos(self.profile):
-            travel[leg] = g.velocity / abs(g.closed - g.open)
-        self.finger_rate = travel
+        hold a hold at ``FINGERS_ON_HOLD``. The profile's gripper servo moves them at its speed
+        (with or without an emulated bus); a gripper without one follows ``grip`` at once."""
+        self.finger_rate = np.full(len(self.profile.legs), np.inf)
         """Per gripper, its fingers' speed (travel per s)."""
+        for leg, _, g in gripper_servos(self.profile):
+            self.finger_rate[leg] = g.velocity / abs(g.closed - g.open)
         self.slips = np.zeros(len(self.profile.legs), int)
         """Per gripper, how often it let go under more than GRIP_FORCE."""
         self.slipped = np.zeros(len(self.profile.legs), bool)
