@@ -8,6 +8,8 @@ climb_driver.py), so these tests isolate the gait from perception.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 from support.climb_driver import DriverClimb
@@ -80,6 +82,34 @@ def test_a_grip_the_driver_reports_empty_is_backed_off_isolating_the_gait() -> N
         np.testing.assert_allclose(back.target, step.start, atol=1e-9)
         assert climb.bus.read().holding[step.limb] and twin.holding()[step.limb]
         assert first.slips == log.slips == 0
+        assert min(first.tsm + log.tsm) >= 0.0
+    finally:
+        climb.close()
+
+
+def test_a_hold_taken_off_the_wall_mid_swing_is_backed_off_isolating_the_gait(caplog) -> None:
+    """Halfway through the first swing its hold is taken off the wall and out of the hold map:
+    the limb swings back to the hold it left and the driver reports it gripped again; no slip,
+    no missed grip, TSM ≥ 0."""
+    climb = DriverClimb(seed=0, duration=SECONDS)
+    try:
+        climb.begin()
+        cfg = climb.config
+        first = climb.run(cfg.swing_period / 2)
+        runner, gait = climb.gait.runner, climb.gait
+        step = runner.step
+        assert step is not None and not step.wait
+        k = int(np.argmin(np.linalg.norm(gait.holds - step.target, axis=1)))
+        climb.take_off(int(gait.hold_ids[k]))
+        caplog.set_level(logging.INFO, logger="climbd.gait.free_climb")
+        log = climb.run(cfg.swing_period / 2 + cfg.swing_period + 0.5)
+        assert climb.left == "", climb.left
+        assert f"limb {step.limb}'s hold" in caplog.text
+        assert "left the hold map mid-swing: back to the hold it left" in caplog.text
+        back = runner.steps[1]
+        np.testing.assert_allclose(back.target, step.start, atol=1e-9)
+        assert climb.bus.read().holding[step.limb] and climb.twin.holding()[step.limb]
+        assert runner.missed == 0 and first.slips == log.slips == 0
         assert min(first.tsm + log.tsm) >= 0.0
     finally:
         climb.close()

@@ -61,6 +61,8 @@ class DriverClimb(SlopeScene):
             Isolated("free_climb", self.gait),
             imu=SimpleNamespace(read=twin.imu_sample),
         )
+        self.ids = np.arange(len(self.tops))
+        """The world model's id of each of ``tops``: a hold taken off keeps the others' ids."""
         self.left = ""
         self.releases = 0
         self.x0 = self.t0 = 0.0
@@ -78,10 +80,20 @@ class DriverClimb(SlopeScene):
             frame_position=list(body.position),
             frame_orientation=list(body.orientation),
             holds=[
-                MappedHold(id=k, confidence=1.0, seen=1, age=0.0, position=p.tolist())
-                for k, p in enumerate(mapped)
+                MappedHold(id=int(k), confidence=1.0, seen=1, age=0.0, position=p.tolist())
+                for k, p in zip(self.ids, mapped, strict=True)
             ],
         )
+
+    def take_off(self, hold: int) -> None:
+        """Take hold ``hold`` (its id) off the wall: no longer solid nor graspable, and out of
+        the hold map from the next one."""
+        model, robot = self.twin.model, self.twin.robot
+        geom = model.geom(f"hold_{hold}").id
+        model.geom_contype[geom] = model.geom_conaffinity[geom] = 0
+        robot.graspable_geoms = robot.graspable_geoms[robot.graspable_geoms != geom]
+        keep = self.ids != hold
+        self.tops, self.ids = self.tops[keep], self.ids[keep]
 
     def begin(self) -> None:
         """Stand, stand still while the tilt settles, then ACTIVE with the first hold map."""
