@@ -50,9 +50,9 @@ def in_view(climb: SlopeClimb, body_points: np.ndarray) -> np.ndarray:
     return (z > 0.05) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
 
 
-def filling(plugin: GraspablePerception, cloud: np.ndarray) -> tuple[float, float]:
+def filling(plugin: GraspablePerception, cloud: np.ndarray) -> tuple[float, float, int, int]:
     """Seconds of the occlusion-filling stage on ``cloud`` (body frame): on every point, and on
-    the point nearest each lattice node."""
+    the point nearest each lattice node; and how many points each was."""
     cfg = plugin.config
     cloud = within_range(cloud, cfg.max_range)
     plane = regression_frame(cloud, np.zeros(3)).to_plane(cloud)
@@ -61,15 +61,16 @@ def filling(plugin: GraspablePerception, cloud: np.ndarray) -> tuple[float, floa
     interpolate_heights(plane, spacing)
     every = time.perf_counter() - start
     start = time.perf_counter()
-    interpolate_heights(nearest_per_node(plane, spacing), spacing)
-    return every, time.perf_counter() - start
+    kept = nearest_per_node(plane, spacing)
+    interpolate_heights(kept, spacing)
+    return every, time.perf_counter() - start, len(plane), len(kept)
 
 
 def score(
     seed: int, tolerance: float, plugin: GraspablePerception
-) -> tuple[int, int, int, float, tuple[float, float]]:
+) -> tuple[int, int, int, float, tuple[float, float, int, int]]:
     """(holds in view, of them found, false detections, detection seconds, the filling stage's
-    seconds on every point and on one a node) for one map."""
+    seconds on every point and on one a node with those points' counts) for one map."""
     climb = SlopeClimb(periodic=False, seed=seed)
     try:
         frame = climb.twin.depth_frame("front")
@@ -119,18 +120,21 @@ def main() -> None:
     plugin = GraspablePerception()
     print(
         "| seed | holds in view | found | recall | false detections | detection (s) "
-        "| filling, every point / one a node (s) | ratio |"
+        "| filling, every point / one a node (s) | ratio | points / kept |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     times, ratios, seen, hit = [], [], 0, 0
     for seed in range(args.seeds):
-        visible, found, false, seconds, (every, reduced) = score(seed, args.tolerance, plugin)
+        visible, found, false, seconds, (every, reduced, points, kept) = score(
+            seed, args.tolerance, plugin
+        )
         times.append(seconds)
         ratios.append(every / reduced)
         seen, hit = seen + visible, hit + found
         print(
             f"| {seed} | {visible} | {found} | {found / max(visible, 1):.0%} | {false} "
-            f"| {seconds:.2f} | {every:.2f} / {reduced:.2f} | {every / reduced:.1f} |"
+            f"| {seconds:.2f} | {every:.2f} / {reduced:.2f} | {every / reduced:.1f} "
+            f"| {points} / {kept} |"
         )
     print(
         f"all: recall {hit / max(seen, 1):.0%} ({hit}/{seen}), median detection "
