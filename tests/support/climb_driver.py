@@ -19,7 +19,6 @@ from types import SimpleNamespace
 import numpy as np
 
 from climbd.daemon.algorithms.odometry import TILT_TIME
-from climbd.daemon.cli.sim_host import STEPPED_TIMEOUT_MARGIN_MS
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import HoldMap, MappedHold, Mode
 from climbd.daemon.runtime.loader import Isolated
@@ -32,6 +31,10 @@ from support.climb_run import ClimbLog, SlopeScene
 SETTLE = 5 * TILT_TIME
 """s: standing still before the climb while the odometry's tilt settles on the IMU's gravity
 (the gait takes the wall's slope from it at start)."""
+MARGIN_MS = 2000.0
+"""Reply timeout margin of the driver: physics waits for the bus in a stepped run, so on a loaded
+machine a late reply must not become a miss (which would change the run); no servo is silenced
+here."""
 HOLD_MAP_PERIOD = 0.5
 """s: how often the hold map reaches the controller (the world model's 2 Hz)."""
 
@@ -48,7 +51,7 @@ class DriverClimb(SlopeScene):
         self.place(feet, ClimbPlanner(self.kin, self.config, periodic=False).base_for(feet))
         twin = self.twin.start()
         self.bus = DynamixelBus.from_profile(
-            self.profile, port=twin.port, timeout_margin_ms=STEPPED_TIMEOUT_MARGIN_MS
+            self.profile, port=twin.port, timeout_margin_ms=MARGIN_MS
         )
         self.bus.open()
         twin.driver_sent = lambda: self.bus.sent
@@ -119,6 +122,7 @@ class DriverClimb(SlopeScene):
             for _ in range(period):
                 grip = twin.grip.copy()
                 stack.run(1.0 / self.profile.rate_hz)
+                twin.advance_to(twin.time)  # the tick's writes reach the twin; no physics step
                 self.releases += int((grip & ~twin.grip).sum())
                 log.t.append(self.clock.now() - self.t0)
                 log.x.append(float(self.to_wall(twin.data.qpos[:3])[0]) - self.x0)
