@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from climbd.daemon.contract.cloudio import read_cloud
+from climbd.daemon.contract.geometry import regression_frame
 from climbd.drivers.sim.worlds import DATA
 from climbd.plugins.perception.graspable import (
     GraspableConfig,
@@ -30,7 +31,6 @@ from climbd.plugins.perception.graspable import (
     column_depths,
     interpolate_heights,
     lattice_spacing,
-    regression_frame,
     scan_window,
     terrain_matrix,
 )

@@ -21,9 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from climbd.daemon.contract.cloudio import read_cloud
+from climbd.daemon.contract.geometry import regression_frame
 from climbd.drivers.sim.worlds import DATA
 from climbd.drivers.sim.worlds.hold_tiles import read_tile, tile_file, write_tile
-from climbd.plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
+from climbd.plugins.perception.graspable import GraspableConfig, GraspableDetector
 
 TOLERANCE = 1e-9
 """Largest difference (m) between a shipped tile and the detector's output that still matches

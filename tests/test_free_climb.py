@@ -16,6 +16,7 @@ import pytest
 
 from climbd.daemon.algorithms.kinematics import Kinematics
 from climbd.daemon.contract.cloudio import read_cloud
+from climbd.daemon.contract.geometry import regression_frame
 from climbd.daemon.contract.messages import (
     BodyState,
     FootTargets,
@@ -47,7 +48,7 @@ from climbd.plugins.gaits.free_climb import (
     stance_key,
     swing_lift,
 )
-from climbd.plugins.perception.graspable import GraspableConfig, GraspableDetector, regression_frame
+from climbd.plugins.perception.graspable import GraspableConfig, GraspableDetector
 
 ROOT = Path(__file__).resolve().parent.parent
 CLOUD = DATA / "leaning_bouldering_holds.pcd"

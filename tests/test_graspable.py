@@ -16,6 +16,7 @@ from support.graspable_scenes import board_plane, dome_board, hold_cores, pose, 
 
 from climbd.daemon.cli import main as climbd
 from climbd.daemon.contract.cloudio import read_cloud
+from climbd.daemon.contract.geometry import regression_frame
 from climbd.daemon.contract.messages import BodyState, GraspablePoints
 from climbd.daemon.contract.plugins import PluginError
 from climbd.daemon.runtime.loader import instantiate
@@ -28,7 +29,6 @@ from climbd.plugins.perception.graspable import (
     interpolate_heights,
     lattice_mask,
     nearest_per_node,
-    regression_frame,
     scan_window,
     terrain_matrix,
     void_known,

@@ -1,4 +1,4 @@
-"""Shared geometry: rotations and quaternions.
+"""Shared geometry: rotations, quaternions and a cloud's regression plane.
 
 Quaternions are (w, x, y, z), scalar first, throughout climbd. Pure functions of numbers:
 numpy, math and the standard library only.
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -55,3 +56,28 @@ def slerp(q0: Sequence[float], q1: Sequence[float], s: float) -> list[float]:
         theta = math.acos(dot)
         q = (math.sin((1.0 - s) * theta) * a + math.sin(s * theta) * b) / math.sin(theta)
     return (q / np.linalg.norm(q)).tolist()
+
+
+@dataclass(frozen=True)
+class PlaneFrame:
+    """The regression plane's frame Σ_R: origin at the centroid, rows of ``rotation`` = axes."""
+
+    origin: np.ndarray
+    rotation: np.ndarray
+
+    def to_plane(self, points: np.ndarray) -> np.ndarray:
+        return (points - self.origin) @ self.rotation.T
+
+    def to_body(self, points: np.ndarray) -> np.ndarray:
+        return points @ self.rotation + self.origin
+
+
+def regression_frame(points: np.ndarray, viewpoint: np.ndarray) -> PlaneFrame:
+    """Least-squares plane of ``points`` (paper 001 §2.1 step 1), its normal turned towards
+    ``viewpoint``."""
+    origin = points.mean(axis=0)
+    _, _, axes = np.linalg.svd(points - origin, full_matrices=False)
+    axes = axes.copy()
+    if axes[2] @ (viewpoint - origin) < 0:
+        axes[1:] *= -1.0
+    return PlaneFrame(origin, axes)

@@ -36,6 +36,7 @@ from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError
 
 from climbd.daemon.algorithms.cloud import CloudPerception, within_range
+from climbd.daemon.contract.geometry import regression_frame
 from climbd.daemon.contract.messages import BodyState, GraspablePoints
 from climbd.plugins.perception.gripper_mask import GripperGeometry, gripper_mask
 
@@ -93,30 +94,6 @@ class GraspableConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 class DegenerateCloud(ValueError):
     """A cloud with no terrain to detect on: too few points in range, or none spanning an area
     on their plane. The plugin reports it as nothing found; ``detect`` callers see why."""
-
-
-@dataclass(frozen=True)
-class PlaneFrame:
-    """The regression plane's frame Σ_R: origin at the centroid, rows of ``rotation`` = axes."""
-
-    origin: np.ndarray
-    rotation: np.ndarray
-
-    def to_plane(self, points: np.ndarray) -> np.ndarray:
-        return (points - self.origin) @ self.rotation.T
-
-    def to_body(self, points: np.ndarray) -> np.ndarray:
-        return points @ self.rotation + self.origin
-
-
-def regression_frame(points: np.ndarray, viewpoint: np.ndarray) -> PlaneFrame:
-    """Least-squares plane of ``points`` (§2.1 step 1), its normal turned towards ``viewpoint``."""
-    origin = points.mean(axis=0)
-    _, _, axes = np.linalg.svd(points - origin, full_matrices=False)
-    axes = axes.copy()
-    if axes[2] @ (viewpoint - origin) < 0:
-        axes[1:] *= -1.0
-    return PlaneFrame(origin, axes)
 
 
 @dataclass(frozen=True)
