@@ -31,6 +31,7 @@ from climbd.drivers.sim import servos
 from climbd.drivers.sim.worlds import (
     World,
     hold_map_holds,
+    hold_map_relief,
     holds_heightfield,
     wall_pose,
     yaw_matrix,
@@ -76,6 +77,11 @@ class RobotModel:
     body_half_height: float
     foot_radius: float
     hfields: dict[str, np.ndarray] = field(default_factory=dict)
+    relief_geom: int = -1
+    """The rock height field of a hold map (-1: none); a gripper holds on it only at a hold."""
+    relief_holds: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """The holds the relief carries: their tops (m, world frame)."""
+    wall_normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
     @property
     def joint_count(self) -> int:
@@ -198,7 +204,7 @@ def _add_world(world: World, worldbody: ET.Element, asset: ET.Element, base: Pat
         )
         fields["holds"] = (heights / top).T
     if world.hold_map is not None:
-        _add_hold_map(world, worldbody)
+        fields.update(_add_hold_map(world, worldbody, asset))
     if world.truss is not None:
         t = world.truss
         nodes = np.asarray(t.nodes, float)
@@ -227,12 +233,15 @@ def _add_world(world: World, worldbody: ET.Element, asset: ET.Element, base: Pat
     return fields
 
 
-def _add_hold_map(world: World, worldbody: ET.Element) -> None:
-    """The board (not graspable) and one column geom ``hold_<i>`` per hold of the map."""
+def _add_hold_map(world: World, worldbody: ET.Element, asset: ET.Element) -> dict[str, np.ndarray]:
+    """The board (not graspable), the rock height field ``relief`` of a rock relief, and one
+    column geom ``hold_<i>`` per hold the relief does not carry (all of them on columns).
+    Returns the height fields' data."""
     h = world.hold_map
     origin, rotation = wall_pose(h)
     quat = _fmt(_quat_y(-math.radians(h.incline_deg)))
     common = {"contype": "0", "conaffinity": "1", "group": str(WORLD_GROUP)}
+    friction = _fmt([h.friction, 0.005, 0.0001])
     length, width = h.along[1] - h.along[0], h.across[1] - h.across[0]
     centre = [(h.along[0] + h.along[1]) / 2, (h.across[0] + h.across[1]) / 2, -0.01]
     ET.SubElement(
@@ -243,11 +252,40 @@ def _add_hold_map(world: World, worldbody: ET.Element) -> None:
         size=_fmt([length / 2, width / 2, 0.01]),
         pos=_fmt(origin + rotation @ centre),
         quat=quat,
-        friction=_fmt([h.friction, 0.005, 0.0001]),
+        friction=friction,
         rgba=_fmt(h.rgba),
         **common,
     )
-    for i, (x, y, top) in enumerate(hold_map_holds(world)):
+    holds = hold_map_holds(world)
+    fields: dict[str, np.ndarray] = {}
+    if h.relief == "rock":
+        heights = hold_map_relief(world)
+        top = max(float(heights.max()), 1e-3)
+        n_along, n_across = heights.shape
+        size = [(n_along - 1) * h.resolution / 2, (n_across - 1) * h.resolution / 2]
+        ET.SubElement(
+            asset,
+            "hfield",
+            name="relief",
+            nrow=str(n_across),
+            ncol=str(n_along),
+            size=_fmt([*size, top, 0.005]),
+        )
+        ET.SubElement(
+            worldbody,
+            "geom",
+            name="relief",
+            type="hfield",
+            hfield="relief",
+            pos=_fmt(origin + rotation @ [h.along[0] + size[0], h.across[0] + size[1], 0.0]),
+            quat=quat,
+            friction=friction,
+            rgba=_fmt(h.hold_rgba),
+            **common,
+        )
+        fields["relief"] = (heights / top).T
+    first = len(holds) - len(h.extra) if h.relief == "rock" else 0
+    for i, (x, y, top) in enumerate(holds[first:], first):
         ET.SubElement(
             worldbody,
             "geom",
@@ -256,10 +294,11 @@ def _add_hold_map(world: World, worldbody: ET.Element) -> None:
             size=_fmt([h.hold_radius, top / 2]),
             pos=_fmt(origin + rotation @ [x, y, top / 2]),
             quat=quat,
-            friction=_fmt([h.friction, 0.005, 0.0001]),
+            friction=friction,
             rgba=_fmt(h.hold_rgba),
             **common,
         )
+    return fields
 
 
 def _add_robot(
@@ -426,7 +465,7 @@ def build(profile: Profile, world: World, timestep: float = 0.001) -> RobotModel
         i
         for i in range(model.ngeom)
         if (
-            model.geom(i).name == "holds"
+            model.geom(i).name in ("holds", "relief")
             or model.geom(i).name.startswith(("hold_", "member", "linker"))
         )
     ]
@@ -453,7 +492,21 @@ def build(profile: Profile, world: World, timestep: float = 0.001) -> RobotModel
         body_half_height=half_height,
         foot_radius=foot_radius,
         hfields=fields,
+        **_relief(world, model),
     )
+
+
+def _relief(world: World, model: mujoco.MjModel) -> dict[str, object]:
+    """The rock relief's geom, the world tops of the holds it carries and the wall's normal."""
+    if world.hold_map is None or world.hold_map.relief != "rock":
+        return {}
+    origin, rotation = wall_pose(world.hold_map)
+    carried = hold_map_holds(world)[: -len(world.hold_map.extra) or None]
+    return {
+        "relief_geom": mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "relief"),
+        "relief_holds": origin + carried @ rotation.T,
+        "wall_normal": rotation[:, 2],
+    }
 
 
 def start_pose(world: World) -> np.ndarray:

@@ -69,6 +69,9 @@ SETTLE_COUNT_TIMEOUT = 5.0
 FINGERS_ON_HOLD = 0.5
 """How far a gripper's fingers close (0 open, 1 closed on nothing) before they grasp a hold
 between them: where they stop while it holds."""
+GRASP_OFFSET = 0.01
+"""How far (m, in the wall's plane) a foot may stand from a hold of a rock relief and still
+close on it: the tolerance at which bench/hold_recall.py counts a detection as the hold."""
 
 
 @dataclass(frozen=True)
@@ -457,11 +460,7 @@ class Twin:
         self.slipped &= self.grip
         engage = closing & ~held & ~self.slipped
         if engage.any():
-            g1, g2 = d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon]
-            on_hold = np.concatenate(
-                [g1[np.isin(g2, r.graspable_geoms)], g2[np.isin(g1, r.graspable_geoms)]]
-            )
-            engage &= np.isin(r.foot_geoms, on_hold)
+            engage &= self._on_hold()
             for i in np.flatnonzero(engage):
                 m.eq_data[r.grip_equalities[i], 3:6] = d.site_xpos[r.foot_sites[i]]
         held = (held | engage) & closed
@@ -469,6 +468,29 @@ class Twin:
         if (held != was).any():
             d.eq_active[r.grip_equalities] = held
             m.geom_contype[r.foot_geoms] = np.where(held, 0, 1)
+
+    def _on_hold(self) -> np.ndarray:
+        """Which feet touch a graspable geom; on a rock relief, only within ``GRASP_OFFSET`` of
+        one of its holds (in the wall's plane), as the spines close only around a hold."""
+        d, r = self.data, self.robot
+        on = np.zeros(len(r.foot_geoms), bool)
+        for g1, g2 in zip(d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon], strict=True):
+            for foot, other in ((g1, g2), (g2, g1)):
+                legs = np.flatnonzero(r.foot_geoms == foot)
+                if not len(legs) or other not in r.graspable_geoms:
+                    continue
+                foot_at = d.site_xpos[r.foot_sites[legs[0]]]
+                if other != r.relief_geom or self._near_hold(foot_at):
+                    on[legs] = True
+        return on
+
+    def _near_hold(self, foot: np.ndarray) -> bool:
+        r = self.robot
+        if not len(r.relief_holds):
+            return False
+        offset = r.relief_holds - foot
+        offset -= np.outer(offset @ r.wall_normal, r.wall_normal)
+        return bool(np.min(np.linalg.norm(offset, axis=1)) <= GRASP_OFFSET)
 
     def _physics_step(self) -> None:
         self._control()

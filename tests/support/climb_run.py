@@ -68,15 +68,24 @@ class SlopeScene:
     """A twin of HubRobo on ``slope_map`` with hold map ``seed``, its feet on four holds at the
     stand and its grippers closed; the wall (planner) frame and its holds. ``bus``: the twin
     serves its Dynamixel servos and grippers on a pty (a driver commands it), else it takes
-    commands in-process."""
+    commands in-process. ``relief``: the holds as columns or as the rock they were detected on
+    (worlds.HoldMap)."""
 
-    def __init__(self, seed: int, profile: Profile | None = None, bus: bool = False) -> None:
+    def __init__(
+        self,
+        seed: int,
+        profile: Profile | None = None,
+        bus: bool = False,
+        relief: str = "columns",
+    ) -> None:
         self.profile = profile or load_profile(HUBROBO)
         self.kin = Kinematics(self.profile)
         world = load_world("slope_map")
         feet = self.kin.stand_feet(ClimbConfig().base_height)
         feet[:, 2] = 0.0
-        hold_map = msgspec.structs.replace(world.hold_map, seed=seed, extra=feet[:, :2].tolist())
+        hold_map = msgspec.structs.replace(
+            world.hold_map, seed=seed, extra=feet[:, :2].tolist(), relief=relief
+        )
         world = msgspec.structs.replace(world, hold_map=hold_map)
         q0 = self.kin.ik(feet - [0.0, 0.0, ClimbConfig().base_height])[0]
         self.twin = Twin(self.profile, world, stepped=True, bus=bus, initial_joints=q0)
@@ -137,8 +146,10 @@ class SlopeClimb(SlopeScene):
     """One climb: the scene's twin and a periodic or non-periodic planner over the same holds,
     its joint goals and grips set in the twin in-process."""
 
-    def __init__(self, periodic: bool, seed: int, profile: Profile | None = None) -> None:
-        super().__init__(seed, profile)
+    def __init__(
+        self, periodic: bool, seed: int, profile: Profile | None = None, relief: str = "columns"
+    ) -> None:
+        super().__init__(seed, profile, relief=relief)
         self.planner = ClimbPlanner(self.kin, self.config, periodic)
         feet = self.start_feet
         base = self.planner.base_for(feet)

@@ -13,12 +13,20 @@ import functools
 import math
 import sys
 from pathlib import Path
+from typing import Literal
 
 import msgspec
 import numpy as np
 
 from climbd.daemon.contract.cloudio import CloudFileError, read_cloud
-from climbd.drivers.sim.worlds.hold_tiles import REGENERATE, read_tile, tile_file, tile_map
+from climbd.daemon.contract.geometry import regression_frame
+from climbd.drivers.sim.worlds.hold_tiles import (
+    REGENERATE,
+    read_tile,
+    tile_file,
+    tile_map,
+    tile_relief,
+)
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -29,6 +37,9 @@ HERE = Path(__file__).resolve().parent
 DATA = HERE / "data"
 """Real point clouds shipped with the twin (ClimbLab's hold clouds, BSD-3, license beside them)."""
 INCH = 0.0254
+GRIPPER_REACH = 0.045
+"""How far from a hold (m) a closing spine gripper reaches: its mask's half-width, 44 mm
+(paper 001 §2.2: palm-joint circle 14 + finger 15 + spine 15 mm)."""
 
 
 class WorldError(ValueError):
@@ -100,11 +111,14 @@ class HoldMap(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     of a hold map, tiled (seeded) from the detection on ``cloud`` (PCD, relative to the file),
     read from the tile shipped beside it (``<stem>.tile.txt``, see ``hold_tiles``).
 
-    The relief is the holds: each is a column of the palm's radius ``hold_radius`` standing
-    on the board as high as its point stood above the cloud's board, so the graspable set and
-    the relief are the same geoms. The wall frame (x up the slope, y left, z out of the
-    board) spans ``along`` × ``across`` (m); its lower edge touches the floor at the origin.
-    ``extra`` adds holds (wall x, y) at the mean height, e.g. where the robot starts.
+    ``relief = "columns"``: each hold is a column of the palm's radius ``hold_radius``
+    standing on the board as high as its point stood above the cloud's board, so the graspable
+    set and the relief are the same geoms. ``relief = "rock"``: each copy of the tile carries
+    the rock it was detected on (the cloud as a height field of cell ``resolution``), so a
+    camera sees rock, and a gripper holds on it only where a hold of the map is. The wall frame
+    (x up the slope, y left, z out of the board) spans ``along`` × ``across`` (m); its lower
+    edge touches the floor at the origin. ``extra`` adds holds (wall x, y) at the mean height,
+    e.g. where the robot starts, as columns on either relief.
     """
 
     cloud: str
@@ -113,6 +127,8 @@ class HoldMap(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     along: list[float] = msgspec.field(default_factory=lambda: [-0.3, 0.7])
     across: list[float] = msgspec.field(default_factory=lambda: [-0.35, 0.35])
     hold_radius: float = 0.016
+    relief: Literal["columns", "rock"] = "columns"
+    resolution: float = 0.003
     extra: list[list[float]] = []
     friction: float = 1.0
     rgba: list[float] = msgspec.field(default_factory=lambda: [0.6, 0.45, 0.35, 1.0])
@@ -206,6 +222,11 @@ def _check(world: World) -> World:
                 f"expected [low, high] with low < high, found {span}",
             )
         need(h.hold_radius > 0, "$.hold_map.hold_radius", f"expected > 0, found {h.hold_radius}")
+        need(
+            0 < h.resolution <= 0.01,
+            "$.hold_map.resolution",
+            f"expected a cell of 0..0.01 m (the palm is 32 mm across), found {h.resolution}",
+        )
         need(
             all(len(p) == 2 for p in h.extra),
             "$.hold_map.extra",
@@ -312,17 +333,57 @@ def _detected_tile(cloud: Path) -> np.ndarray:
 
 
 def hold_map_holds(world: World) -> np.ndarray:
-    """The hold map of ``world`` (k×3, wall frame): x, y and the hold's top height (m)."""
+    """The hold map of ``world`` (k×3, wall frame): x, y and the hold's top height (m); the
+    tiled holds first, then ``extra``."""
     h = world.hold_map
-    path = Path(h.cloud)
-    if not path.is_absolute():
-        base = Path(world.source).parent if world.source else Path.cwd()
-        path = (base / path).resolve()
-    tile = hold_map_tile(path)
-    holds = tile_map(tile, h.seed, tuple(h.along), tuple(h.across))
+    tile = hold_map_tile(_hold_cloud(world))
+    holds = tile_map(tile, h.seed, tuple(h.along), tuple(h.across), _margin(h))
     extra = np.asarray(h.extra, float).reshape(-1, 2)
     extra = np.column_stack((extra, np.full(len(extra), tile[:, 2].mean())))
     return np.vstack((holds, extra))
+
+
+def hold_map_relief(world: World) -> np.ndarray:
+    """The rock of a ``relief = "rock"`` hold map: heights (m above the board, rows along x
+    from ``along[0]``, columns across y from ``across[0]``, cell ``resolution``)."""
+    h = world.hold_map
+    cloud = _hold_cloud(world)
+    return tile_relief(
+        _cloud_on_plane(cloud),
+        hold_map_tile(cloud),
+        h.seed,
+        tuple(h.along),
+        tuple(h.across),
+        h.resolution,
+        _margin(h),
+    )
+
+
+def _margin(hold_map: HoldMap) -> float:
+    """Rock kept around a tile's outer holds: the gripper's reach on a rock relief (so a seam
+    between copies never reaches under a closing gripper), none between columns."""
+    return GRIPPER_REACH if hold_map.relief == "rock" else 0.0
+
+
+def _hold_cloud(world: World) -> Path:
+    path = Path(world.hold_map.cloud)
+    if not path.is_absolute():
+        base = Path(world.source).parent if world.source else Path.cwd()
+        path = (base / path).resolve()
+    return path
+
+
+@functools.lru_cache(maxsize=4)
+def _cloud_on_plane(cloud: Path) -> np.ndarray:
+    """The hold cloud in its tile's frame: x, y on the regression plane (seen from the
+    camera that took it), the height above its board (the 5th-percentile level)."""
+    try:
+        pts = read_cloud(cloud)
+    except CloudFileError as e:
+        raise WorldError(f"$.hold_map.cloud: {e}") from None
+    plane = regression_frame(pts, np.zeros(3)).to_plane(pts)
+    plane[:, 2] -= np.percentile(plane[:, 2], 5)
+    return plane
 
 
 def wall_pose(hold_map: HoldMap) -> tuple[np.ndarray, np.ndarray]:

@@ -58,21 +58,28 @@ def read_tile(path: Path) -> np.ndarray:
     return np.array(rows, float).reshape(-1, 3)
 
 
-def tile_map(
-    tile: np.ndarray, seed: int, along: tuple[float, float], across: tuple[float, float]
-) -> np.ndarray:
-    """Wall-frame holds (k×3) covering ``along`` × ``across`` (m) with copies of ``tile`` (n
-    points on the wall plane, n ≥ 2, with an optional third column: the hold's height, kept;
-    else z = 0), each rotated and mirrored at random."""
+def tile_copies(
+    tile: np.ndarray,
+    seed: int,
+    along: tuple[float, float],
+    across: tuple[float, float],
+    margin: float = 0.0,
+) -> tuple[np.ndarray, float, list[tuple[np.ndarray, np.ndarray]]]:
+    """How ``tile_map`` lays copies of ``tile`` (n×2 or n×3, n ≥ 2) over ``along`` × ``across``:
+    the tile's centre (its points are taken about it), the pitch between copies (m), and per
+    copy the 2×2 map (a turn by a multiple of 90°, maybe mirrored) and its offset (m); a local
+    point p lands at ``p @ map + offset``. Copies sit one mean neighbour spacing apart, or
+    ``2 × margin`` where that is more (a copy's outer holds then keep ``margin`` of their own
+    rock around them)."""
     from scipy.spatial import cKDTree
 
     tile = np.asarray(tile, float)
     if len(tile) < 2:
         raise ValueError(f"tile: need at least 2 graspable points, found {len(tile)}")
-    height = tile[:, 2] if tile.shape[1] > 2 else np.zeros(len(tile))
-    tile = tile[:, :2] - (tile[:, :2].min(axis=0) + tile[:, :2].max(axis=0)) / 2
-    spacing = float(np.mean(cKDTree(tile).query(tile, k=2)[0][:, 1]))
-    pitch = float(np.ptp(tile, axis=0).max()) + spacing
+    centre = (tile[:, :2].min(axis=0) + tile[:, :2].max(axis=0)) / 2
+    local = tile[:, :2] - centre
+    spacing = float(np.mean(cKDTree(local).query(local, k=2)[0][:, 1]))
+    pitch = float(np.ptp(local, axis=0).max()) + max(spacing, 2 * margin)
     rng = np.random.default_rng(seed)
     xs = np.arange(along[0] + pitch / 2, along[1] + pitch / 2, pitch)
     ys = np.arange(across[0] + pitch / 2, across[1] + pitch / 2, pitch)
@@ -82,7 +89,70 @@ def tile_map(
             turn = rng.integers(4) * np.pi / 2
             c, s = np.cos(turn), np.sin(turn)
             mirror = 1.0 if rng.integers(2) else -1.0
-            local = tile * [1.0, mirror]
-            copies.append(local @ np.array([[c, s], [-s, c]]) + [x, y])
-    points = np.vstack(copies)
+            copies.append((np.diag([1.0, mirror]) @ np.array([[c, s], [-s, c]]), np.array([x, y])))
+    return centre, pitch, copies
+
+
+def tile_map(
+    tile: np.ndarray,
+    seed: int,
+    along: tuple[float, float],
+    across: tuple[float, float],
+    margin: float = 0.0,
+) -> np.ndarray:
+    """Wall-frame holds (k×3) covering ``along`` × ``across`` (m) with copies of ``tile`` (n
+    points on the wall plane, n ≥ 2, with an optional third column: the hold's height, kept;
+    else z = 0), each rotated and mirrored at random, laid as ``tile_copies`` lays them."""
+    tile = np.asarray(tile, float)
+    centre, _, copies = tile_copies(tile, seed, along, across, margin)
+    height = tile[:, 2] if tile.shape[1] > 2 else np.zeros(len(tile))
+    local = tile[:, :2] - centre
+    points = np.vstack([local @ turn + offset for turn, offset in copies])
     return np.column_stack((points, np.tile(height, len(copies))))
+
+
+def tile_relief(
+    patch: np.ndarray,
+    tile: np.ndarray,
+    seed: int,
+    along: tuple[float, float],
+    across: tuple[float, float],
+    resolution: float,
+    margin: float,
+) -> np.ndarray:
+    """Heights (m, rows along, columns across, cell ``resolution``) of the rock under
+    ``tile_map``'s holds (laid with ``margin``): each copy carries the square of ``patch`` (the
+    hold cloud in the tile's frame, heights above its board) it was detected on, turned and
+    mirrored as its holds are; the board (height 0) elsewhere. The field starts at the low
+    corner of ``along`` × ``across`` and reaches past its high edges to the last copy's. Cells
+    the cloud did not measure (its camera's shadows) are interpolated linearly, as the detector
+    fills them (§2.1)."""
+    from scipy.interpolate import griddata
+
+    centre, pitch, copies = tile_copies(tile, seed, along, across, margin)
+    half = int(round(pitch / 2 / resolution))
+    local = (np.asarray(patch, float)[:, :2] - centre) / resolution
+    keep = np.all(np.abs(local) <= half + 0.5, axis=1)
+    idx = np.clip(np.round(local[keep]).astype(int) + half, 0, 2 * half)
+    square = np.full((2 * half + 1, 2 * half + 1), -np.inf)
+    np.maximum.at(square, (idx[:, 0], idx[:, 1]), np.asarray(patch, float)[keep, 2])
+    known = np.isfinite(square)
+    empty = np.argwhere(~known)
+    square[~known] = griddata(np.argwhere(known), square[known], empty, method="linear")
+    outside = ~np.isfinite(square)
+    square[outside] = griddata(
+        np.argwhere(known), square[known], np.argwhere(outside), method="nearest"
+    )
+    square = np.maximum(square, 0.0)
+    reach = np.max([offset for _, offset in copies], axis=0) + pitch / 2
+    shape = tuple(int(round((reach[k] - (along, across)[k][0]) / resolution)) + 1 for k in (0, 1))
+    heights = np.zeros(shape)
+    cells = np.stack(np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij"), -1)
+    at = cells * resolution + [along[0], across[0]]
+    for turn, offset in copies:
+        q = at - offset
+        inside = np.all(np.abs(q) <= pitch / 2, axis=-1)
+        p = np.round(q[inside] @ turn.T / resolution).astype(int) + half
+        p = np.clip(p, 0, 2 * half)
+        heights[inside] = np.maximum(heights[inside], square[p[:, 0], p[:, 1]])
+    return heights
