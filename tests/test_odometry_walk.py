@@ -7,25 +7,10 @@ from __future__ import annotations
 import pytest
 from support.walk_run import dynamixel_walk
 
-HUBROBO_SHORT = (
-    "2.7 % over 1 m (2.5 % over 5 m) on the twin's true time base: the estimate runs 2.7 cm "
-    "long and the stance slid 1.6 cm back in truth, which four feet down cannot show; the "
-    "0.8 % measured before came from a loop run 11 % ahead of the physics (bench/stepped_chunks.py)"
-)
-
 
 @pytest.mark.parametrize(
     "robot,gait,vx,seconds",
-    [
-        pytest.param(
-            "hubrobo",
-            "crawl",
-            0.02,
-            50.0,
-            marks=pytest.mark.xfail(strict=True, reason=HUBROBO_SHORT),
-        ),
-        ("widowx", "tripod", 0.05, 30.0),
-    ],
+    [("hubrobo", "crawl", 0.02, 50.0), ("widowx", "tripod", 0.05, 30.0)],
 )
 def test_leg_odometry_keeps_within_two_percent_of_a_walk(robot, gait, vx, seconds) -> None:
     """HubRobo crawls 1 m under G/6, where its feet slide; the WidowX walks 1.5 m at 1 g.
