@@ -10,7 +10,10 @@ detection there is false). Detection time is the median over the seeds; beside i
 occlusion-filling stage (Delaunay and interpolation onto the lattice) on every point of the
 frame against on the point nearest each lattice node (what detection does), same frame.
 
-    .venv/bin/python bench/hold_recall.py [--seeds 8] [--tolerance 0.01]
+``--relief rock`` puts on the board the rock each tile of holds was detected on (worlds.HoldMap)
+instead of the holds' columns.
+
+    .venv/bin/python bench/hold_recall.py [--seeds 8] [--tolerance 0.01] [--relief rock]
 """
 
 from __future__ import annotations
@@ -27,13 +30,13 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.climb_run import SlopeClimb  # noqa: E402
 
+from climbd.daemon.contract.geometry import regression_frame  # noqa: E402
 from climbd.daemon.contract.messages import BodyState  # noqa: E402
 from climbd.plugins.perception.graspable import (  # noqa: E402
     GraspablePerception,
     interpolate_heights,
     lattice_spacing,
     nearest_per_node,
-    regression_frame,
     within_range,
 )
 
@@ -67,11 +70,11 @@ def filling(plugin: GraspablePerception, cloud: np.ndarray) -> tuple[float, floa
 
 
 def score(
-    seed: int, tolerance: float, plugin: GraspablePerception
+    seed: int, tolerance: float, plugin: GraspablePerception, relief: str
 ) -> tuple[int, int, int, float, tuple[float, float, int, int]]:
     """(holds in view, of them found, false detections, detection seconds, the filling stage's
     seconds on every point and on one a node with those points' counts) for one map."""
-    climb = SlopeClimb(periodic=False, seed=seed)
+    climb = SlopeClimb(periodic=False, seed=seed, relief=relief)
     try:
         frame = climb.twin.depth_frame("front")
         clouds: list[np.ndarray] = []
@@ -116,6 +119,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--tolerance", type=float, default=0.01)
+    parser.add_argument("--relief", choices=["columns", "rock"], default="columns")
     args = parser.parse_args()
     plugin = GraspablePerception()
     print(
@@ -126,7 +130,7 @@ def main() -> None:
     times, ratios, seen, hit = [], [], 0, 0
     for seed in range(args.seeds):
         visible, found, false, seconds, (every, reduced, points, kept) = score(
-            seed, args.tolerance, plugin
+            seed, args.tolerance, plugin, args.relief
         )
         times.append(seconds)
         ratios.append(every / reduced)

@@ -21,6 +21,7 @@ from climbd.daemon.contract.hardware import DepthFrame, Intrinsics
 from climbd.daemon.contract.messages import (
     BodyState,
     HoldMap,
+    JointState,
     Joists,
     TrussGrasps,
     TrussMember,
@@ -239,8 +240,10 @@ class TwoTopics(PerceptionPlugin):
 
 def test_the_perception_role_publishes_each_declared_feature_of_a_tuple():
     role = PerceptionRole(PROFILE, argparse.Namespace())
+    stand = Kinematics(PROFILE).stand_joints().tolist()
     for stamp in np.arange(0.0, 1.0, 0.01):
         role.on_body(BodyState(stamp=float(stamp), position=[0.1, 0.0, 0.2]))
+        role.on_joints(JointState(stamp=float(stamp), position=stand))
     blank = np.zeros((8, 8), np.uint16)
     frame = DepthFrame(blank, 0.001, Intrinsics(8, 8, 4.0, 4.0, 4.0, 4.0), np.eye(4), 0.5)
     published: list = []

@@ -6,19 +6,26 @@ gripper servos on a pty; the controller, limit guard and loop run on a stepped c
 the control role's leg odometry with the twin's IMU. The grippers close and open through the
 driver and the gait acts on what the driver reports they hold.
 
-The hold map reaches the controller as the world model would publish it, in the odometry
-frame at 2 Hz, but built from the world's true holds (``SlopeScene.tops``) placed by the
-body's estimate: a run of this harness isolates the gait from perception. What is logged is
-the twin's truth: base position up the slope, the TSM of the grippers that hold, slips.
+The hold map reaches the controller as the world model publishes it, in the odometry frame
+at 2 Hz. With ``perceive``, it is the world model's own (``WorldModel``): each period the
+twin ray-casts HubRobo's D435, graspable detection (the perception plugin) finds holds in the
+frame, and the world model tracks them with the body's estimate at the frame's time; the
+world's holds only score the run. Without, it is built from the world's true holds
+(``SlopeScene.tops``) placed by the body's estimate: such a run isolates the gait from
+perception. What is logged is the twin's truth: base position up the slope, the TSM of the
+grippers that hold, slips.
 """
 
 from __future__ import annotations
 
 from types import SimpleNamespace
 
+import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.odometry import TILT_TIME
+from climbd.daemon.algorithms.self_filter import SelfFilter
+from climbd.daemon.algorithms.world import WorldModel, world_config
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import HoldMap, MappedHold, Mode
 from climbd.daemon.runtime.loader import Isolated
@@ -26,6 +33,7 @@ from climbd.daemon.runtime.loop import SteppedClock
 from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.dynamixel.bus import DynamixelBus
 from climbd.plugins.gaits.free_climb import ClimbConfig, ClimbPlanner, FreeClimb
+from climbd.plugins.perception.graspable import GraspablePerception
 from support.climb_run import ClimbLog, SlopeScene
 
 SETTLE = 5 * TILT_TIME
@@ -42,10 +50,13 @@ HOLD_MAP_PERIOD = 0.5
 class DriverClimb(SlopeScene):
     """The scene's twin serving its bus, and HubRobo's control stack driving it through the
     Dynamixel driver with the ``free_climb`` gait (``config`` over the scene's mass and
-    gravity)."""
+    gravity); with ``perceive``, on the holds its own camera finds (``relief``: see
+    SlopeScene)."""
 
-    def __init__(self, seed: int, **config) -> None:
-        super().__init__(seed, bus=True)
+    def __init__(
+        self, seed: int, relief: str = "columns", perceive: bool = False, **config
+    ) -> None:
+        super().__init__(seed, bus=True, relief=relief)
         self.config = ClimbConfig(mass=self.mass, gravity=self.config.gravity, **config)
         feet = self.start_feet
         self.place(feet, ClimbPlanner(self.kin, self.config, periodic=False).base_for(feet))
@@ -69,8 +80,33 @@ class DriverClimb(SlopeScene):
         self.left = ""
         self.releases = 0
         self.x0 = self.t0 = 0.0
+        world = world_config(self.profile)
+        self.world = WorldModel(world) if perceive else None
+        self.graspable = GraspablePerception()
+        self.self_filter = SelfFilter(self.kin, world.self_filter.radius)
 
     def hold_map(self) -> HoldMap:
+        """The hold map the controller is given now: the world model's, else the truth's."""
+        return self.truth_map() if self.world is None else self.perceived_map()
+
+    def perceived_map(self) -> HoldMap:
+        """One D435 frame now, its graspable points tracked by the world model at the body's
+        estimate now (the frame's time): the world model's hold map."""
+        controller = self.stack.controller
+        body = controller.body
+        frame = self.twin.depth_frame("front")
+        frame, _ = self.self_filter.apply(frame, np.asarray(controller.measured.position))
+        self.world.frame(frame, body)
+        seen = self.graspable.process(frame, body)
+        seen = msgspec.structs.replace(
+            seen,
+            frame_position=list(body.position),
+            frame_orientation=list(body.orientation),
+        )
+        self.world.feature(seen)
+        return next(m for m in self.world.messages(self.clock.now()) if isinstance(m, HoldMap))
+
+    def truth_map(self) -> HoldMap:
         """The world's holds in the odometry frame, placed by the body's estimate now."""
         body = self.stack.controller.body
         position, quaternion = self.twin.body_pose()

@@ -1,0 +1,88 @@
+"""Paper 001's climb on the holds HubRobo's own camera finds (issue 36 item 1), beside the same
+climb on the world's true holds, both through the control role on the rock relief.
+
+Per map (``slope_map`` seeds, ``relief = "rock"``: each tile of holds carries the ClimbLab rock
+it was detected on, and a gripper holds on the rock only at a hold of the map), the default
+planner, told the run's length, climbs for ``--seconds`` through the Dynamixel driver
+(tests/support/climb_driver.py) twice: on the world model's hold map, built from the twin's
+ray-cast D435 frames by graspable detection and tracked with the leg odometry's body at each
+frame's time (2 Hz); and on the world's true holds placed by the body's estimate (the gait
+isolated). Printed per map: distance up the slope (twin truth) of each and their ratio, slips,
+missed grips, least TSM of the holding grippers, and the perceived map at the end: its holds,
+and how many lie within 1 cm (in the wall plane) of a true hold.
+
+    .venv/bin/python bench/free_climb_perceived.py [--seeds 4] [--seconds 45] [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from support.climb_driver import DriverClimb  # noqa: E402
+from support.climb_run import ClimbLog  # noqa: E402
+
+
+def climb(seed: int, seconds: float, perceive: bool) -> tuple[ClimbLog, str, int, int]:
+    """One climb: its log, why it left ACTIVE (empty: it did not), and the hold map's holds at
+    the end with how many of them lie within 1 cm of a true hold."""
+    run = DriverClimb(seed, relief="rock", perceive=perceive, duration=seconds)
+    try:
+        run.begin()
+        log = run.run(seconds)
+        mapped = np.reshape([h.position for h in run.hold_map().holds], (-1, 3))
+        true = np.reshape([h.position for h in run.truth_map().holds], (-1, 3))
+        normal = run.rotation[:, 2]
+        flat = np.eye(3) - np.outer(normal, normal)  # the wall plane, near enough in odometry
+        gap = cKDTree(true @ flat).query(mapped @ flat)[0] if len(mapped) else np.zeros(0)
+        return log, run.left, len(mapped), int(np.count_nonzero(gap <= 0.01))
+    finally:
+        run.close()
+
+
+def both(seed: int, seconds: float) -> tuple[tuple, tuple]:
+    return climb(seed, seconds, True), climb(seed, seconds, False)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--seconds", type=float, default=45.0)
+    parser.add_argument("--jobs", type=int, default=1, help="maps climbed at once (processes)")
+    args = parser.parse_args()
+    seeds = range(args.seeds)
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = list(pool.map(both, seeds, [args.seconds] * len(seeds)))
+    print(
+        f"HubRobo, slope_map on its rock relief, {args.seconds:g} s, default planner, through "
+        "the Dynamixel driver; perceived = the world model's hold map from its own D435, "
+        "true = the world's holds (gait isolated)"
+    )
+    print(
+        "seed  perceived m  true m  ratio  slips p/t  missed p/t  min TSM p/t (m)  "
+        "mapped  on a hold  left p/t"
+    )
+    distances = []
+    for seed, ((p, p_left, mapped, on), (t, t_left, _, _)) in zip(seeds, results, strict=True):
+        distances.append((p.distance, t.distance))
+        print(
+            f"{seed:4d}  {p.distance:11.3f}  {t.distance:6.3f}  {p.distance / t.distance:5.2f}  "
+            f"{p.slips:5d}/{t.slips:<3d}  {p.missed:6d}/{t.missed:<3d}  "
+            f"{min(p.tsm):7.3f}/{min(t.tsm):.3f}  {mapped:6d}  {on:9d}  "
+            f"{p_left or '-'}/{t_left or '-'}"
+        )
+    dist = np.array(distances)
+    print(
+        f"mean  {dist[:, 0].mean():11.3f}  {dist[:, 1].mean():6.3f}  "
+        f"{dist[:, 0].mean() / dist[:, 1].mean():5.2f}"
+    )
+
+
+if __name__ == "__main__":
+    main()
