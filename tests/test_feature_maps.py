@@ -91,6 +91,22 @@ def test_the_view_cone_holds_what_the_camera_sees():
     assert inside.tolist() == [True, False, False]
 
 
+def test_a_hold_hidden_behind_a_leg_or_in_a_hole_is_not_expected_in_view():
+    """A camera 1 m above a board, looking down: three holds on the board. The first's pixel
+    sees the board (visible: were it gone, a miss); the second's sees a gripper 10 cm above it
+    (hidden, as under a swinging limb); the third's has no return (a hole, or a leg's pixel the
+    self filter cut): neither may count a miss. All three are inside the image."""
+    k = Intrinsics(64, 48, 40.0, 40.0, 32.0, 24.0)
+    down = np.array([[0, -1, 0, 0], [-1, 0, 0, 0], [0, 0, -1, 1], [0, 0, 0, 1]], float)
+    depth = np.full((48, 64), 1000, np.uint16)
+    holds = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.0, 0.2, 0.0]])
+    depth[16, 32] = 900  # the pixel of (0.2, 0, 0): row 24 - 40 * 0.2, column 32
+    depth[24, 24] = 0  # the pixel of (0, 0.2, 0)
+    cone = ViewCone(DepthFrame(depth, 0.001, k, down, 0.0), [0.0, 0.0, 0.0], [1, 0, 0, 0], 2.0)
+    assert cone.contains(holds).tolist() == [True, True, True]
+    assert cone.visible(holds).tolist() == [True, False, False]
+
+
 def test_a_joist_seen_while_walking_and_turning_is_one_track_on_its_line():
     spec = JoistSpec(height=0.10, distance=1.2, yaw=math.radians(20.0), length=1.8)
     rng = np.random.default_rng(3)

@@ -42,6 +42,10 @@ smooth the drift away over seconds. The detector's own noise is millimetres."""
 LEVER = 0.3
 """m: a joist heading difference counts as this lever times its radians in the gate."""
 
+OCCLUSION = 0.03
+"""m: a pixel's return this much nearer than a point hides it (a gripper over a hold; the
+depth noise at a hold's range is millimetres)."""
+
 
 def to_odometry(points: np.ndarray, position: list[float], orientation: list[float]) -> np.ndarray:
     """Body-frame points (N×3) placed in the odometry frame by the pose they were seen in."""
@@ -85,7 +89,7 @@ def joists_seen_from(joists: JoistMap, body: BodyState) -> list[Joist]:
 
 class ViewCone:
     """Which odometry-frame points a frame could have seen: inside its image, in front of the
-    lens and within ``max_range`` (no occlusion test: a hidden feature may count a miss)."""
+    lens and within ``max_range``; ``visible`` also asks whether the frame saw the place."""
 
     def __init__(
         self, frame: DepthFrame, position: list[float], orientation: list[float], max_range: float
@@ -96,18 +100,37 @@ class ViewCone:
         self._odom_to_camera = np.linalg.inv(body_to_odom @ frame.extrinsics)
         self.intrinsics = frame.intrinsics
         self.max_range = max_range
+        self._depth = frame.depth
+        self._scale = frame.depth_scale
 
-    def contains(self, points: np.ndarray) -> np.ndarray:
+    def _project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel column, row and depth (m) of each point."""
         p = np.asarray(points, float).reshape(-1, 3)
         cam = p @ self._odom_to_camera[:3, :3].T + self._odom_to_camera[:3, 3]
         z = cam[:, 2]
         k = self.intrinsics
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = k.fx * cam[:, 0] / z + k.ppx
-            v = k.fy * cam[:, 1] / z + k.ppy
+            return k.fx * cam[:, 0] / z + k.ppx, k.fy * cam[:, 1] / z + k.ppy, z
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """Inside the image, in front of the lens, within range (no occlusion test: a hidden
+        feature may count a miss)."""
+        u, v, z = self._project(points)
+        k = self.intrinsics
         return (
             (z > 0) & (z <= self.max_range) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
         )
+
+    def visible(self, points: np.ndarray) -> np.ndarray:
+        """Contained, and the frame saw the place: its pixel has a return (not a hole, not a
+        leg the self filter cut out) no nearer than ``OCCLUSION`` in front of the point. A hold
+        under a swinging gripper is hidden, not missed."""
+        seen = self.contains(points)
+        u, v, z = self._project(points)
+        at = np.flatnonzero(seen)
+        depth = self._depth[v[at].astype(int), u[at].astype(int)] * self._scale
+        seen[at] = (depth > 0) & (depth >= z[at] - OCCLUSION)
+        return seen
 
 
 def hold_tracking() -> TrackConfig:
@@ -135,14 +158,14 @@ class HoldTracks:
         """Fold one frame's graspable points in (``confidence`` per sighting: the detector
         gives none)."""
         points = to_odometry(seen.points, seen.frame_position, seen.frame_orientation)
-        in_view = None if cone is None else (lambda ts: cone.contains(_estimates(ts)))
+        in_view = None if cone is None else (lambda ts: cone.visible(_estimates(ts)))
         self.tracker.update(list(points), [confidence] * len(points), seen.frame_stamp, in_view)
 
     def offer(self, grasps: TrussGrasps, cone: ViewCone | None, confidence: float = 0.5) -> None:
         """Fold the truss's grasp targets in as holds (``grasp_holds``), so a gripper-equipped
         limb may take a member as a hold."""
         points = grasp_holds(grasps)
-        in_view = None if cone is None else (lambda ts: cone.contains(_estimates(ts)))
+        in_view = None if cone is None else (lambda ts: cone.visible(_estimates(ts)))
         self.tracker.update(list(points), [confidence] * len(points), grasps.frame_stamp, in_view)
 
     def message(self, stamp: float, now: float) -> HoldMap:
