@@ -674,6 +674,45 @@ def test_holds_stay_under_the_feet_when_the_odometry_frame_shifts_and_a_swing_fo
     gait.stop()
 
 
+def test_a_map_that_adds_a_hold_keeps_the_others_where_they_were_and_the_route():
+    """Perception's maps change every frame: holds come into view and the others jitter by
+    millimetres. The holds the gait had stay where they were (each moved under
+    ``hold_tolerance / 2``) beside the new one, and the route the search committed to stands
+    while every hold it steps to is still mapped; it goes with a hold it needs. (Every new map
+    threw both away, so a climb on its own perception planned afresh twice a second.)"""
+    gait = instantiate("climbd.gaits", "free_climb", {"foot_radius": 0.0}, PROFILE, "t")
+    gait.stepped = True
+    gait.start(BodyState(position=[0.0, 0.0, CFG.base_height]), start_feet())
+    rng = np.random.default_rng(4)
+    tops = np.column_stack([rng.uniform(-0.3, 0.5, (300, 2)), np.zeros(300)])
+
+    def tick(t: float, at: np.ndarray) -> None:
+        holds = [
+            MappedHold(id=k, confidence=1.0, seen=1, age=0.0, position=p.tolist())
+            for k, p in enumerate(at)
+        ]
+        base = gait.runner.base if gait.last is None else gait.last.base
+        body = BodyState(position=base.tolist())
+        gait.step(t, DT, body, {HoldMap.TOPIC: HoldMap(stamp=t, holds=holds)}, None)
+
+    tick(0.0, tops)
+    before = gait.holds.copy()
+    jitter = rng.uniform(-0.002, 0.002, tops.shape) * [1.0, 1.0, 0.0]
+    tick(0.5, np.vstack([tops + jitter, [[0.45, 0.0, 0.0]]]))
+    np.testing.assert_array_equal(gait.holds[:-1], before)
+    np.testing.assert_allclose(gait.holds[-1], [0.45, 0.0, 0.0], atol=1e-9)
+    planner = gait.runner.planner
+    route = planner.committed
+    assert route, "the first plan commits a route"
+    feet = gait.runner.feet
+    planner._remember(feet, np.vstack([gait.holds, [[0.6, 0.1, 0.0]]]))  # one more
+    assert planner.committed == route
+    needed = np.all(gait.holds == route[0].target, axis=1)
+    planner._remember(feet, gait.holds[~needed])
+    assert planner.committed == ()
+    gait.stop()
+
+
 def _fresh_runner(holds: np.ndarray) -> ClimbRunner:
     """A non-periodic runner gripping the standing feet, planning in simulated time."""
     planner = ClimbPlanner(KIN, CFG, periodic=False)

@@ -69,9 +69,11 @@ SETTLE_COUNT_TIMEOUT = 5.0
 FINGERS_ON_HOLD = 0.5
 """How far a gripper's fingers close (0 open, 1 closed on nothing) before they grasp a hold
 between them: where they stop while it holds."""
-GRASP_OFFSET = 0.01
+GRASP_OFFSET = 0.016
 """How far (m, in the wall's plane) a foot may stand from a hold of a rock relief and still
-close on it: the tolerance at which bench/hold_recall.py counts a detection as the hold."""
+close on it: the palm's radius (ClimbLab's gripper, 32 mm across), so the hold lies under the
+palm as the spines close round it. A graspable point is one spot of a hold's graspable top,
+which the camera's detection may place elsewhere on it by millimetres."""
 
 
 @dataclass(frozen=True)

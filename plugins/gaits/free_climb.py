@@ -501,13 +501,15 @@ class ClimbPlanner:
         return steps, barred
 
     def _remember(self, feet: np.ndarray, holds: np.ndarray) -> set:
-        """The non-periodic gaits' bookkeeping before a plan: forget the known steps and the
-        committed sequence if the hold map changed, remember the stance ``feet`` (once, however
-        often it is planned from); returns the recent stances (barred)."""
+        """The non-periodic gaits' bookkeeping before a plan: forget the known steps if the
+        hold map changed, and the committed sequence if a hold it steps to is gone; remember the
+        stance ``feet`` (once, however often it is planned from); returns the recent stances
+        (barred)."""
         token = hash(holds.tobytes())
         if token != self.holds_token:
             self.known.clear()
-            self.committed = ()
+            if not all((holds == step.target).all(axis=1).any() for step in self.committed):
+                self.committed = ()
             self.holds_token = token
         key = stance_key(feet)
         if not self.recent or self.recent[-1] != key:
@@ -871,15 +873,20 @@ class FreeClimb(GaitPlugin):
         """The stamp of the hold map ``holds`` came from."""
 
     def take_map(self, seen: HoldMap, body: BodyState) -> None:
-        """Take a new hold map (``wall_holds``). While the same holds moved less than
-        ``hold_tolerance / 2`` (the estimate's jitter, the body lagging its plan) the current
-        positions stay, and with them the plan and its memory; else the new ones replace them
-        and a swing aims where its hold, by its id, is now (or backs off if it is gone)."""
+        """Take a new hold map (``wall_holds``). A hold the map had that moved less than
+        ``hold_tolerance / 2`` (the estimate's jitter, the body lagging its plan) stays where it
+        was, so a map that only adds holds or drops some keeps the plan's route where its holds
+        stay (``_remember``); a swing aims where its hold, by its id, is now (or backs off if it
+        is gone)."""
         holds, ids = self.wall_holds(seen, body)
         self.mapped = seen.stamp
-        same = len(ids) == len(self.hold_ids) and np.array_equal(ids, self.hold_ids)
         calm = 0.5 * self.config.hold_tolerance
-        if same and (not len(ids) or np.abs(holds - self.holds).max() < calm):
+        kept = dict(zip(self.hold_ids.tolist(), self.holds, strict=True))
+        for i, hold in enumerate(ids.tolist()):
+            before = kept.get(hold)
+            if before is not None and np.abs(holds[i] - before).max() < calm:
+                holds[i] = before
+        if np.array_equal(ids, self.hold_ids) and np.array_equal(holds, self.holds):
             return
         step = self.runner.step
         if step is not None and len(self.holds):

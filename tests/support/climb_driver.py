@@ -9,8 +9,10 @@ driver and the gait acts on what the driver reports they hold.
 The hold map reaches the controller as the world model publishes it, in the odometry frame
 at 2 Hz. With ``perceive``, it is the world model's own (``WorldModel``): each period the
 twin ray-casts HubRobo's D435, graspable detection (the perception plugin) finds holds in the
-frame, and the world model tracks them with the body's estimate at the frame's time; the
-world's holds only score the run. Without, it is built from the world's true holds
+frame, and the world model tracks them with the body's estimate at the frame's time; before
+the climb it is given the frames the camera took on the way up to the start (``approach``),
+since from the start it cannot see the holds its rear limbs reach. The world's holds only
+score the run. Without, it is built from the world's true holds
 (``SlopeScene.tops``) placed by the body's estimate: such a run isolates the gait from
 perception. What is logged is the twin's truth: base position up the slope, the TSM of the
 grippers that hold, slips.
@@ -27,7 +29,7 @@ from climbd.daemon.algorithms.odometry import TILT_TIME
 from climbd.daemon.algorithms.self_filter import SelfFilter
 from climbd.daemon.algorithms.world import WorldModel, world_config
 from climbd.daemon.contract.geometry import rotation
-from climbd.daemon.contract.messages import HoldMap, MappedHold, Mode
+from climbd.daemon.contract.messages import BodyState, HoldMap, MappedHold, Mode
 from climbd.daemon.runtime.loader import Isolated
 from climbd.daemon.runtime.loop import SteppedClock
 from climbd.daemon.runtime.stack import control_stack
@@ -45,6 +47,8 @@ machine a late reply must not become a miss (which would change the run); no ser
 here."""
 HOLD_MAP_PERIOD = 0.5
 """s: how often the hold map reaches the controller (the world model's 2 Hz)."""
+APPROACH = (0.45, 0.4, 0.35, 0.3, 0.25, 0.2, 0.15, 0.1, 0.05)
+"""m down the wall: where the camera looked from on the way up to the start (``approach``)."""
 
 
 class DriverClimb(SlopeScene):
@@ -92,10 +96,14 @@ class DriverClimb(SlopeScene):
     def perceived_map(self) -> HoldMap:
         """One D435 frame now, its graspable points tracked by the world model at the body's
         estimate now (the frame's time): the world model's hold map."""
-        controller = self.stack.controller
-        body = controller.body
-        frame = self.twin.depth_frame("front")
-        frame, _ = self.self_filter.apply(frame, np.asarray(controller.measured.position))
+        self.perceive(self.twin.depth_frame("front"), self.stack.controller.body)
+        return next(m for m in self.world.messages(self.clock.now()) if isinstance(m, HoldMap))
+
+    def perceive(self, frame, body: BodyState) -> None:
+        """Cut the legs from ``frame`` (at the joints the driver read), detect its graspable
+        points and fold them into the world model at ``body``, the pose of its time."""
+        joints = np.asarray(self.stack.controller.measured.position)
+        frame, _ = self.self_filter.apply(frame, joints)
         self.world.frame(frame, body)
         seen = self.graspable.process(frame, body)
         seen = msgspec.structs.replace(
@@ -104,7 +112,25 @@ class DriverClimb(SlopeScene):
             frame_orientation=list(body.orientation),
         )
         self.world.feature(seen)
-        return next(m for m in self.world.messages(self.clock.now()) if isinstance(m, HoldMap))
+
+    def approach(self) -> None:
+        """The frames the camera took on the way up to the start, ``APPROACH`` m down the
+        wall, fused at those poses: the holds under the robot at its start, which its camera
+        (its view begins 0.13 m ahead of the body, the rear feet stand 0.17 m behind) cannot
+        see from there. The way up is taken as the odometry would have measured it, exactly."""
+        twin, body = self.twin, self.stack.controller.body
+        here = twin.data.qpos[:3].copy()
+        down_world, down_odometry = self.rotation[:, 0], rotation(body.orientation)[:, 0]
+        try:
+            for back in APPROACH:
+                twin.data.qpos[:3] = here - back * down_world
+                before = np.asarray(body.position) - back * down_odometry
+                self.perceive(
+                    twin.depth_frame("front"),
+                    msgspec.structs.replace(body, position=before.tolist()),
+                )
+        finally:
+            twin.data.qpos[:3] = here
 
     def truth_map(self) -> HoldMap:
         """The world's holds in the odometry frame, placed by the body's estimate now."""
@@ -140,6 +166,8 @@ class DriverClimb(SlopeScene):
         if not stack.stand():
             raise RuntimeError(f"driver climb: the stand did not complete: {safety.reason}")
         stack.run(SETTLE)
+        if self.world is not None:
+            self.approach()
         stack.controller.on_feature(self.hold_map())
         if not safety.request(Mode.ACTIVE, self.clock.now(), reason="climb"):
             raise RuntimeError(f"driver climb: ACTIVE refused: {safety.reason}")
