@@ -6,8 +6,9 @@ it was detected on, and a gripper holds on the rock only at a hold of the map), 
 planner, told the run's length, climbs for ``--seconds`` through the Dynamixel driver
 (tests/support/climb_driver.py) twice: on the world model's hold map, built from the twin's
 ray-cast D435 frames by graspable detection and tracked with the leg odometry's body at each
-frame's time (2 Hz); and on the world's true holds placed by the body's estimate (the gait
-isolated). Printed per map: distance up the slope (twin truth) of each and their ratio, slips,
+frame's time (2 Hz), after the frames of the way up to the start (its camera cannot see the
+holds its rear limbs reach from there); and on the world's true holds placed by the body's
+estimate (the gait isolated). Printed per map: distance up the slope (twin truth) of each and their ratio, slips,
 missed grips, least TSM of the holding grippers, and the perceived map at the end: its holds,
 and how many lie within 1 cm (in the wall plane) of a true hold.
 

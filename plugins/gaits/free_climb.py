@@ -873,19 +873,17 @@ class FreeClimb(GaitPlugin):
         """The stamp of the hold map ``holds`` came from."""
 
     def take_map(self, seen: HoldMap, body: BodyState) -> None:
-        """Take a new hold map (``wall_holds``). A hold the map had that moved less than
-        ``hold_tolerance / 2`` (the estimate's jitter, the body lagging its plan) stays where it
-        was, so a map that only adds holds or drops some keeps the plan's route where its holds
-        stay (``_remember``); a swing aims where its hold, by its id, is now (or backs off if it
-        is gone)."""
+        """Take a new hold map (``wall_holds``). While the holds it shares with the last moved
+        less than ``hold_tolerance / 2`` (the estimate's jitter, the body lagging its plan) they
+        stay where they were, beside the holds it adds, so the plan's route stands where its
+        holds stay (``_remember``); else the new positions replace them all, and a swing aims
+        where its hold, by its id, is now (or backs off if it is gone)."""
         holds, ids = self.wall_holds(seen, body)
         self.mapped = seen.stamp
         calm = 0.5 * self.config.hold_tolerance
-        kept = dict(zip(self.hold_ids.tolist(), self.holds, strict=True))
-        for i, hold in enumerate(ids.tolist()):
-            before = kept.get(hold)
-            if before is not None and np.abs(holds[i] - before).max() < calm:
-                holds[i] = before
+        _, now, was = np.intersect1d(ids, self.hold_ids, return_indices=True)
+        if len(now) and np.abs(holds[now] - self.holds[was]).max() < calm:
+            holds[now] = self.holds[was]
         if np.array_equal(ids, self.hold_ids) and np.array_equal(holds, self.holds):
             return
         step = self.runner.step
