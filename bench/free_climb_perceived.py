@@ -8,9 +8,9 @@ planner, told the run's length, climbs for ``--seconds`` through the Dynamixel d
 ray-cast D435 frames by graspable detection and tracked with the leg odometry's body at each
 frame's time (2 Hz), after the frames of the way up to the start (its camera cannot see the
 holds its rear limbs reach from there); and on the world's true holds placed by the body's
-estimate (the gait isolated). Printed per map: distance up the slope (twin truth) of each and their ratio, slips,
-missed grips, least TSM of the holding grippers, and the perceived map at the end: its holds,
-and how many lie within 1 cm (in the wall plane) of a true hold.
+estimate (the gait isolated). Printed per map: distance up the slope (twin truth) of each and
+their ratio, slips, missed grips, least TSM of the holding grippers, and the perceived map at
+the end: its holds, and how many lie within 1 cm (in the wall plane) of a true hold.
 
     .venv/bin/python bench/free_climb_perceived.py [--seeds 4] [--seconds 45] [--jobs 2]
 """

@@ -42,13 +42,13 @@ def test_hubrobo_climbs_on_the_holds_its_own_camera_finds(climbed) -> None:
 
 
 def test_the_hold_map_is_built_from_the_camera_and_lies_on_the_rocks_holds(climbed) -> None:
-    """The world model's map, in the odometry frame: most of its holds lie within 1 cm of a
-    true hold in the wall's plane (the rest is rock the detector takes for a hold and the twin
+    """The world model's map, in the odometry frame: most of its holds lie within 1 cm of a true
+    hold in the wall's plane (the rest is rock the detector takes for a hold and the twin
     does not let a gripper hold), at the hold's height within the spines' closing height (a
-    hold that far off its mapped height is still between the closing spines; measured: 1.4 cm
-    worst, most 0.5-1 cm low); holds seen again are surer; and it holds holds within the rear
-    limbs' reach at the start, behind where the standing camera's view begins (0.13 m ahead of
-    the body), which the approach's frames saw."""
+    hold that far off its mapped height is still between the closing spines); holds seen
+    again are surer; and it holds holds within the rear limbs' reach at the start, behind
+    where the standing camera's view begins (0.13 m ahead of the body), which the approach's
+    frames saw."""
     climb, _ = climbed
     mapped = climb.hold_map().holds
     position = np.reshape([h.position for h in mapped], (-1, 3))
