@@ -112,21 +112,23 @@ class ViewCone:
         with np.errstate(divide="ignore", invalid="ignore"):
             return k.fx * cam[:, 0] / z + k.ppx, k.fy * cam[:, 1] / z + k.ppy, z
 
-    def contains(self, points: np.ndarray) -> np.ndarray:
-        """Inside the image, in front of the lens, within range (no occlusion test: a hidden
-        feature may count a miss)."""
-        u, v, z = self._project(points)
+    def _inside(self, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
         k = self.intrinsics
         return (
             (z > 0) & (z <= self.max_range) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
         )
 
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """Inside the image, in front of the lens, within range (no occlusion test: a hidden
+        feature may count a miss)."""
+        return self._inside(*self._project(points))
+
     def visible(self, points: np.ndarray) -> np.ndarray:
         """Contained, and the frame saw the place: its pixel has a return (not a hole, not a
         leg the self filter cut out) no nearer than ``OCCLUSION`` in front of the point. A hold
         under a swinging gripper is hidden, not missed."""
-        seen = self.contains(points)
         u, v, z = self._project(points)
+        seen = self._inside(u, v, z)
         at = np.flatnonzero(seen)
         depth = self._depth[v[at].astype(int), u[at].astype(int)] * self._scale
         seen[at] = (depth > 0) & (depth >= z[at] - OCCLUSION)

@@ -475,15 +475,13 @@ class Twin:
         """Which feet touch a graspable geom; on a rock relief, only within ``GRASP_OFFSET`` of
         one of its holds (in the wall's plane), as the spines close only around a hold."""
         d, r = self.data, self.robot
-        on = np.zeros(len(r.foot_geoms), bool)
-        for g1, g2 in zip(d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon], strict=True):
-            for foot, other in ((g1, g2), (g2, g1)):
-                legs = np.flatnonzero(r.foot_geoms == foot)
-                if not len(legs) or other not in r.graspable_geoms:
-                    continue
-                foot_at = d.site_xpos[r.foot_sites[legs[0]]]
-                if other != r.relief_geom or self._near_hold(foot_at):
-                    on[legs] = True
+        g1, g2 = d.contact.geom1[: d.ncon], d.contact.geom2[: d.ncon]
+        foot, other = np.concatenate([g1, g2]), np.concatenate([g2, g1])
+        grasped = np.isin(other, r.graspable_geoms)
+        on = np.isin(r.foot_geoms, foot[grasped & (other != r.relief_geom)])
+        on_rock = np.isin(r.foot_geoms, foot[grasped & (other == r.relief_geom)]) & ~on
+        for leg in np.flatnonzero(on_rock):
+            on[leg] = self._near_hold(d.site_xpos[r.foot_sites[leg]])
         return on
 
     def _near_hold(self, foot: np.ndarray) -> bool:
