@@ -47,7 +47,6 @@ from climbd.plugins.gaits.free_climb import (
     ClimbConfig,
     ClimbPlanner,
     Step,
-    stance_key,
 )
 from climbd.plugins.gaits.tsm import tumble_stability_margins
 
@@ -163,11 +162,10 @@ def search_reach(seed: int, swings: int, beam: int = 400) -> float:
     best = float(start @ GOAL)
     for _ in range(swings):
         reached: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-        for feet, base in level:
-            for step, after in planner.successors(feet, base, holds, set()):
-                key = stance_key(after)
-                if key not in reached or reached[key][1] @ GOAL < step.base_end @ GOAL:
-                    reached[key] = (after, step.base_end)
+        for moves in planner.expand(level, holds):
+            for move in moves:
+                if move.key not in reached or reached[move.key][1] @ GOAL < move.ahead:
+                    reached[move.key] = (move.after, move.step.base_end)
         if not reached:
             break
         level = sorted(reached.values(), key=lambda n: -(n[1] @ GOAL))[:beam]

@@ -98,6 +98,34 @@ def test_scalar_tick_ik_equals_the_vectorised_ik(robot: str, offsets: list[float
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
+def test_legs_repeated_solve_many_points_per_leg_as_each_leg_alone(robot: str) -> None:
+    """``Kinematics(profile, repeat=k)`` (a planner's many candidates per leg) gives each of
+    its k points per leg the joints and reachable mask the robot's own IK gives that point,
+    inside and outside the workspace and its legs' own joint limits (made to differ from leg
+    to leg here); its scalar tick IK agrees too."""
+    data = profiles.msgspec.to_builtins(KIN[robot].profile)
+    for i, leg in enumerate(data["legs"]):
+        for joint in leg["joints"]:
+            joint["limits"]["upper"] -= 0.05 * i
+    kin, k = Kinematics(profiles.from_dict(data, robot)), 5
+    many = Kinematics(kin.profile, repeat=k)
+    rng = np.random.default_rng(3)
+    offsets = rng.uniform(-0.3, 0.3, (k, kin.n_legs, 3)) * np.linspace(0.0, 1.0, k)[:, None, None]
+    feet = kin.stand_feet()[None] + offsets  # (k, legs, 3): some far outside the workspace
+    q, reachable = many.ik(feet.transpose(1, 0, 2).reshape(-1, 3))
+    q = q.reshape(kin.n_legs, k, 3)
+    reachable = reachable.reshape(kin.n_legs, k)
+    assert reachable.any() and not reachable.all()
+    for i in range(k):
+        q_one, reachable_one = kin.ik(feet[i])
+        assert reachable[:, i].tolist() == reachable_one.tolist()
+        np.testing.assert_allclose(q[:, i], q_one.reshape(-1, 3), rtol=0, atol=1e-12)
+    q_tick, reachable_tick = many.ik_feet(feet.transpose(1, 0, 2).reshape(-1, 3).tolist())
+    assert reachable_tick == reachable.reshape(-1).tolist()
+    np.testing.assert_allclose(np.reshape(q_tick, q.shape), q, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
 @settings(max_examples=100, deadline=None)
 @given(u=st.lists(unit, min_size=18, max_size=18))
 def test_jacobian_matches_finite_differences(robot: str, u: list[float]) -> None:

@@ -29,6 +29,7 @@ for one tick's few legs, numpy's per-call overhead costs more than the arithmeti
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -82,7 +83,9 @@ def _two_link(u, w, l2, l3, knee_sign):
 class Kinematics:
     """FK, IK, Jacobian and foot forces of every leg of ``profile``, vectorised over legs."""
 
-    def __init__(self, profile: Profile) -> None:
+    def __init__(self, profile: Profile, repeat: int = 1) -> None:
+        """``repeat`` > 1 repeats each leg that many times in a row (leg-major), so one call
+        solves ``repeat`` points per leg (a planner checking many candidate footholds)."""
         self.profile = profile
         legs = profile.legs
         self.n_legs = len(legs)
@@ -109,14 +112,47 @@ class Kinematics:
                 for leg in legs
             ]
         )
-        self._leg_frames = [
-            (leg.kind == CFT, *self.mount[i].tolist(), *np.hstack([cy, sy, links[i], ks]).tolist())
-            for i, (leg, cy, sy, ks) in enumerate(
-                zip(legs, self.cos_yaw, self.sin_yaw, self.knee_sign, strict=True)
+        if repeat > 1:
+            self._repeat(repeat)
+
+    def _repeat(self, times: int) -> None:
+        """Each leg's arrays repeated ``times`` times in a row (see ``__init__``)."""
+        for name in ("mount", "yaw", "rot", "cos_yaw", "sin_yaw", "l1", "l2", "l3", "cft"):
+            setattr(self, name, np.repeat(getattr(self, name), times, axis=0))
+        self.knee_sign = np.repeat(self.knee_sign, times)
+        for name in ("direction", "zero_offset", "lower", "upper", "_mid", "_half_range"):
+            per_leg = getattr(self, name).reshape(self.n_legs, 3)
+            setattr(self, name, np.repeat(per_leg, times, axis=0).reshape(-1))
+        self.leg_names = [name for name in self.leg_names for _ in range(times)]
+        self.n_legs *= times
+        self.n_joints *= times
+
+    @functools.cached_property
+    def _leg_frames(self) -> list[tuple]:
+        """Per leg, for ``ik_feet``: its form, mount, yaw's cosine and sine, links and knee
+        sign as floats (built on first use: a planner's many-leg Kinematics never needs them)."""
+        return [
+            (cft, *mount.tolist(), cy, sy, *links.tolist(), ks)
+            for cft, mount, cy, sy, links, ks in zip(
+                self.cft.tolist(),
+                self.mount,
+                self.cos_yaw.tolist(),
+                self.sin_yaw.tolist(),
+                np.column_stack((self.l1, self.l2, self.l3)),
+                self.knee_sign.tolist(),
+                strict=True,
             )
         ]
-        self._leg_joints = np.stack([self.direction, self.zero_offset], 1).reshape(-1, 6).tolist()
-        self._leg_limits = np.stack([self._mid, self._half_range], 1).reshape(-1, 6).tolist()
+
+    @functools.cached_property
+    def _leg_joints(self) -> list[list[float]]:
+        """Per leg, for ``ik_feet``: each joint's direction and zero offset."""
+        return np.stack([self.direction, self.zero_offset], 1).reshape(-1, 6).tolist()
+
+    @functools.cached_property
+    def _leg_limits(self) -> list[list[float]]:
+        """Per leg, for ``ik_feet``: each joint's mid-range and half range (with tolerance)."""
+        return np.stack([self._mid, self._half_range], 1).reshape(-1, 6).tolist()
 
     # --- joint <-> kinematic angles ---------------------------------------------------
 

@@ -58,7 +58,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Annotated, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal, NamedTuple
 
 import msgspec
 import numpy as np
@@ -86,6 +86,8 @@ SWING_SAMPLES = (0.25, 0.5, 0.75, 1.0)
 """Swing phases at which a step's reach and TSM are checked before it is taken."""
 RECENT = 32
 """Stances the non-periodic gait remembers and does not return to."""
+REACH_CHUNK = 4096
+"""Points per leg that one vectorised reach call solves at most (bounds its memory)."""
 SLOPE_NOTICE = 2.0
 """Degrees between the measured and the configured slope beyond which the gait says so."""
 KNOWN_POSTURES = 4096
@@ -99,7 +101,9 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     mass) and the foothold rule's limits: ``max_stride`` is ClimbLab's allowable maximum stride
     for discrete footholds, ``min_stride`` its same-point distance, ``hold_spacing`` the least
     distance (m) between two grippers' holds (one palm's width). ``horizon`` (swings) and
-    ``beam`` (postures kept per swing) bound the non-periodic gait's look-ahead; ``limb_rule``
+    ``beam`` (postures kept per swing) bound the non-periodic gait's look-ahead (a beam of 120
+    is the narrowest that came within 10 % of the bound on each of 16 maps, where 12 to 100
+    left one map at 0.87: its best route steps back first; bench/free_climb_maps.py); ``limb_rule``
     is how the non-periodic gait chooses its swing: ``"search"`` by that look-ahead, ``"paper"``
     by §3.1's count of options ahead (the periodic gait ignores it). The search may put the base
     up to ``max_lead`` (m) up the slope beyond the diagonals' crossing: the furthest of
@@ -132,7 +136,7 @@ class ClimbConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     foot_radius: Annotated[float, msgspec.Meta(ge=0.0)] | None = None
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.0
     horizon: Annotated[int, msgspec.Meta(ge=1)] = 11
-    beam: Annotated[int, msgspec.Meta(ge=1)] = 12
+    beam: Annotated[int, msgspec.Meta(ge=1)] = 120
     limb_rule: Literal["search", "paper"] = "search"
     max_lead: Annotated[float, msgspec.Meta(ge=0.0, le=0.2)] = 0.08
     lead_steps: Annotated[int, msgspec.Meta(ge=2)] = 4
@@ -198,6 +202,17 @@ def diagonal_crossing(feet: np.ndarray) -> np.ndarray | None:
     return point[0] if crosses[0] else None
 
 
+class Move(NamedTuple):
+    """A feasible step from a posture, the feet after it, their stance (``stance_key``) and
+    the base's progress."""
+
+    step: Step
+    after: np.ndarray
+    key: tuple[float, ...]
+    ahead: float
+    """How far the step's base ends towards the goal (m)."""
+
+
 def sequence_value(path: tuple[Step, ...]) -> tuple[int, float, float]:
     """How the search ranks a sequence of swings: by its length (one that ends sooner ranks
     lower), then how far its base ends towards the goal, then its first swing's stride."""
@@ -219,14 +234,16 @@ class LegReach:
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """(n_legs, m) reachable flags of body-frame points shaped (n_legs, m, 3)."""
         m = points.shape[1]
+        if m > REACH_CHUNK:
+            return np.concatenate(
+                [self(points[:, i : i + REACH_CHUNK]) for i in range(0, m, REACH_CHUNK)], axis=1
+            )
         if m == 0:
             return np.zeros((self.n_legs, 0), dtype=bool)
         batch = 1 << (m - 1).bit_length()
         kin = self._kinematics.get(batch)
         if kin is None:
-            legs = [leg for leg in self.profile.legs for _ in range(batch)]
-            kin = Kinematics(msgspec.structs.replace(self.profile, legs=legs))
-            self._kinematics[batch] = kin
+            kin = self._kinematics[batch] = Kinematics(self.profile, repeat=batch)
         padded = np.zeros((self.n_legs, batch, 3))
         padded[:, :m] = points
         padded[:, m:] = points[:, :1]
@@ -256,7 +273,7 @@ class ClimbPlanner:
         """Holds the periodic gait stepped back from, barred to their limb until a stride ahead."""
         self.recent: deque[tuple] = deque(maxlen=RECENT)
         """The non-periodic gait's latest stances, which it does not return to."""
-        self.known: dict[tuple, list[tuple[Step, np.ndarray]]] = {}
+        self.known: dict[tuple, list[Move]] = {}
         """Feasible steps of the postures searched, for the hold map of ``holds_token``."""
         self.holds_token: int | None = None
         self.committed: tuple[Step, ...] = ()
@@ -312,63 +329,83 @@ class ClimbPlanner:
     def feasible_steps(
         self, feet: np.ndarray, base: np.ndarray, limbs: np.ndarray, targets: np.ndarray
     ) -> list[Step | None]:
-        """For each candidate swing of ``limbs[i]`` to ``targets[i]``, the step with the base at
+        """For each candidate swing of ``limbs[i]`` to ``targets[i]`` from posture (``feet``
+        (4, 3) or per candidate (n, 4, 3), ``base`` (3,) or (n, 3)), the step with the base at
         its furthest feasible lead beyond the new diagonals' crossing, or None if those
         diagonals do not cross or, at every lead, a foot leaves its reach at a swing sample
         (``SWING_SAMPLES``) or the TSM of the three holding limbs falls below its margin (0 on
-        the crossing, ``lead_margin`` ahead of it). All candidates, leads and samples are
-        checked in one vectorised reach call and one TSM call."""
+        the crossing, ``lead_margin`` ahead of it). Leads are tried furthest first, each over
+        the candidates no further lead suits, in one vectorised reach call and one TSM call."""
         n = len(limbs)
         if n == 0:
             return []
-        new = np.repeat(feet[None], n, axis=0)
-        new[np.arange(n), limbs] = targets
+        feet = np.broadcast_to(feet, (n, *np.shape(feet)[-2:]))
+        base = np.array(np.broadcast_to(base, (n, 3)))
+        targets = np.array(targets, float)
+        legs, rows = len(feet[0]), np.arange(n)
+        new = feet.copy()
+        new[rows, limbs] = targets
         crossing, crosses = self.bases_for(new)
-        leads = self.leads()
-        ends = crossing[:, None, :] + leads[None, :, None] * GOAL  # (n, L, 3)
         k = np.array([smooth(s) for s in SWING_SAMPLES])
         lift = np.array([swing_lift(s, self.config.swing_height) for s in SWING_SAMPLES])
-        bases = base + k[None, None, :, None] * (ends - base)[:, :, None, :]  # (n, L, S, 3)
-        start = feet[limbs]
+        start = feet[rows, limbs]
         swung = start[:, None, :] + k[None, :, None] * (targets - start)[:, None, :]
         swung = swung + lift[None, :, None] * NORMAL  # (n, S, 3)
-        trial = np.broadcast_to(feet[:, None, None, None, :], (len(feet), *bases.shape)).copy()
-        trial[limbs, np.arange(n)] = swung[:, None, :, :]
-        reach = self.reach((trial - bases[None]).reshape(len(feet), -1, 3))
-        reached = reach.reshape(len(feet), *bases.shape[:3]).all(axis=(0, 3))  # (n, L)
-        holding = np.ones((n, len(feet)), bool)
-        holding[np.arange(n), limbs] = False
-        stances = new[holding].reshape(n, len(feet) - 1, 3)  # the limbs that keep their grip
-        coms = bases.reshape(n, -1, 3)
-        margins = stance_margins(coms, stances, self.force, self.config.grip_force, NORMAL)
-        margins = margins.reshape(bases.shape[:3]).min(axis=2)
-        needed = np.where(leads > 0.0, self.config.lead_margin, 0.0)
-        ok = reached & (margins >= needed) & crosses[:, None]
-        out: list[Step | None] = []
-        for i in range(n):
-            good = np.flatnonzero(ok[i])
-            out.append(
-                Step(
-                    int(limbs[i]), start[i].copy(), targets[i].copy(), base.copy(), ends[i, good[0]]
-                )
-                if len(good)
-                else None
-            )
-        return out
+        holding = np.ones((n, legs), bool)
+        holding[rows, limbs] = False
+        stances = new[holding].reshape(n, legs - 1, 3)  # the limbs that keep their grip
+        end = np.full((n, 3), np.nan)
+        pending = np.flatnonzero(crosses)
+        for lead in self.leads():
+            if not len(pending):
+                break
+            ends = crossing[pending] + lead * GOAL
+            gone = ends - base[pending]
+            bases = base[pending, None, :] + k[None, :, None] * gone[:, None, :]  # (m, S, 3)
+            trial = feet[pending].transpose(1, 0, 2)[:, :, None, :].repeat(len(k), axis=2)
+            trial[limbs[pending], np.arange(len(pending))] = swung[pending]
+            reach = self.reach((trial - bases[None]).reshape(legs, -1, 3))
+            reached = reach.reshape(legs, len(pending), len(k)).all(axis=(0, 2))
+            margins = stance_margins(
+                bases, stances[pending], self.force, self.config.grip_force, NORMAL
+            ).min(axis=1)
+            ok = reached & (margins >= (self.config.lead_margin if lead > 0.0 else 0.0))
+            end[pending[ok]] = ends[ok]
+            pending = pending[~ok]
+        return [
+            Step(int(limbs[i]), start[i], targets[i], base[i], end[i])
+            if end[i, 0] == end[i, 0]
+            else None
+            for i in range(n)
+        ]
 
     def options(self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray) -> list[np.ndarray]:
         """Per limb, the holds it may grip next: reachable from the current base, within
         ``max_stride`` of its foot (and not its own hold), clear of the other grippers."""
+        _, limbs, index = self.option_index(feet[None], base[None], holds)
+        return [holds[index[limbs == limb]] for limb in range(len(feet))]
+
+    def option_index(
+        self, feet: np.ndarray, bases: np.ndarray, holds: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``options`` of postures (``feet`` (P, 4, 3), ``bases`` (P, 3)) in one pass, as
+        index arrays (posture, limb, hold) ordered by posture, limb, then hold."""
         cfg = self.config
-        gap = np.linalg.norm(holds[None, :, :2] - feet[:, None, :2], axis=2)
-        near = (gap > cfg.min_stride) & (gap <= cfg.max_stride)
-        crowded = gap <= cfg.hold_spacing
-        reach = self.reach(holds[None, :, :] - base)
-        out = []
-        for limb in range(len(feet)):
-            clear = ~np.delete(crowded, limb, axis=0).any(axis=0)
-            out.append(holds[near[limb] & clear & reach[limb]])
-        return out
+        gap = np.linalg.norm(holds[None, None, :, :2] - feet[:, :, None, :2], axis=3)
+        near = (gap > cfg.min_stride) & (gap <= cfg.max_stride)  # (P, 4, H)
+        crowded = (gap <= cfg.hold_spacing).astype(np.int8)
+        clear = crowded.sum(axis=1, keepdims=True) - crowded == 0  # no other gripper's
+        posture, limb, index = np.nonzero(near & clear)
+        legs = feet.shape[1]
+        counts = np.bincount(limb, minlength=legs)
+        points = np.zeros((legs, max(int(counts.max(initial=0)), 1), 3))
+        slot = np.zeros(len(limb), int)
+        for leg in range(legs):
+            mine = limb == leg
+            slot[mine] = np.arange(int(counts[leg]))
+        points[limb, slot] = holds[index] - bases[posture]
+        reach = self.reach(points)[limb, slot]
+        return posture[reach], limb[reach], index[reach]
 
     def plan(
         self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray, swings_left: int = 0
@@ -398,24 +435,43 @@ class ClimbPlanner:
         self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray, barred: set
     ) -> list[tuple[Step, np.ndarray]]:
         """Every feasible step from this posture, with the feet after it, whose stance is not
-        in ``barred``; a posture's steps are worked out once per hold map (the next plans'
-        look-ahead covers mostly the same postures)."""
-        key = stance_key(feet) + tuple(np.round(base, 4).tolist())
-        steps = self.known.get(key)
-        if steps is None:
-            options = self.options(feet, base, holds)
-            limbs = np.repeat(np.arange(len(options)), [len(o) for o in options])
-            targets = np.concatenate(options)
-            steps = []
-            for step in self.feasible_steps(feet, base, limbs, targets):
+        in ``barred`` (see ``expand``)."""
+        return [
+            (m.step, m.after) for m in self.expand([(feet, base)], holds)[0] if m.key not in barred
+        ]
+
+    def expand(
+        self, postures: Sequence[tuple[np.ndarray, np.ndarray]], holds: np.ndarray
+    ) -> list[list[Move]]:
+        """Every feasible step from each posture (feet, base). A posture's steps are worked out
+        once per hold map (the next plans' look-ahead covers mostly the same postures), and
+        the postures not yet known in one vectorised pass (a search level at a time)."""
+        if not postures:
+            return []
+        every = np.array([feet for feet, _ in postures], float)
+        places = np.array([base for _, base in postures], float)
+        rounded = np.round(np.hstack((every[:, :, :2].reshape(len(every), -1), places)), 4)
+        keys = list(map(tuple, rounded.tolist()))
+        out = {key: self.known[key] for key in keys if key in self.known}
+        todo = {key: i for i, key in enumerate(keys) if key not in out}
+        if todo:
+            feet, bases = every[list(todo.values())], places[list(todo.values())]
+            posture, limbs, index = self.option_index(feet, bases, holds)
+            steps = self.feasible_steps(feet[posture], bases[posture], limbs, holds[index])
+            afters = feet[posture]
+            afters[np.arange(len(posture)), limbs] = holds[index]
+            stances = (
+                np.round(afters[:, :, :2], 4).reshape(len(posture), 2 * feet.shape[1]).tolist()
+            )
+            found: list[list[Move]] = [[] for _ in todo]
+            for p, step, after, stance in zip(posture, steps, afters, stances, strict=True):
                 if step is not None:
-                    after = feet.copy()
-                    after[step.limb] = step.target
-                    steps.append((step, after))
-            if len(self.known) >= KNOWN_POSTURES:
+                    found[p].append(Move._make((step, after, tuple(stance), step.base_end @ GOAL)))
+            if len(self.known) + len(todo) > KNOWN_POSTURES:
                 self.known.clear()
-            self.known[key] = steps
-        return [(step, after) for step, after in steps if stance_key(after) not in barred]
+            self.known.update(zip(todo, found, strict=True))
+            out.update(zip(todo, found, strict=True))
+        return [out[key] for key in keys]
 
     def _plan_free(
         self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray, swings_left: int
@@ -431,28 +487,26 @@ class ClimbPlanner:
         if not first:
             self.committed = ()
             return None
-        # A node: the sequence so far, the feet after it, the stances it may not enter (the
-        # recent ones and its own: it may not return to them, as the gait may not).
-        level = [((step,), after, barred | {stance_key(after)}) for step, after in first]
-        best = max((path for path, _, _ in level), key=sequence_value)
+        # A node: the sequence so far, the feet after it, and its own stances: it may not
+        # return to them nor to the recent ones (``barred``), as the gait may not.
+        level = [((move.step,), move.after, (move.key,), move.ahead) for move in first]
+        best = max((node[0] for node in level), key=sequence_value)
         horizon = self.config.horizon
         if swings_left > 0:
             horizon = min(horizon, swings_left)
         for _ in range(1, horizon):
-            reached: dict[tuple, tuple[tuple[Step, ...], np.ndarray, set]] = {}
-            for path, posture, passed in level:
-                for step, after in self.successors(posture, path[-1].base_end, holds, passed):
-                    key = stance_key(after)
-                    if (
-                        key not in reached
-                        or reached[key][0][-1].base_end @ GOAL < step.base_end @ GOAL
-                    ):
-                        reached[key] = (path + (step,), after, passed | {key})
+            reached: dict[tuple, tuple[tuple[Step, ...], np.ndarray, tuple, float]] = {}
+            moves = self.expand([(node[1], node[0][-1].base_end) for node in level], holds)
+            for (path, _, keys, _), options in zip(level, moves, strict=True):
+                for step, after, key, ahead in options:
+                    if key in barred or key in keys:
+                        continue
+                    if key not in reached or reached[key][3] < ahead:
+                        reached[key] = (path + (step,), after, (*keys, key), ahead)
             if not reached:
                 break
-            level = sorted(reached.values(), key=lambda node: -(node[0][-1].base_end @ GOAL))
-            level = level[: self.config.beam]
-            best = max([best, *(path for path, _, _ in level)], key=sequence_value)
+            level = sorted(reached.values(), key=lambda node: -node[3])[: self.config.beam]
+            best = max([best, *(node[0] for node in level)], key=sequence_value)
         kept = self.committed
         followed = self._follows(kept, feet, base, barred)
         if followed is not None:
@@ -488,16 +542,17 @@ class ClimbPlanner:
 
     def _first_steps(
         self, feet: np.ndarray, base: np.ndarray, holds: np.ndarray
-    ) -> tuple[list[tuple[Step, np.ndarray]], set]:
+    ) -> tuple[list[Move], set]:
         """The non-periodic gaits' feasible steps from this posture that do not return to a
         recent stance, and the stances barred. In a pocket, where every feasible step returns
         to a recent stance, only the current one is barred, so the gait backs out at once
         rather than holding still until the pocket's stances fall out of its memory."""
         barred = self._remember(feet, holds)
-        steps = self.successors(feet, base, holds, barred)
+        moves = self.expand([(feet, base)], holds)[0]
+        steps = [move for move in moves if move.key not in barred]
         if not steps:
             barred = {stance_key(feet)}
-            steps = self.successors(feet, base, holds, barred)
+            steps = [move for move in moves if move.key not in barred]
         return steps, barred
 
     def _remember(self, feet: np.ndarray, holds: np.ndarray) -> set:
@@ -536,7 +591,7 @@ class ClimbPlanner:
         then stride: that limb's shortest step back or aside); and, like the search, it never
         returns to a recent stance, so a re-grip is not undone at once (this can bar the
         paper's pick only after a step back: steps ahead never repeat a stance)."""
-        steps = [step for step, _ in self._first_steps(feet, base, holds)[0]]
+        steps = [move.step for move in self._first_steps(feet, base, holds)[0]]
         if not steps:
             return None
         count = self.ahead_counts(feet, self.options(feet, base, holds))
