@@ -39,7 +39,7 @@ import msgspec
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from support.climb_run import ClimbLog, SlopeClimb  # noqa: E402
+from support.climb_run import ClimbLog, SlopeClimb, search_reach  # noqa: E402
 
 from climbd.plugins.gaits.free_climb import (
     GOAL,
@@ -75,7 +75,9 @@ class ThreadCpu:
 
 @dataclass
 class Run:
-    """One climb: the twin's log, the planner's own travel (m), per-swing base advance and
+    """One climb: the twin's log, the planner's own travel (m: where its swings put the base,
+    the swing under way at the end counted whole, as the bound counts its swings), per-swing
+    base advance and
     room (m, ``swing_room``), the wall time (s) and the CPU time of the runner's ticks (control
     thread) and of the plans (worker thread)."""
 
@@ -119,7 +121,9 @@ def run(periodic: bool, seed: int, seconds: float, overrides: dict | None = None
         climb.close()
     wall = time.perf_counter() - t0
     swings = swing_room(climb.planner, feet, climb.runner.steps)
-    return Run(log, float(climb.runner.base[0] - start), swings, wall, ticks, plans)
+    steps = climb.runner.steps
+    planned = float(steps[-1].base_end[0] - start) if steps else 0.0
+    return Run(log, planned, swings, wall, ticks, plans)
 
 
 ROOM = np.arange(0.0, 0.2001, 0.0025)
@@ -148,29 +152,6 @@ def swing_room(planner: ClimbPlanner, feet: np.ndarray, steps: list[Step]) -> np
         rows.append(((step.base_end - step.base_start) @ GOAL, room))
         feet[step.limb] = step.target
     return np.array(rows).reshape(-1, 2)
-
-
-def search_reach(seed: int, swings: int, beam: int = 400) -> float:
-    """Base travel (m) of the best sequence of ``swings`` feasible swings (the default
-    planner's, base leads included) that a beam search (``beam`` postures per swing, base
-    furthest ahead) finds on map ``seed`` from the start."""
-    climb = SlopeClimb(False, seed)
-    climb.close()
-    planner, holds = climb.planner, climb.holds
-    start = climb.runner.base
-    level = [(climb.runner.feet, start)]
-    best = float(start @ GOAL)
-    for _ in range(swings):
-        reached: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-        for moves in planner.expand(level, holds):
-            for move in moves:
-                if move.key not in reached or reached[move.key][1] @ GOAL < move.ahead:
-                    reached[move.key] = (move.after, move.step.base_end)
-        if not reached:
-            break
-        level = sorted(reached.values(), key=lambda n: -(n[1] @ GOAL))[:beam]
-        best = max(best, float(level[0][1] @ GOAL))
-    return best - float(start @ GOAL)
 
 
 def climb_map(seed: int, seconds: float) -> tuple[dict[str, Run], float]:

@@ -6,8 +6,8 @@ instead of a minute), once per ``--config`` (ClimbConfig overrides as JSON; ``"d
 tells the search the run's length) and by the periodic gait (the baseline, same run). Printed
 per configuration: the mean base travel, its ratio to the periodic gait's, its share of the
 bound on each map (the beam-400 search that knows the run's end, over the default planner's
-feasible steps: bench/free_climb.py's ``search_reach``), the worst share, and plan CPU time
-(median, 90th percentile, max). For a quick look at a planner change over more maps than the
+feasible steps: tests/support/climb_run.py's ``search_reach``), the worst share, and plan CPU
+time (median, 90th percentile, max). For a quick look at a planner change over more maps than the
 twin bench's eight; the twin's figures are bench/free_climb.py's.
 
     .venv/bin/python bench/free_climb_maps.py [--seeds 0:16] [--swings 11] [--jobs 2]
@@ -19,43 +19,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import msgspec
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from free_climb import search_reach  # noqa: E402
-from support.climb_run import SlopeClimb  # noqa: E402
-
-from climbd.plugins.gaits.free_climb import GOAL, ClimbPlanner  # noqa: E402
-
-
-def climb(seed: int, swings: int, periodic: bool, overrides: dict) -> tuple[float, list[float]]:
-    """Base travel (m) up the slope of ``swings`` planned swings on map ``seed``, and the CPU
-    time (s) of each plan; a climb told its ``duration`` is given the swings left in it."""
-    start = SlopeClimb(periodic, seed)
-    start.close()
-    config = msgspec.structs.replace(start.config, **overrides)
-    planner = ClimbPlanner(start.kin, config, periodic)
-    feet, base = start.runner.feet.copy(), start.runner.base.copy()
-    origin = float(base @ GOAL)
-    told = int(config.duration // config.swing_period) if config.duration > 0 else 0
-    times = []
-    for i in range(swings):
-        t0 = time.process_time()
-        step = planner.plan(feet, base, start.holds, max(0, told - i))
-        times.append(time.process_time() - t0)
-        if step is None:
-            break
-        if not step.wait:
-            feet = feet.copy()
-            feet[step.limb] = step.target
-            base = step.base_end
-    return float(base @ GOAL) - origin, times
+from support.climb_run import planned_climb, search_reach  # noqa: E402
 
 
 def main() -> None:
@@ -71,7 +41,9 @@ def main() -> None:
     n = len(seeds)
     with ProcessPoolExecutor(args.jobs) as pool:
         bounds = list(pool.map(search_reach, seeds, [args.swings] * n))
-        periodic = [d for d, _ in pool.map(climb, seeds, [args.swings] * n, [True] * n, [{}] * n)]
+        periodic = [
+            d for d, _ in pool.map(planned_climb, seeds, [args.swings] * n, [True] * n, [{}] * n)
+        ]
         print(
             f"maps {args.seeds}, {args.swings} swings: bound {np.mean(bounds):.3f} m mean, "
             f"periodic {np.mean(periodic):.3f} m mean ({np.mean(bounds) / np.mean(periodic):.2f}x)"
@@ -82,7 +54,9 @@ def main() -> None:
         )
         print("|---|---|---|---|---|---|")
         for config in configs:
-            done = list(pool.map(climb, seeds, [args.swings] * n, [False] * n, [config] * n))
+            done = list(
+                pool.map(planned_climb, seeds, [args.swings] * n, [False] * n, [config] * n)
+            )
             distance = np.array([d for d, _ in done])
             share = distance / np.array(bounds)
             ms = 1e3 * np.array([t for _, times in done for t in times])

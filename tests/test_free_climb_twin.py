@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.climb_run import ClimbLog, SlopeClimb
+from support.climb_run import ClimbLog, SlopeClimb, planned_climb, search_reach
 
 from climbd.drivers.sim.model import GRIP_FORCE
 from climbd.drivers.sim.worlds import hold_map_holds, wall_pose
@@ -185,3 +185,13 @@ def test_a_hold_its_gripper_cannot_close_on_is_backed_off_without_a_slip_isolati
         assert min(first.tsm + log.tsm) >= 0.0
     finally:
         climb.close()
+
+
+def test_the_plan_nears_the_bound_where_the_best_route_steps_back_isolating_the_gait():
+    """Map 6 of the twin bench, whose best 11-swing route first steps back (a search keeping 12
+    to 100 postures per swing stopped at 0.87 of the bound): the default planner, told the
+    run's 45 s, plans within 10 % of the bound, the beam-400 search over the same steps (#36)."""
+    bound = search_reach(6, 11)
+    planned, _ = planned_climb(6, 11, False, {"duration": 45.0})
+    assert bound > 0.15
+    assert planned >= 0.9 * bound

@@ -17,6 +17,7 @@ awaited in simulated time where it is needed (deterministic runs); ``close`` sto
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from climbd.drivers.sim.twin import Twin
 from climbd.drivers.sim.worlds import hold_map_holds, hold_map_tile, wall_pose
 from climbd.drivers.sim.worlds import load as load_world
 from climbd.plugins.gaits.free_climb import (
+    GOAL,
     NORMAL,
     ClimbConfig,
     ClimbPlanner,
@@ -188,3 +190,52 @@ class SlopeClimb(SlopeScene):
         log.steps = sum(not s.wait for s in runner.steps)
         log.waits = sum(s.wait for s in runner.steps)
         return log
+
+
+def search_reach(seed: int, swings: int, beam: int = 400) -> float:
+    """Base travel (m) of the best sequence of ``swings`` feasible swings (the default
+    planner's, base leads included) that a beam search (``beam`` postures per swing, base
+    furthest ahead) finds on map ``seed`` from the start."""
+    climb = SlopeClimb(False, seed)
+    climb.close()
+    planner, holds = climb.planner, climb.holds
+    start = climb.runner.base
+    level = [(climb.runner.feet, start)]
+    best = float(start @ GOAL)
+    for _ in range(swings):
+        reached: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        for moves in planner.expand(level, holds):
+            for move in moves:
+                if move.key not in reached or reached[move.key][1] @ GOAL < move.ahead:
+                    reached[move.key] = (move.after, move.step.base_end)
+        if not reached:
+            break
+        level = sorted(reached.values(), key=lambda n: -(n[1] @ GOAL))[:beam]
+        best = max(best, float(level[0][1] @ GOAL))
+    return best - float(start @ GOAL)
+
+
+def planned_climb(
+    seed: int, swings: int, periodic: bool, overrides: dict
+) -> tuple[float, list[float]]:
+    """Base travel (m) up the slope of ``swings`` planned swings on map ``seed``, and the CPU
+    time (s) of each plan; a climb told its ``duration`` is given the swings left in it."""
+    start = SlopeClimb(periodic, seed)
+    start.close()
+    config = msgspec.structs.replace(start.config, **overrides)
+    planner = ClimbPlanner(start.kin, config, periodic)
+    feet, base = start.runner.feet.copy(), start.runner.base.copy()
+    origin = float(base @ GOAL)
+    told = int(config.duration // config.swing_period) if config.duration > 0 else 0
+    times = []
+    for i in range(swings):
+        t0 = time.process_time()
+        step = planner.plan(feet, base, start.holds, max(0, told - i))
+        times.append(time.process_time() - t0)
+        if step is None:
+            break
+        if not step.wait:
+            feet = feet.copy()
+            feet[step.limb] = step.target
+            base = step.base_end
+    return float(base @ GOAL) - origin, times
