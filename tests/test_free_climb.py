@@ -728,6 +728,32 @@ def _holding_rules(tick, stance_feet: np.ndarray, stance: list[int]) -> None:
     assert tick.tsm >= 0.0
 
 
+def test_a_plan_whose_hold_a_newer_map_moved_is_made_again_not_started(tile):
+    """The second swing is planned while the first executes, over the map of then; a newer
+    map moves its hold 2 cm before it starts: the runner neither starts a swing to where the
+    hold was nor backs off from one, but plans again over the new map and swings on."""
+    holds = hold_map(tile, seed=0)
+    reference = _fresh_runner(holds)
+    while len(reference.steps) < 2:
+        reference.tick(DT, holds, [True] * 4)
+    planned = reference.steps[1].target
+    reference.close()
+    moved = holds.copy()
+    k = int(np.argmin(np.linalg.norm(holds - planned, axis=1)))
+    moved[k, 1] += 0.02
+    runner = _fresh_runner(holds)
+    runner.tick(DT, holds, [True] * 4)
+    assert len(runner.steps) == 1
+    ticks = [runner.tick(DT, moved, [True] * 4) for _ in range(round(3 * CFG.swing_period / DT))]
+    assert len(runner.steps) >= 3
+    assert all(np.linalg.norm(step.target - planned) > 0.01 for step in runner.steps[1:])
+    assert not any(step.regrip and step.stride == 0.0 for step in runner.steps)
+    assert not any("left the hold map" in tick.reason for tick in ticks)
+    for step in runner.steps[1:]:
+        assert np.linalg.norm(moved - step.target, axis=1).min() < 1e-9
+    runner.close()
+
+
 def test_a_hold_lost_mid_swing_is_backed_off_to_the_hold_it_left_keeping_three_grips(tile):
     """The swing's hold leaves the hold map halfway (occluded, or gone from the wall): the
     foot turns back from where it is, without a jump, to the hold it left, the base back to

@@ -702,7 +702,9 @@ class ClimbRunner:
 
     def tick(self, dt: float, holds: np.ndarray, holding: Sequence[bool] | None = None) -> Tick:
         """Advance by ``dt`` (s); a swing starts only when the grippers hold and its plan is
-        ready; until then the four grippers hold (a ``late`` tick). A swing whose hold has left
+        ready; until then the four grippers hold (a ``late`` tick). A plan whose hold the map
+        no longer has where it was planned (a newer map moved or dropped it) is not started but
+        made again over the map of now. A swing whose hold has left
         the map backs off to the hold it left; with no feasible step at all the four grippers
         hold, and the tick says why. ``holding`` is what the grippers report (None: they are
         taken to hold as commanded): between swings, no limb is released while any gripper
@@ -723,6 +725,9 @@ class ClimbRunner:
                 self._request(self.feet, self.base, holds)
             ready, step = self.ahead.take()
             if not ready:
+                return self._still(late=True)
+            if step is not None and not step.wait and not self._mapped(step.target, holds):
+                self._request(self.feet, self.base, holds)  # planned on a map now moved on
                 return self._still(late=True)
             self.step, self.phase = step, 0.0
             self.reason, self._backing = "", None
