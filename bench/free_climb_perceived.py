@@ -4,10 +4,11 @@ climb on the world's true holds, both through the control role on the rock relie
 Per map (``slope_map`` seeds, ``relief = "rock"``: each tile of holds carries the ClimbLab rock
 it was detected on, and a gripper holds on the rock only at a hold of the map), the default
 planner, told the run's length, climbs for ``--seconds`` through the Dynamixel driver
-(tests/support/climb_driver.py) twice: on the world model's hold map, built from the twin's
-ray-cast D435 frames by graspable detection and tracked with the leg odometry's body at each
-frame's time (2 Hz), after the frames of the way up to the start (its camera cannot see the
-holds its rear limbs reach from there); and on the world's true holds placed by the body's
+(tests/support/climb_driver.py) twice: on the perception role's hold map, built from the twin's
+ray-cast D435 frames through the pyrealsense2 software device (legs cut at the joints of the
+frame's time, graspable detection, tracks with the leg odometry's body at the frame's time,
+2 Hz) and sent over Zenoh, after the frames of the way up to the start (its camera cannot see
+the holds its rear limbs reach from there); and on the world's true holds placed by the body's
 estimate (the gait isolated). Printed per map: distance up the slope (twin truth) of each and
 their ratio, slips, missed grips, least TSM of the holding grippers, and the perceived map at
 the end: its holds, and how many lie within 1 cm (in the wall plane) of a true hold.

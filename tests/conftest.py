@@ -2,23 +2,16 @@
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
 
 import pytest
 import zenoh
+from support.ports import free_port
 
 from climbd.daemon.contract import messages as m
 from climbd.daemon.runtime.network import Network, Publisher
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that is free right now (Zenoh endpoints in tests)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def lossless(bus: Network, message: type[m.Message]) -> Publisher:

@@ -8,6 +8,7 @@ import pytest
 from climbd.daemon.algorithms.estimation import StateEstimator
 from climbd.daemon.contract import profile as profiles
 from climbd.daemon.contract.messages import (
+    BodyState,
     EStop,
     FootTargets,
     Heartbeat,
@@ -379,3 +380,18 @@ def test_joints_read_ticks_ago_reach_the_estimator_moved_on_by_their_velocity() 
     assert current_joints(state, limits).tolist() == [0.0, 1.0, 2.0]
     state.age = [0.02, 0.02, float("nan")]
     assert np.allclose(current_joints(state, limits), [0.02, 1.1, 2.0])
+
+
+def test_published_joints_carry_the_tick_time_the_body_state_does(widowx) -> None:
+    """The driver stamps its reading on its own clock (here 100 s off the control clock; the
+    Dynamixel driver does not stamp at all): the control role publishes the joints with its
+    tick's time, as the body state, so the perception role's self filter finds the joints of
+    each frame's time."""
+    rig = Rig(widowx)
+    rig.bus.clock = lambda: rig.clock.now() + 100.0
+    rig.stand()
+    joints = [m for m in rig.published if isinstance(m, JointState)]
+    bodies = [m for m in rig.published if isinstance(m, BodyState)]
+    assert len(joints) == len(bodies) > 10
+    assert [j.stamp for j in joints] == [b.stamp for b in bodies]
+    assert joints[-1].stamp == pytest.approx(rig.clock.now(), abs=1.0 / widowx.rate_hz)

@@ -106,7 +106,9 @@ class JointState(Message):
     bus that cannot read every joint every tick (Dynamixel Protocol 1.0 behind a USB adapter);
     NaN for a joint the bus has lost (not read; its health says so); empty when every joint
     was read this tick. ``holding``, per leg, says which feet's grippers hold something, for
-    a bus that drives grippers (None: it drives none)."""
+    a bus that drives grippers (None: it drives none). The control role stamps it with its
+    tick's time, as the body state, whatever the driver stamped: the perception role pairs a
+    frame with the joints nearest its stamp (the self filter)."""
 
     TOPIC: ClassVar[str] = "state/joints"
     RATE: ClassVar[str] = "control rate (100 Hz WidowX/HubRobo, 1 kHz Qingzhui)"

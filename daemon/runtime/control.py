@@ -324,6 +324,7 @@ class Controller:
             if self.safety.mode != self.mode and self.measured is not None:
                 self._enter(self.safety.mode, np.asarray(self.measured.position), t)
             return
+        state.stamp = t  # the control clock's, as the body state's: the self filter pairs both
         self.measured = state
         self.safety.check_state_age(state, t)
         q = np.asarray(state.position)

@@ -798,9 +798,11 @@ class Twin:
         """Call ``callback(camera, frame)`` at each camera's frame rate (simulated time)."""
         self._depth_callbacks.append(callback)
 
-    def software_camera(self, camera: str, **options) -> SoftwareDepthCamera:
-        """A pyrealsense2 software device fed with ``camera``'s frames, as the perception role
-        reads a USB camera; ``options`` go to SoftwareDepthCamera (e.g. ``record_to``)."""
+    def software_camera(self, camera: str, fed: bool = True, **options) -> SoftwareDepthCamera:
+        """A pyrealsense2 software device fed with ``camera``'s frames at its frame rate, as the
+        perception role reads a USB camera (``fed`` False: the caller pushes the frames it
+        takes, e.g. a stepped harness that ray-casts only the frames it perceives); ``options``
+        go to SoftwareDepthCamera (e.g. ``record_to``)."""
         from climbd.drivers.realsense.software import SoftwareDepthCamera
 
         cam = self.cameras[camera]
@@ -819,7 +821,8 @@ class Twin:
             if name == camera:
                 device.push(frame.depth, frame.timestamp)
 
-        self.on_depth(push)
+        if fed:
+            self.on_depth(push)
         return device
 
     def imu_sample(self) -> ImuSample:

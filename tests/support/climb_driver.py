@@ -7,12 +7,13 @@ the control role's leg odometry with the twin's IMU. The grippers close and open
 driver and the gait acts on what the driver reports they hold.
 
 The hold map reaches the controller as the world model publishes it, in the odometry frame
-at 2 Hz. With ``perceive``, it is the world model's own (``WorldModel``): each period the
-twin ray-casts HubRobo's D435, graspable detection (the perception plugin) finds holds in the
-frame, and the world model tracks them with the body's estimate at the frame's time; before
-the climb it is given the frames the camera took on the way up to the start (``approach``),
-since from the start it cannot see the holds its rear limbs reach. The world's holds only
-score the run. Without, it is built from the world's true holds
+at 2 Hz. With ``perceive``, it is the perception role's (support/role_perception.py): each
+period the twin ray-casts HubRobo's D435 into the pyrealsense2 software device, the role takes
+the legs out of the frame, finds its graspable points (the profile's plugin) and tracks them
+in its world model with the body's estimate at the frame's time, and its hold map crosses
+Zenoh to the controller; before the climb the role is given the frames the camera took on the
+way up to the start (``approach``), since from the start it cannot see the holds its rear
+limbs reach. The world's holds only score the run. Without, it is built from the world's true holds
 (``SlopeScene.tops``) placed by the body's estimate: such a run isolates the gait from
 perception. What is logged is the twin's truth: base position up the slope, the TSM of the
 grippers that hold, slips.
@@ -26,17 +27,15 @@ import msgspec
 import numpy as np
 
 from climbd.daemon.algorithms.odometry import TILT_TIME
-from climbd.daemon.algorithms.self_filter import SelfFilter
-from climbd.daemon.algorithms.world import WorldModel, world_config
 from climbd.daemon.contract.geometry import rotation
-from climbd.daemon.contract.messages import BodyState, HoldMap, MappedHold, Mode
+from climbd.daemon.contract.messages import HoldMap, MappedHold, Mode
 from climbd.daemon.runtime.loader import Isolated
 from climbd.daemon.runtime.loop import SteppedClock
 from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.dynamixel.bus import DynamixelBus
 from climbd.plugins.gaits.free_climb import ClimbConfig, ClimbPlanner, FreeClimb
-from climbd.plugins.perception.graspable import GraspablePerception
 from support.climb_run import ClimbLog, SlopeScene
+from support.role_perception import SteppedPerception
 
 SETTLE = 5 * TILT_TIME
 """s: standing still before the climb while the odometry's tilt settles on the IMU's gravity
@@ -49,6 +48,8 @@ HOLD_MAP_PERIOD = 0.5
 """s: how often the hold map reaches the controller (the world model's 2 Hz)."""
 APPROACH = (0.45, 0.4, 0.35, 0.3, 0.25, 0.2, 0.15, 0.1, 0.05)
 """m down the wall: where the camera looked from on the way up to the start (``approach``)."""
+APPROACH_PERIOD = 0.1
+"""s between the frames of the way up."""
 
 
 class DriverClimb(SlopeScene):
@@ -84,51 +85,43 @@ class DriverClimb(SlopeScene):
         self.left = ""
         self.releases = 0
         self.x0 = self.t0 = 0.0
-        world = world_config(self.profile)
-        self.world = WorldModel(world) if perceive else None
-        self.graspable = GraspablePerception()
-        self.self_filter = SelfFilter(self.kin, world.self_filter.radius)
+        self.perception = SteppedPerception(self.profile, self.twin) if perceive else None
 
     def hold_map(self) -> HoldMap:
-        """The hold map the controller is given now: the world model's, else the truth's."""
-        return self.truth_map() if self.world is None else self.perceived_map()
+        """The hold map the controller is given now: the perception role's, else the truth's."""
+        return self.truth_map() if self.perception is None else self.perceived_map()
 
     def perceived_map(self) -> HoldMap:
-        """One D435 frame now, its graspable points tracked by the world model at the body's
-        estimate now (the frame's time): the world model's hold map."""
-        self.perceive(self.twin.depth_frame("front"), self.stack.controller.body)
-        return next(m for m in self.world.messages(self.clock.now()) if isinstance(m, HoldMap))
-
-    def perceive(self, frame, body: BodyState) -> None:
-        """Cut the legs from ``frame`` (at the joints the driver read), detect its graspable
-        points and fold them into the world model at ``body``, the pose of its time."""
-        joints = np.asarray(self.stack.controller.measured.position)
-        frame, _ = self.self_filter.apply(frame, joints)
-        self.world.frame(frame, body)
-        seen = self.graspable.process(frame, body)
-        seen = msgspec.structs.replace(
-            seen,
-            frame_position=list(body.position),
-            frame_orientation=list(body.orientation),
-        )
-        self.world.feature(seen)
+        """One D435 frame now through the perception role: the hold map it publishes, as the
+        controller receives it over Zenoh (the last one if this frame brought none)."""
+        controller = self.stack.controller
+        self.perception.sense(controller.body, controller.measured)
+        seen = self.perception.look()
+        if seen is None:
+            raise RuntimeError("driver climb: the perception role has published no hold map")
+        return seen
 
     def approach(self) -> None:
         """The frames the camera took on the way up to the start, ``APPROACH`` m down the
-        wall, fused at those poses: the holds under the robot at its start, which its camera
-        (its view begins 0.13 m ahead of the body, the rear feet stand 0.17 m behind) cannot
-        see from there. The way up is taken as the odometry would have measured it, exactly."""
-        twin, body = self.twin, self.stack.controller.body
+        wall, ``APPROACH_PERIOD`` apart before now, perceived at those poses: the holds under
+        the robot at its start, which its camera (its view begins 0.13 m ahead of the body,
+        the rear feet stand 0.17 m behind) cannot see from there. The way up is taken as the
+        odometry would have measured it, exactly, the legs as they stand now."""
+        twin, controller = self.twin, self.stack.controller
+        body, joints = controller.body, controller.measured
         here = twin.data.qpos[:3].copy()
         down_world, down_odometry = self.rotation[:, 0], rotation(body.orientation)[:, 0]
+        now = self.clock.now()
         try:
-            for back in APPROACH:
+            for k, back in enumerate(APPROACH):
+                stamp = now - (len(APPROACH) - k) * APPROACH_PERIOD
                 twin.data.qpos[:3] = here - back * down_world
                 before = np.asarray(body.position) - back * down_odometry
-                self.perceive(
-                    twin.depth_frame("front"),
-                    msgspec.structs.replace(body, position=before.tolist()),
+                self.perception.sense(
+                    msgspec.structs.replace(body, stamp=stamp, position=before.tolist()),
+                    msgspec.structs.replace(joints, stamp=stamp),
                 )
+                self.perception.look(stamp)
         finally:
             twin.data.qpos[:3] = here
 
@@ -166,7 +159,7 @@ class DriverClimb(SlopeScene):
         if not stack.stand():
             raise RuntimeError(f"driver climb: the stand did not complete: {safety.reason}")
         stack.run(SETTLE)
-        if self.world is not None:
+        if self.perception is not None:
             self.approach()
         stack.controller.on_feature(self.hold_map())
         if not safety.request(Mode.ACTIVE, self.clock.now(), reason="climb"):
@@ -187,6 +180,8 @@ class DriverClimb(SlopeScene):
                 grip = twin.grip.copy()
                 stack.run(1.0 / self.profile.rate_hz)
                 twin.advance_to(twin.time)  # the tick's writes reach the twin; no physics step
+                if self.perception is not None:
+                    self.perception.sense(stack.controller.body, stack.controller.measured)
                 self.releases += int((grip & ~twin.grip).sum())
                 log.t.append(self.clock.now() - self.t0)
                 log.x.append(float(self.to_wall(twin.data.qpos[:3])[0]) - self.x0)
@@ -202,7 +197,10 @@ class DriverClimb(SlopeScene):
         return log
 
     def close(self) -> None:
-        """Stop the gait's worker, the driver and the twin."""
+        """Stop the gait's worker, the perception role's camera and sessions, the driver and
+        the twin."""
         self.gait.stop()
+        if self.perception is not None:
+            self.perception.close()
         self.bus.close()
         self.twin.stop()
