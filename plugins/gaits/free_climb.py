@@ -177,7 +177,12 @@ def swing_lift(s: float, height: float) -> float:
 
 def stance_key(feet: np.ndarray) -> tuple[float, ...]:
     """A stance as a hashable key: the feet's wall-plane positions rounded to 0.1 mm."""
-    return tuple(np.round(feet[:, :2], 4).ravel().tolist())
+    return stance_keys(np.asarray(feet)[None])[0]
+
+
+def stance_keys(feet: np.ndarray) -> list[tuple[float, ...]]:
+    """``stance_key`` of stances (n, 4, ≥2) in one pass."""
+    return list(map(tuple, np.round(feet[:, :, :2], 4).reshape(len(feet), -1).tolist()))
 
 
 def diagonal_crossings(feet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -372,10 +377,9 @@ class ClimbPlanner:
             ok = reached & (margins >= (self.config.lead_margin if lead > 0.0 else 0.0))
             end[pending[ok]] = ends[ok]
             pending = pending[~ok]
+        feasible = ~np.isnan(end[:, 0])
         return [
-            Step(int(limbs[i]), start[i], targets[i], base[i], end[i])
-            if end[i, 0] == end[i, 0]
-            else None
+            Step(int(limbs[i]), start[i], targets[i], base[i], end[i]) if feasible[i] else None
             for i in range(n)
         ]
 
@@ -450,8 +454,8 @@ class ClimbPlanner:
             return []
         every = np.array([feet for feet, _ in postures], float)
         places = np.array([base for _, base in postures], float)
-        rounded = np.round(np.hstack((every[:, :, :2].reshape(len(every), -1), places)), 4)
-        keys = list(map(tuple, rounded.tolist()))
+        rounded = np.round(places, 4).tolist()
+        keys = [s + tuple(b) for s, b in zip(stance_keys(every), rounded, strict=True)]
         out = {key: self.known[key] for key in keys if key in self.known}
         todo = {key: i for i, key in enumerate(keys) if key not in out}
         if todo:
@@ -460,13 +464,11 @@ class ClimbPlanner:
             steps = self.feasible_steps(feet[posture], bases[posture], limbs, holds[index])
             afters = feet[posture]
             afters[np.arange(len(posture)), limbs] = holds[index]
-            stances = (
-                np.round(afters[:, :, :2], 4).reshape(len(posture), 2 * feet.shape[1]).tolist()
-            )
             found: list[list[Move]] = [[] for _ in todo]
-            for p, step, after, stance in zip(posture, steps, afters, stances, strict=True):
+            moves = zip(posture, steps, afters, stance_keys(afters), strict=True)
+            for p, step, after, stance in moves:
                 if step is not None:
-                    found[p].append(Move._make((step, after, tuple(stance), step.base_end @ GOAL)))
+                    found[p].append(Move._make((step, after, stance, step.base_end @ GOAL)))
             if len(self.known) + len(todo) > KNOWN_POSTURES:
                 self.known.clear()
             self.known.update(zip(todo, found, strict=True))
