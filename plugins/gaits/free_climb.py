@@ -182,7 +182,8 @@ def stance_key(feet: np.ndarray) -> tuple[float, ...]:
 
 def stance_keys(feet: np.ndarray) -> list[tuple[float, ...]]:
     """``stance_key`` of stances (n, 4, ≥2) in one pass."""
-    return list(map(tuple, np.round(feet[:, :, :2], 4).reshape(len(feet), -1).tolist()))
+    flat = np.round(feet[:, :, :2], 4).reshape(len(feet), 2 * feet.shape[1])
+    return list(map(tuple, flat.tolist()))
 
 
 def diagonal_crossings(feet: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
