@@ -63,8 +63,8 @@ def main() -> None:
         results = list(pool.map(both, seeds, [args.seconds] * len(seeds)))
     print(
         f"HubRobo, slope_map on its rock relief, {args.seconds:g} s, default planner, through "
-        "the Dynamixel driver; perceived = the world model's hold map from its own D435, "
-        "true = the world's holds (gait isolated)"
+        "the Dynamixel driver; perceived = the perception role's hold map from its own D435, "
+        "over Zenoh; true = the world's holds (gait isolated)"
     )
     print(
         "seed  perceived m  true m  ratio  slips p/t  missed p/t  min TSM p/t (m)  "
