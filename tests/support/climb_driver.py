@@ -93,9 +93,8 @@ class DriverClimb(SlopeScene):
 
     def perceived_map(self) -> HoldMap:
         """One D435 frame now through the perception role: the hold map it publishes, as the
-        controller receives it over Zenoh (the last one if this frame brought none)."""
-        controller = self.stack.controller
-        self.perception.sense(controller.body, controller.measured)
+        controller receives it over Zenoh (the last one if this frame brought none). The role
+        has the body states and joints up to now (``begin``, ``run``)."""
         seen = self.perception.look()
         if seen is None:
             raise RuntimeError("driver climb: the perception role has published no hold map")
@@ -161,6 +160,7 @@ class DriverClimb(SlopeScene):
         stack.run(SETTLE)
         if self.perception is not None:
             self.approach()
+            self.perception.sense(stack.controller.body, stack.controller.measured)
         stack.controller.on_feature(self.hold_map())
         if not safety.request(Mode.ACTIVE, self.clock.now(), reason="climb"):
             raise RuntimeError(f"driver climb: ACTIVE refused: {safety.reason}")
