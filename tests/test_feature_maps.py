@@ -9,6 +9,7 @@ import pytest
 from support.joist_world import JoistSpec, body_state, mapped, perceive
 
 from climbd.daemon.algorithms.feature_maps import (
+    HOLD_FOOTPRINT,
     HoldTracks,
     JoistTracks,
     StairTracks,
@@ -105,6 +106,21 @@ def test_a_hold_hidden_behind_a_leg_or_in_a_hole_is_not_expected_in_view():
     cone = ViewCone(DepthFrame(depth, 0.001, k, down, 0.0), [0.0, 0.0, 0.0], [1, 0, 0, 0], 2.0)
     assert cone.contains(holds).tolist() == [True, True, True]
     assert cone.visible(holds).tolist() == [True, False, False]
+
+
+def test_a_hold_whose_footprint_the_frame_did_not_see_whole_is_hidden_not_missed():
+    """A camera 1 m above a board (400 px focal length: 2 cm is 8 px). Hold A's footprint is
+    board all round: visible. Hold B's own pixel sees the board but a gripper's cut pixels lie
+    2 cm beside it (the detector cannot judge B): hidden with the hold footprint, visible to
+    the point test. Hold C's footprint runs off the image's edge: hidden."""
+    k = Intrinsics(640, 480, 400.0, 400.0, 320.0, 240.0)
+    down = np.array([[0, -1, 0, 0], [-1, 0, 0, 0], [0, 0, -1, 1], [0, 0, 0, 1]], float)
+    depth = np.full((480, 640), 1000, np.uint16)
+    holds = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.0, -0.795, 0.0]])
+    depth[160 - 3 : 160 + 4, 320 + 5 : 320 + 12] = 0  # beside B (row 160, column 320)
+    cone = ViewCone(DepthFrame(depth, 0.001, k, down, 0.0), [0.0, 0.0, 0.0], [1, 0, 0, 0], 2.0)
+    assert cone.visible(holds).tolist() == [True, True, True]
+    assert cone.visible(holds, HOLD_FOOTPRINT).tolist() == [True, False, False]
 
 
 def test_a_joist_seen_while_walking_and_turning_is_one_track_on_its_line():

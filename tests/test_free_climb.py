@@ -791,8 +791,8 @@ def test_a_hold_lost_mid_swing_is_backed_off_to_the_hold_it_left_keeping_three_g
 def test_a_gripper_that_does_not_hold_on_its_new_hold_backs_off_keeping_three_grips(tile):
     """The first swing's gripper closes but reports no hold: no limb is released while it
     waits ``grip_wait``; then the limb swings back to the hold it left, the three others
-    holding throughout, the tick naming why; that hold is never planned on again, and a
-    stance gripper that lets go later stops every swing until it holds again."""
+    holding throughout, the tick naming why; no hold within a palm's width of it is planned on
+    again, and a stance gripper that lets go later stops every swing until it holds again."""
     holds = hold_map(tile, seed=0)
     runner = _fresh_runner(holds)
     stand_feet, stand_base = runner.feet.copy(), runner.base.copy()
@@ -819,7 +819,7 @@ def test_a_gripper_that_does_not_hold_on_its_new_hold_backs_off_keeping_three_gr
         runner.tick(DT, holds, [True] * 4)
     later = runner.steps[backed_off:]
     assert len(later) >= 2
-    assert all(np.linalg.norm(s.target - step.target) > CFG.hold_tolerance for s in later)
+    assert all(np.linalg.norm(s.target - step.target) > CFG.hold_spacing for s in later)
     while runner.step is not None:
         runner.tick(DT, holds, [True] * 4)
     lets_go = next(k for k in range(4) if k != runner.steps[-1].limb)  # a stance gripper

@@ -45,6 +45,14 @@ LEVER = 0.3
 OCCLUSION = 0.03
 """m: a pixel's return this much nearer than a point hides it (a gripper over a hold; the
 depth noise at a hold's range is millimetres)."""
+RING = ((0.0, 0.0),) + tuple(
+    (math.cos(a), math.sin(a)) for a in np.linspace(0.0, 2.0 * math.pi, 8, endpoint=False)
+)
+"""Pixel directions ``ViewCone.visible`` looks along: the point's own, then eight around it."""
+HOLD_FOOTPRINT = 0.02
+"""m: the ground around a hold its detection looks at (a palm's radius, 1.6 cm, rounded up): a
+hold whose footprint a frame did not see whole (a gripper's cut pixels beside it, a hole, the
+image's edge) is hidden from that frame, not missed by it."""
 
 
 def to_odometry(points: np.ndarray, position: list[float], orientation: list[float]) -> np.ndarray:
@@ -123,15 +131,24 @@ class ViewCone:
         feature may count a miss)."""
         return self._inside(*self._project(points))
 
-    def visible(self, points: np.ndarray) -> np.ndarray:
-        """Contained, and the frame saw the place: its pixel has a return (not a hole, not a
-        leg the self filter cut out) no nearer than ``OCCLUSION`` in front of the point. A hold
-        under a swinging gripper is hidden, not missed."""
+    def visible(self, points: np.ndarray, footprint: float = 0.0) -> np.ndarray:
+        """Contained, and the frame saw the place: its pixel, and the pixels ``footprint`` (m)
+        around it on a ring, have returns (not holes, not a leg the self filter cut out, not off
+        the image) no nearer than ``OCCLUSION`` (plus ``footprint`` on the ring) in front of the
+        point. A hold under or beside a swinging gripper is hidden, not missed."""
         u, v, z = self._project(points)
         seen = self._inside(u, v, z)
         at = np.flatnonzero(seen)
-        depth = self._depth[v[at].astype(int), u[at].astype(int)] * self._scale
-        seen[at] = (depth > 0) & (depth >= z[at] - OCCLUSION)
+        k, rows, cols = self.intrinsics, *self._depth.shape
+        reach = footprint * k.fx / z[at]
+        for du, dv in RING if footprint > 0.0 else RING[:1]:
+            uu = np.round(u[at] + du * reach).astype(int)
+            vv = np.round(v[at] + dv * reach).astype(int)
+            on = (uu >= 0) & (uu < cols) & (vv >= 0) & (vv < rows)
+            depth = np.zeros(len(at))
+            depth[on] = self._depth[vv[on], uu[on]] * self._scale
+            slack = OCCLUSION + (footprint if du or dv else 0.0)
+            seen[at] &= (depth > 0) & (depth >= z[at] - slack)
         return seen
 
 
@@ -160,14 +177,18 @@ class HoldTracks:
         """Fold one frame's graspable points in (``confidence`` per sighting: the detector
         gives none)."""
         points = to_odometry(seen.points, seen.frame_position, seen.frame_orientation)
-        in_view = None if cone is None else (lambda ts: cone.visible(_estimates(ts)))
+        in_view = (
+            None if cone is None else (lambda ts: cone.visible(_estimates(ts), HOLD_FOOTPRINT))
+        )
         self.tracker.update(list(points), [confidence] * len(points), seen.frame_stamp, in_view)
 
     def offer(self, grasps: TrussGrasps, cone: ViewCone | None, confidence: float = 0.5) -> None:
         """Fold the truss's grasp targets in as holds (``grasp_holds``), so a gripper-equipped
         limb may take a member as a hold."""
         points = grasp_holds(grasps)
-        in_view = None if cone is None else (lambda ts: cone.visible(_estimates(ts)))
+        in_view = (
+            None if cone is None else (lambda ts: cone.visible(_estimates(ts), HOLD_FOOTPRINT))
+        )
         self.tracker.update(list(points), [confidence] * len(points), grasps.frame_stamp, in_view)
 
     def message(self, stamp: float, now: float) -> HoldMap:

@@ -791,12 +791,14 @@ class ClimbRunner:
             self.steps[-1] = self.step
 
     def _usable(self, holds: np.ndarray) -> np.ndarray:
-        """The mapped holds less those a gripper failed on (within ``hold_tolerance``)."""
+        """The mapped holds less those within a palm's width (``hold_spacing``) of where a
+        gripper failed: the rock there did not hold, and a hold mapped that near is the same
+        feature seen a little elsewhere (maps put one rock feature in several places)."""
         holds = np.asarray(holds, float).reshape(-1, 3)
         if not self.failed or not len(holds):
             return holds
         gap = np.linalg.norm(holds[:, None, :] - np.array(self.failed)[None], axis=2)
-        return holds[gap.min(axis=1) > self.planner.config.hold_tolerance]
+        return holds[gap.min(axis=1) > self.planner.config.hold_spacing]
 
     def _mapped(self, target: np.ndarray, holds: np.ndarray) -> bool:
         """Whether the hold map still has a hold at ``target`` (within ``hold_tolerance``)."""

@@ -46,8 +46,9 @@ machine a late reply must not become a miss (which would change the run); no ser
 here."""
 HOLD_MAP_PERIOD = 0.5
 """s: how often the hold map reaches the controller (the world model's 2 Hz)."""
-APPROACH = (0.45, 0.4, 0.35, 0.3, 0.25, 0.2, 0.15, 0.1, 0.05)
-"""m down the wall: where the camera looked from on the way up to the start (``approach``)."""
+APPROACH = tuple(round(0.45 - 0.01 * k, 2) for k in range(41))
+"""m down the wall: where the camera looked from on the way up to the start (``approach``),
+one frame a centimetre (at paper 001's pace, 0.17 m in 45 s, its 2 Hz frames lie 2 mm apart)."""
 APPROACH_PERIOD = 0.1
 """s between the frames of the way up."""
 
@@ -105,11 +106,13 @@ class DriverClimb(SlopeScene):
         wall, ``APPROACH_PERIOD`` apart before now, perceived at those poses: the holds under
         the robot at its start, which its camera (its view begins 0.13 m ahead of the body,
         the rear feet stand 0.17 m behind) cannot see from there. The way up is taken as the
-        odometry would have measured it, exactly, the legs as they stand now."""
+        odometry would have measured it, exactly (the wall's slope line carried into the
+        odometry frame by the body's estimate now), the legs as they stand now."""
         twin, controller = self.twin, self.stack.controller
         body, joints = controller.body, controller.measured
-        here = twin.data.qpos[:3].copy()
-        down_world, down_odometry = self.rotation[:, 0], rotation(body.orientation)[:, 0]
+        here, quaternion = twin.body_pose()
+        down_world = self.rotation[:, 0]
+        down_odometry = rotation(body.orientation) @ rotation(quaternion).T @ down_world
         now = self.clock.now()
         try:
             for k, back in enumerate(APPROACH):
