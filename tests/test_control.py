@@ -395,3 +395,35 @@ def test_published_joints_carry_the_tick_time_the_body_state_does(widowx) -> Non
     assert len(joints) == len(bodies) > 10
     assert [j.stamp for j in joints] == [b.stamp for b in bodies]
     assert joints[-1].stamp == pytest.approx(rig.clock.now(), abs=1.0 / widowx.rate_hz)
+
+
+class SlidingFoot(StillGait):
+    """Keeps three feet; drags leg 3's foot 3 cm sideways over a second, still in stance, as a
+    foot on rock its gripper does not hold slides under the body."""
+
+    def step(self, t, dt, body, world, command):
+        targets = super().step(t, dt, body, world, command)
+        self.t0 = getattr(self, "t0", t)
+        feet = np.array(targets.positions)
+        feet[3, 1] += 0.03 * min(1.0, (t - self.t0) / 1.0)
+        targets.positions = feet.tolist()
+        return targets
+
+
+def test_a_foot_whose_gripper_holds_nothing_does_not_carry_the_pose(robots) -> None:
+    """HubRobo stands still on three grips while leg 3's gripper, closed on nothing, lets its
+    foot slide 3 cm: the odometry leaves that foot out of its stance fit, so the body's
+    estimate stays where the three holding feet keep it (the pose of all four feet's fit
+    would move and turn with the slide)."""
+    profile = profiles.load(robots / "hubrobo.toml")
+    rig = Rig(profile, SlidingFoot(profile=profile))
+    rig.bus.empty_grips = {3}
+    rig.stand()
+    before = rig.controller.body
+    rig.safety.request(Mode.ACTIVE, rig.clock.now())
+    rig.run(1.5)
+    after = rig.controller.body
+    assert rig.safety.mode == Mode.ACTIVE and after.holding == [True, True, True, False]
+    moved = np.linalg.norm(np.subtract(after.position, before.position))
+    turned = 2 * np.degrees(np.arccos(min(1.0, abs(np.dot(after.orientation, before.orientation)))))
+    assert moved < 0.001 and turned < 0.1

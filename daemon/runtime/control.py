@@ -172,6 +172,8 @@ class Controller:
         )
         self.stance = np.ones(len(profile.legs), bool)
         self._stance_changed = False
+        self._supported = self.stance.copy()
+        """The feet the odometry was last given as its support (``_support``)."""
         self._odometry_every = max(1, round(profile.rate_hz / ODOMETRY_RATE_HZ))
         self.imu = imu
         self.messages: list[str] = []
@@ -331,13 +333,8 @@ class Controller:
         q_now = current_joints(state, self._velocity_limits)
         if self.estimator is not None:
             self._estimate(t, dt, q_now, state)
-        elif self._ticks % self._odometry_every == 0 or self._stance_changed:
-            sample = self._read_imu()
-            if sample is None:
-                self.body = self.odometry.update(q_now, self.stance, t)
-            else:
-                self.body = self.odometry.update(q_now, self.stance, t, sample.gyro, sample.accel)
-            self._stance_changed = False
+        else:
+            self._odometry(t, q_now, state)
         self.body.holding = state.holding
         if self.fault_reset:
             self.fault_reset = False
@@ -403,6 +400,24 @@ class Controller:
                 np.asarray(aligned.alignment), np.asarray(aligned.constrained)
             )
         self.body = self.estimator.update(q, state.effort, gyro, accel, dt, t, self.stance)
+
+    def _odometry(self, t: float, q_now: np.ndarray, state: JointState) -> None:
+        """Leg odometry at its rate, and at once when its support changes: the gait's stance
+        feet less those whose gripper reports it holds nothing (a foot on rock that does not
+        hold may slide, and would turn the stance feet's fit with it)."""
+        support = self.stance
+        if state.holding is not None:
+            support = support & np.asarray(state.holding, bool)
+        due = self._ticks % self._odometry_every == 0 or self._stance_changed
+        if not due and np.array_equal(support, self._supported):
+            return
+        sample = self._read_imu()
+        if sample is None:
+            self.body = self.odometry.update(q_now, support, t)
+        else:
+            self.body = self.odometry.update(q_now, support, t, sample.gyro, sample.accel)
+        self._stance_changed = False
+        self._supported = support
 
     def _read_imu(self) -> ImuSample | None:
         """The IMU's sample now, or None without an IMU or when it fails (noted in messages)."""
