@@ -173,7 +173,7 @@ class Controller:
         self.stance = np.ones(len(profile.legs), bool)
         self._stance_changed = False
         self._supported = self.stance.copy()
-        """The feet the odometry was last given as its support (``_support``)."""
+        """The feet the odometry was last given as its support (``_odometry``)."""
         self._odometry_every = max(1, round(profile.rate_hz / ODOMETRY_RATE_HZ))
         self.imu = imu
         self.messages: list[str] = []
@@ -403,11 +403,15 @@ class Controller:
 
     def _odometry(self, t: float, q_now: np.ndarray, state: JointState) -> None:
         """Leg odometry at its rate, and at once when its support changes: the gait's stance
-        feet less those whose gripper reports it holds nothing (a foot on rock that does not
-        hold may slide, and would turn the stance feet's fit with it)."""
+        feet, less those whose gripper reports it holds nothing while three or more stance
+        feet's grippers hold (the body hangs on its grips; a foot on rock its gripper does not
+        hold may slide, and would turn the stance feet's fit with it). A robot walking on its
+        feet, grippers holding nothing, keeps every stance foot."""
         support = self.stance
         if state.holding is not None:
-            support = support & np.asarray(state.holding, bool)
+            gripped = support & np.asarray(state.holding, bool)
+            if gripped.sum() >= 3:
+                support = gripped
         due = self._ticks % self._odometry_every == 0 or self._stance_changed
         if not due and np.array_equal(support, self._supported):
             return
