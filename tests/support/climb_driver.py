@@ -33,7 +33,7 @@ from climbd.daemon.runtime.loader import Isolated
 from climbd.daemon.runtime.loop import SteppedClock
 from climbd.daemon.runtime.stack import control_stack
 from climbd.drivers.dynamixel.bus import DynamixelBus
-from climbd.plugins.gaits.free_climb import ClimbConfig, ClimbPlanner, FreeClimb
+from climbd.plugins.gaits.free_climb import ClimbConfig, ClimbPlanner, FreeClimb, PeriodicClimb
 from support.climb_run import ClimbLog, SlopeScene
 from support.role_perception import SteppedPerception
 
@@ -55,12 +55,17 @@ APPROACH_PERIOD = 0.1
 
 class DriverClimb(SlopeScene):
     """The scene's twin serving its bus, and HubRobo's control stack driving it through the
-    Dynamixel driver with the ``free_climb`` gait (``config`` over the scene's mass and
-    gravity); with ``perceive``, on the holds its own camera finds (``relief``: see
-    SlopeScene)."""
+    Dynamixel driver with the ``free_climb`` gait, or with ``periodic`` its periodic baseline
+    (``periodic_climb``), ``config`` over the scene's mass and gravity; with ``perceive``, on the
+    holds its own camera finds (``relief``: see SlopeScene)."""
 
     def __init__(
-        self, seed: int, relief: str = "columns", perceive: bool = False, **config
+        self,
+        seed: int,
+        relief: str = "columns",
+        perceive: bool = False,
+        periodic: bool = False,
+        **config,
     ) -> None:
         super().__init__(seed, bus=True, relief=relief)
         self.config = ClimbConfig(mass=self.mass, gravity=self.config.gravity, **config)
@@ -72,13 +77,13 @@ class DriverClimb(SlopeScene):
         )
         self.bus.open()
         twin.driver_sent = lambda: self.bus.sent
-        self.gait = FreeClimb(self.config, self.profile)
+        self.gait = (PeriodicClimb if periodic else FreeClimb)(self.config, self.profile)
         self.clock = SteppedClock(start=twin.time, on_advance=twin.advance_to)
         self.stack = control_stack(
             self.profile,
             self.bus,
             self.clock,
-            Isolated("free_climb", self.gait),
+            Isolated(self.gait.name, self.gait),
             imu=SimpleNamespace(read=twin.imu_sample),
         )
         self.ids = np.arange(len(self.tops))
