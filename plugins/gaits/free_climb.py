@@ -723,7 +723,7 @@ class ClimbRunner:
         self._unheld = 0.0
         if self.step is None:
             if self._stuck == hash(holds.tobytes()):
-                return self._still(reason=f"no feasible step over the {len(holds)} holds mapped")
+                return self._no_step(holds)
             if not self.ahead.requested:
                 self._request(self.feet, self.base, holds)
             ready, step = self.ahead.take()
@@ -736,7 +736,7 @@ class ClimbRunner:
             self.reason, self._backing = "", None
             if step is None:
                 self._stuck = self._asked
-                return self._still(reason=f"no feasible step over the {len(holds)} holds mapped")
+                return self._no_step(holds)
             self._stuck = None
             self.steps.append(step)
             self._request(*self._after(step), holds)
@@ -848,6 +848,10 @@ class ClimbRunner:
         """A tick holding the current stance with all four grippers."""
         margin = self.planner.tsm(self.base, self.feet)
         return Tick(self.feet.copy(), self.base.copy(), None, [True] * 4, margin, late, reason)
+
+    def _no_step(self, holds: np.ndarray) -> Tick:
+        """Four grips held still: no step is feasible over ``holds``, and the tick says so."""
+        return self._still(reason=f"no feasible step over the {len(holds)} holds mapped")
 
     def close(self) -> None:
         """Stop the planning worker."""
