@@ -401,9 +401,13 @@ class SlidingFoot(StillGait):
     """Keeps three feet; drags leg 3's foot 3 cm sideways over a second, still in stance, as a
     foot on rock its gripper does not hold slides under the body."""
 
+    def start(self, body, feet):
+        super().start(body, feet)
+        self.t0: float | None = None
+
     def step(self, t, dt, body, world, command):
         targets = super().step(t, dt, body, world, command)
-        self.t0 = getattr(self, "t0", t)
+        self.t0 = t if self.t0 is None else self.t0
         feet = np.array(targets.positions)
         feet[3, 1] += 0.03 * min(1.0, (t - self.t0) / 1.0)
         targets.positions = feet.tolist()
