@@ -27,7 +27,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.climb_driver import DriverClimb  # noqa: E402
@@ -43,12 +42,8 @@ def climb(
     try:
         run.begin()
         log = run.run(seconds)
-        mapped = np.reshape([h.position for h in run.hold_map().holds], (-1, 3))
-        true = np.reshape([h.position for h in run.truth_map().holds], (-1, 3))
-        normal = run.rotation[:, 2]
-        flat = np.eye(3) - np.outer(normal, normal)  # the wall plane, near enough in odometry
-        gap = cKDTree(true @ flat).query(mapped @ flat)[0] if len(mapped) else np.zeros(0)
-        return log, run.left, len(mapped), int(np.count_nonzero(gap <= 0.01))
+        check = run.map_check()
+        return log, run.left, len(check.mapped), int(np.count_nonzero(check.to_true <= 0.01))
     finally:
         run.close()
 

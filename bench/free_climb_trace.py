@@ -17,33 +17,28 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.climb_driver import DriverClimb  # noqa: E402
 
 from climbd.daemon.contract.geometry import rotation  # noqa: E402
+from climbd.drivers.sim.twin import GRASP_OFFSET  # noqa: E402
 
 NEAR = 0.25
 """m (odometry x from the body's start): the stretch the rear limbs climb on in 45 s."""
-PALM = 0.016
-"""m: the twin's gripper holds within this of a true hold (the palm's radius)."""
 
 
 def near_map(run: DriverClimb) -> str:
-    """The hold map below ``NEAR``: true holds covered, mapped holds on no true hold."""
-    mapped = np.reshape([h.position for h in run.hold_map().holds], (-1, 3))
-    true = np.reshape([h.position for h in run.truth_map().holds], (-1, 3))
-    normal = run.rotation[:, 2]
-    flat = np.eye(3) - np.outer(normal, normal)
-    to_mapped = cKDTree(mapped @ flat).query(true @ flat)[0]
-    to_true = cKDTree(true @ flat).query(mapped @ flat)[0]
-    near_true = (true[:, 0] < NEAR) & (np.abs(true[:, 1]) < 0.35)
-    near_mapped = (mapped[:, 0] < NEAR) & (np.abs(mapped[:, 1]) < 0.35)
+    """The hold map below ``NEAR``: true holds covered, mapped holds on no true hold (a gripper
+    holds within the palm's radius, ``GRASP_OFFSET``, of a true hold)."""
+    check = run.map_check()
+    near_true = (check.true[:, 0] < NEAR) & (np.abs(check.true[:, 1]) < 0.35)
+    near_mapped = (check.mapped[:, 0] < NEAR) & (np.abs(check.mapped[:, 1]) < 0.35)
     return (
-        f"true holds {near_true.sum()}, of them mapped within {PALM * 100:.1f} cm "
-        f"{np.count_nonzero(to_mapped[near_true] <= PALM)}; mapped holds {near_mapped.sum()}, "
-        f"on no true hold {np.count_nonzero(to_true[near_mapped] > PALM)}"
+        f"true holds {near_true.sum()}, of them mapped within {GRASP_OFFSET * 100:.1f} cm "
+        f"{np.count_nonzero(check.to_mapped[near_true] <= GRASP_OFFSET)}; mapped holds "
+        f"{near_mapped.sum()}, on no true hold "
+        f"{np.count_nonzero(check.to_true[near_mapped] > GRASP_OFFSET)}"
     )
 
 

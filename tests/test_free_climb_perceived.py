@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
 from support.climb_driver import DriverClimb
 
 from climbd.drivers.sim.twin import GRASP_OFFSET
@@ -57,20 +56,16 @@ def test_the_hold_map_is_built_from_the_camera_and_lies_on_the_rocks_holds(climb
     where the standing camera's view begins (0.13 m ahead of the body), which the approach's
     frames saw."""
     climb, _ = climbed
-    mapped = climb.hold_map().holds
-    position = np.reshape([h.position for h in mapped], (-1, 3))
-    true = np.reshape([h.position for h in climb.truth_map().holds], (-1, 3))
+    check = climb.map_check()
+    mapped, position, gap = check.map.holds, check.mapped, check.to_true
     normal = climb.rotation[:, 2]
-    gap, k = cKDTree(true - np.outer(true @ normal, normal)).query(
-        position - np.outer(position @ normal, normal)
-    )
     within = position[:, 0] < NEAR
     held = gap[within] <= GRASP_OFFSET
     assert held.mean() >= 0.8, f"{held.sum()} of {within.sum()} mapped holds on a true hold"
     near = within & (gap <= 0.01)
     assert near.sum() >= 20
     reach = GripperGeometry().closing_height
-    assert np.abs((position[near] - true[k[near]]) @ normal).max() < reach
+    assert np.abs((position[near] - check.true[check.nearest[near]]) @ normal).max() < reach
     confidence = np.array([h.confidence for h in mapped])
     seen = np.array([h.seen for h in mapped])
     assert (confidence[seen > 1] > confidence[seen == 1].max(initial=0.0)).all()

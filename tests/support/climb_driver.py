@@ -21,10 +21,12 @@ grippers that hold, slips.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from types import SimpleNamespace
 
 import msgspec
 import numpy as np
+from scipy.spatial import cKDTree
 
 from climbd.daemon.algorithms.odometry import TILT_TIME
 from climbd.daemon.contract.geometry import rotation
@@ -51,6 +53,21 @@ APPROACH = tuple(round(0.45 - 0.01 * k, 2) for k in range(41))
 one frame a centimetre (at paper 001's pace, 0.17 m in 45 s, its 2 Hz frames lie 2 mm apart)."""
 APPROACH_PERIOD = 0.1
 """s between the frames of the way up."""
+
+
+@dataclass(frozen=True)
+class MapCheck:
+    """A hold map against the world's true holds in the wall's plane (odometry frame): each
+    mapped hold's distance to the nearest true hold (``to_true``) and that hold's index
+    (``nearest``), each true hold's distance to the nearest mapped one (``to_mapped``; inf on an
+    empty map)."""
+
+    map: HoldMap
+    mapped: np.ndarray
+    true: np.ndarray
+    to_true: np.ndarray
+    nearest: np.ndarray
+    to_mapped: np.ndarray
 
 
 class DriverClimb(SlopeScene):
@@ -131,6 +148,20 @@ class DriverClimb(SlopeScene):
                 self.perception.look(stamp)
         finally:
             twin.data.qpos[:3] = here
+
+    def map_check(self) -> MapCheck:
+        """The hold map the controller is given now (``hold_map``) against the true holds."""
+        seen = self.hold_map()
+        mapped = np.reshape([h.position for h in seen.holds], (-1, 3))
+        true = np.reshape([h.position for h in self.truth_map().holds], (-1, 3))
+        normal = self.rotation[:, 2]
+        flat = np.eye(3) - np.outer(normal, normal)  # the wall plane, near enough in odometry
+        if not len(mapped):
+            none = np.full(len(true), np.inf)
+            return MapCheck(seen, mapped, true, np.zeros(0), np.zeros(0, int), none)
+        to_true, nearest = cKDTree(true @ flat).query(mapped @ flat)
+        to_mapped = cKDTree(mapped @ flat).query(true @ flat)[0]
+        return MapCheck(seen, mapped, true, to_true, nearest, to_mapped)
 
     def truth_map(self) -> HoldMap:
         """The world's holds in the odometry frame, placed by the body's estimate now."""
