@@ -13,6 +13,8 @@ walks under G/6, its design gravity (paper 001); at 1 g its servos cannot hold i
         [--gait-config '{"duty_factor": 0.85}']  (the Dynamixel robots' gait, e.g. a gentler crawl)
         [--ablate]  (replay the Dynamixel robots' odometry inputs into variants of LegOdometry:
                      rolling or point feet, a slip judged from four feet down; same walk, truth)
+        [--tilt-time 3 --still-accel 0.02]  (the tilt filter's time constant and its "gravity
+                     alone" gate, odometry.TILT_TIME and STILL_ACCEL, set for this run)
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from support.walk_run import (  # noqa: E402
     qingzhui_walk,
 )
 
+from climbd.daemon.algorithms import odometry  # noqa: E402
 from climbd.daemon.algorithms.kinematics import Kinematics  # noqa: E402
 from climbd.daemon.algorithms.odometry import SLIP_FEET, LegOdometry  # noqa: E402
 from climbd.daemon.contract import profile as profiles  # noqa: E402
@@ -77,8 +80,8 @@ def ablation(robot: str, w: Walk, inputs: list[OdometryInput]) -> None:
         "rolling feet, slip from 4 feet": LegOdometry(kin, foot_radius=radius, slip_feet=4),
         "point feet, slip from 4 feet": LegOdometry(kin, slip_feet=4),
     }
-    for name, odometry in variants.items():
-        error = replayed_error(w, inputs, odometry)
+    for name, variant in variants.items():
+        error = replayed_error(w, inputs, variant)
         print(f"| {robot} | {name} | {error * 100:.1f} cm ({error / w.distance:.1%}) |")
 
 
@@ -92,7 +95,14 @@ def main() -> int:
     parser.add_argument(
         "--ablate", action="store_true", help="replay the odometry inputs into its variants"
     )
+    parser.add_argument(
+        "--tilt-time", type=float, default=odometry.TILT_TIME, help="odometry.TILT_TIME (s)"
+    )
+    parser.add_argument(
+        "--still-accel", type=float, default=odometry.STILL_ACCEL, help="odometry.STILL_ACCEL"
+    )
     args = parser.parse_args()
+    odometry.TILT_TIME, odometry.STILL_ACCEL = args.tilt_time, args.still_accel
     recorded: dict[str, tuple[Walk, list[OdometryInput]]] = {}
     print(
         "| robot (gait, speed) | walked (m) | position error | published σ | heading error "

@@ -18,7 +18,7 @@ from climbd.drivers.sim import servos
 from climbd.drivers.sim.depth import NOISE
 from climbd.drivers.sim.model import GRIP_FORCE, build
 from climbd.drivers.sim.topview import render_top_view
-from climbd.drivers.sim.twin import Twin
+from climbd.drivers.sim.twin import IMU_WINDOW, Twin
 from climbd.drivers.sim.worlds import JoistRow, World, WorldError, holds_heightfield, stock_worlds
 from climbd.drivers.sim.worlds import load as load_world
 
@@ -100,6 +100,29 @@ def test_widowx_stands_and_holds_height_in_stepped_mode(widowx):
         mujoco.mj_contactForce(twin.model, d, i, force)
         total += force[0] * abs(d.contact[i].frame[2])
     assert total == pytest.approx(widowx.mass * 9.80665, rel=0.05)
+
+
+def test_the_accelerometer_integrates_to_the_velocity_the_base_gains(widowx):
+    """As the WidowX rises from rest on its servos, the accelerometer's readings (less gravity,
+    turned into the world) sum over time to the velocity the base gains: what the body does,
+    not the solver's explicit acceleration, which the implicit integrator does not apply."""
+    twin = Twin(widowx, "attic", stepped=True, bus=False)
+    twin.advance_to(0.2)
+    rest = twin.joint_positions()
+    stand = Kinematics(widowx).stand_joints()
+    v0 = twin.data.qvel[:3].copy()
+    gained, rose = np.zeros(3), []
+    period = IMU_WINDOW * twin.model.opt.timestep
+    for k in range(1, 101):
+        twin.command(rest + (stand - rest) * min(1.0, k / 60))
+        twin.advance_to(0.2 + k * period)
+        _, quaternion = twin.body_pose()
+        world = np.zeros(9)
+        mujoco.mju_quat2Mat(world, quaternion)
+        gained += (world.reshape(3, 3) @ twin.imu_sample().accel + twin.model.opt.gravity) * period
+        rose.append(np.linalg.norm(twin.data.qvel[:3] - v0))
+        assert np.linalg.norm(gained - (twin.data.qvel[:3] - v0)) < 0.005, k
+    assert max(rose) > 0.05  # the base really moved
 
 
 def _sway_log(profile, seed: int) -> np.ndarray:

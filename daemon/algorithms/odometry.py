@@ -51,13 +51,17 @@ SLIP_FEET = 5
 the choice, and two feet sliding together put the largest residual on a third that held (HubRobo's
 crawl under G/6, five 3 m walks of gait variants: worst 2.7 % judged from five, 17.7-21.2 % from
 four; bench/odometry.py --ablate, BENCHMARKS.md)."""
-STILL_ACCEL = 0.05
-"""A specific force within this fraction of gravity's counts as gravity alone (tilt observable)."""
+STILL_ACCEL = 0.02
+"""A specific force within this fraction of gravity's counts as gravity alone (tilt observable).
+The magnitude sees an acceleration across gravity only to second order, so the gate is tight
+(HubRobo's 5 m crawl under G/6: 1.8 cm at 2 %; the WidowX's tripod 6.5 cm; BENCHMARKS.md)."""
 GRAVITY_TIME = 5.0
 """Seconds of rest: time constant of the gravity magnitude learnt from the accelerometer (from its
 first sample on): 9.81 m/s² on Earth, 1.62 on the Moon, where HubRobo is built to climb."""
-TILT_TIME = 1.0
-"""Seconds: time constant pulling the gyro's tilt toward the accelerometer's gravity."""
+TILT_TIME = 3.0
+"""Seconds: time constant pulling the gyro's tilt toward the accelerometer's gravity, long enough
+to average over several steps of a walk's sway (5 m walks, bench/odometry.py: the WidowX 8.0 cm
+at 1 s, 6.5 cm at 3 s and 5 s). The accelerometer's first sample sets the tilt at once."""
 HEADING_TIME = 300.0
 """Seconds: time constant τ pulling the gyro's heading toward the stance feet's. A leg drift of
 rate r leaks in as r·(t - τ·(1 - exp(-t/τ))) (0.05°/s over 40 s: 0.13° of 2°); a gyro bias left
@@ -190,7 +194,8 @@ class LegOdometry:
 
     def _turn(self, gyro: np.ndarray, accel: np.ndarray | None, dt: float) -> None:
         """Integrate the gyro (rad/s, body frame) over ``dt``; pull the tilt toward gravity when
-        the specific force ``accel`` (m/s², body frame) is gravity's alone."""
+        the specific force ``accel`` (m/s², body frame) is gravity's alone, the first sample all
+        the way."""
         if self.attitude is None:
             self.attitude = self.rot.copy()
         self.attitude = self.attitude @ exp_so3((np.asarray(gyro, float) - self.gyro_bias) * dt)
@@ -198,13 +203,17 @@ class LegOdometry:
             return
         accel = np.asarray(accel, float)
         norm = float(np.linalg.norm(accel))
+        gain = min(1.0, dt / TILT_TIME)
         if self.gravity is None:
-            self.gravity = norm
+            self.gravity, gain = norm, 1.0
         if abs(norm - self.gravity) > STILL_ACCEL * self.gravity:
             return
         up = self.attitude[2]  # the odometry frame's z in the body frame (row 2 of R = R^T z)
         axis = np.cross(accel / norm, up)
-        self.attitude = self.attitude @ exp_so3(axis * min(1.0, dt / TILT_TIME))
+        sine = float(np.linalg.norm(axis))
+        if sine > 0.0:
+            angle = math.atan2(sine, float(accel @ up) / norm)
+            self.attitude = self.attitude @ exp_so3(axis * (angle / sine * gain))
 
     def _steer(
         self,

@@ -343,7 +343,6 @@ def _add_robot(
     for cam in profile.cameras:
         ET.SubElement(base, "site", name=f"camera_{cam.name}", pos=_fmt(cam.mount.position))
     ET.SubElement(sensors, "gyro", name="imu_gyro", site="imu")
-    ET.SubElement(sensors, "accelerometer", name="imu_accel", site="imu")
     j = 0
     for leg in profile.legs:
         parent = base

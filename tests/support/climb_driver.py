@@ -28,7 +28,6 @@ import msgspec
 import numpy as np
 from scipy.spatial import cKDTree
 
-from climbd.daemon.algorithms.odometry import TILT_TIME
 from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.messages import HoldMap, MappedHold, Mode
 from climbd.daemon.runtime.loader import Isolated
@@ -39,9 +38,9 @@ from climbd.plugins.gaits.free_climb import ClimbConfig, ClimbPlanner, FreeClimb
 from support.climb_run import ClimbLog, SlopeScene
 from support.role_perception import SteppedPerception
 
-SETTLE = 5 * TILT_TIME
-"""s: standing still before the climb while the odometry's tilt settles on the IMU's gravity
-(the gait takes the wall's slope from it at start)."""
+SETTLE = 5.0
+"""s: standing still before the climb, the odometry's tilt on the IMU's gravity (the gait takes
+the wall's slope from it at start)."""
 MARGIN_MS = 2000.0
 """Reply timeout margin of the driver: physics waits for the bus in a stepped run, so on a loaded
 machine a late reply must not become a miss (which would change the run); no servo is silenced
