@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial import cKDTree
 from support.climb_run import SlopeClimb
 
-from climbd.drivers.sim.worlds import hold_map_holds, hold_map_relief
+from climbd.drivers.sim.worlds import hold_map_holds, hold_map_relief, hold_map_seams
 from climbd.drivers.sim.worlds import load as load_world
 from climbd.drivers.sim.worlds.hold_tiles import tile_map, tile_relief
 from climbd.plugins.perception.graspable import GraspableConfig, GraspableDetector
@@ -38,9 +38,10 @@ def test_each_copy_carries_its_rock_turned_and_mirrored_as_its_holds():
 def test_the_rock_carries_the_maps_holds_where_the_detector_finds_them(seed):
     """The detector (paper 001 §2, defaults) on the whole relief seen from above finds ≥ 90 %
     of the map's holds within 1 cm, at their heights within 2 mm. Up to a fifth of its
-    detections lie off the map (12-16 % on these seeds): a second spot 1.6 cm from a hold (the
+    detections lie off the map (11-12 % on these seeds): a second spot 1.6 cm from a hold (the
     detector thins at 1.5 cm), or rock the cloud's own camera saw in a shadow the relief fills
-    linearly; the twin lets no gripper hold there."""
+    linearly; the twin lets no gripper hold there. At most two lie at a seam between tile
+    copies, where unrelated rock meets blended (unblended: 11 and 7, on the cliff's rim)."""
     world = load_world("slope_map")
     world = msgspec.structs.replace(
         world, hold_map=msgspec.structs.replace(world.hold_map, seed=seed, relief="rock")
@@ -59,6 +60,11 @@ def test_the_rock_carries_the_maps_holds_where_the_detector_finds_them(seed):
     assert np.abs(found[k[hit], 2] - holds[hit, 2]).max() < 0.002
     off = cKDTree(holds[:, :2]).query(found[:, :2])[0] > 0.01
     assert off.mean() <= 0.2, f"{off.sum()} of {len(found)} detections off the map"
+    xs, ys = hold_map_seams(world)
+    at_seam = (np.abs(found[:, :1] - xs).min(axis=1) < 0.02) | (
+        np.abs(found[:, 1:2] - ys).min(axis=1) < 0.02
+    )
+    assert np.count_nonzero(off & at_seam) <= 2
 
 
 def test_a_gripper_holds_on_the_rock_at_its_holds_and_not_beside_them_isolating_the_gait():

@@ -23,6 +23,7 @@ from climbd.daemon.contract.geometry import regression_frame
 from climbd.drivers.sim.worlds.hold_tiles import (
     REGENERATE,
     read_tile,
+    tile_copies,
     tile_file,
     tile_map,
     tile_relief,
@@ -357,6 +358,16 @@ def hold_map_relief(world: World) -> np.ndarray:
         h.resolution,
         _margin(h),
     )
+
+
+def hold_map_seams(world: World) -> tuple[np.ndarray, np.ndarray]:
+    """Wall x and y (m) of the lines where the copies of ``world``'s hold-map tile meet."""
+    h = world.hold_map
+    tile = hold_map_tile(_hold_cloud(world))
+    _, pitch, copies = tile_copies(tile, h.seed, tuple(h.along), tuple(h.across), _margin(h))
+    xs = np.unique([offset[0] for _, offset in copies]) - pitch / 2
+    ys = np.unique([offset[1] for _, offset in copies]) - pitch / 2
+    return xs, ys
 
 
 def _margin(hold_map: HoldMap) -> float:
