@@ -35,7 +35,7 @@ def main() -> None:
     hold_tiles.SEAM_BLEND = args.blend
     detector = GraspableDetector(GraspableConfig())
     print(f"slope_map rock relief, seams blended over {args.blend * 100:g} cm")
-    print("seed  holds found  detections  off the map  of them at a seam")
+    print("seed  holds found  detections  off the map  of them at a seam  seams: wall x; y (m)")
     for seed in range(args.seeds):
         stock = load_world("slope_map")
         hold_map = msgspec.structs.replace(stock.hold_map, seed=seed, relief="rock")
@@ -56,7 +56,8 @@ def main() -> None:
         )
         print(
             f"{seed:4d}  {hit.mean():11.2f}  {len(found):10d}  {off.sum():5d} ({off.mean():.2f})"
-            f"  {np.count_nonzero(off & at_seam):17d}"
+            f"  {np.count_nonzero(off & at_seam):17d}  {np.round(xs, 3).tolist()}; "
+            f"{np.round(ys, 3).tolist()}"
         )
 
 
