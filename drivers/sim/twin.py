@@ -74,8 +74,8 @@ IMU_WINDOW = 10
 """Physics steps the accelerometer averages over (10 ms at 1 kHz), as a MEMS accelerometer's
 low-pass does: it reads the base's velocity change over them less gravity. MuJoCo's own
 accelerometer reads the explicit qacc, which under the implicit integrator, the servos' stiff
-damping and the grips' welds is not what the base does: 0.1 m/s² held through HubRobo's first
-swing on its wall while the base's velocity barely changed, 3.5° of tilt against G/6."""
+damping and the grips' welds is not what the base does (HubRobo's odometry pitched 2.2° off
+through its first swing on its wall; tests/test_sim.py)."""
 GRASP_OFFSET = 0.016
 """How far (m, in the wall's plane) a foot may stand from a hold of a rock relief and still
 close on it: the palm's radius (ClimbLab's gripper, 32 mm across), so the hold lies under the
