@@ -13,6 +13,7 @@ import pytest
 from conftest import ROOT
 
 from climbd.daemon.algorithms.kinematics import Kinematics
+from climbd.daemon.contract.geometry import rotation
 from climbd.daemon.contract.profile import load
 from climbd.drivers.sim import servos
 from climbd.drivers.sim.depth import NOISE
@@ -116,10 +117,8 @@ def test_the_accelerometer_integrates_to_the_velocity_the_base_gains(widowx):
     for k in range(1, 101):
         twin.command(rest + (stand - rest) * min(1.0, k / 60))
         twin.advance_to(0.2 + k * period)
-        _, quaternion = twin.body_pose()
-        world = np.zeros(9)
-        mujoco.mju_quat2Mat(world, quaternion)
-        gained += (world.reshape(3, 3) @ twin.imu_sample().accel + twin.model.opt.gravity) * period
+        world = rotation(twin.body_pose()[1])
+        gained += (world @ twin.imu_sample().accel + twin.model.opt.gravity) * period
         rose.append(np.linalg.norm(twin.data.qvel[:3] - v0))
         assert np.linalg.norm(gained - (twin.data.qvel[:3] - v0)) < 0.005, k
     assert max(rose) > 0.05  # the base really moved
