@@ -17,7 +17,13 @@ import msgspec
 import numpy as np
 from scipy.spatial import cKDTree
 
-from climbd.drivers.sim.worlds import hold_map_holds, hold_map_relief, hold_map_seams, hold_tiles
+from climbd.drivers.sim.worlds import (
+    hold_map_holds,
+    hold_map_rock,
+    hold_map_seam_gap,
+    hold_map_seams,
+    hold_tiles,
+)
 from climbd.drivers.sim.worlds import load as load_world
 from climbd.plugins.perception.graspable import GraspableConfig, GraspableDetector
 
@@ -40,20 +46,12 @@ def main() -> None:
         stock = load_world("slope_map")
         hold_map = msgspec.structs.replace(stock.hold_map, seed=seed, relief="rock")
         world = msgspec.structs.replace(stock, hold_map=hold_map)
-        heights = hold_map_relief(world)
-        i, j = np.indices(heights.shape).reshape(2, -1)
-        res = hold_map.resolution
-        rock = np.column_stack(
-            (hold_map.along[0] + i * res, hold_map.across[0] + j * res, heights.ravel())
-        )
-        found = detector.detect(rock, np.array([0.2, 0.0, 1.0])).points
+        found = detector.detect(hold_map_rock(world), np.array([0.2, 0.0, 1.0])).points
         holds = hold_map_holds(world)
         hit = cKDTree(found[:, :2]).query(holds[:, :2])[0] <= FOUND
         off = cKDTree(holds[:, :2]).query(found[:, :2])[0] > FOUND
+        at_seam = hold_map_seam_gap(world, found[:, :2]) < NEAR_SEAM
         xs, ys = hold_map_seams(world)
-        at_seam = (np.abs(found[:, :1] - xs).min(axis=1) < NEAR_SEAM) | (
-            np.abs(found[:, 1:2] - ys).min(axis=1) < NEAR_SEAM
-        )
         print(
             f"{seed:4d}  {hit.mean():11.2f}  {len(found):10d}  {off.sum():5d} ({off.mean():.2f})"
             f"  {np.count_nonzero(off & at_seam):17d}  {np.round(xs, 3).tolist()}; "

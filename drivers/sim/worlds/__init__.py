@@ -370,6 +370,27 @@ def hold_map_seams(world: World) -> tuple[np.ndarray, np.ndarray]:
     return xs, ys
 
 
+def hold_map_seam_gap(world: World, xy: np.ndarray) -> np.ndarray:
+    """Distance (m, wall plane) from each point ``xy`` (k×2, wall x and y) to the nearest line
+    where the copies of ``world``'s hold-map tile meet (``hold_map_seams``)."""
+    xs, ys = hold_map_seams(world)
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    across = np.abs(xy[:, :1] - xs).min(axis=1)
+    along = np.abs(xy[:, 1:2] - ys).min(axis=1)
+    return np.minimum(across, along)
+
+
+def hold_map_rock(world: World) -> np.ndarray:
+    """The rock relief (``hold_map_relief``) as wall-frame points, one a cell: x, y and the
+    height (m) above the board."""
+    h = world.hold_map
+    heights = hold_map_relief(world)
+    i, j = np.indices(heights.shape).reshape(2, -1)
+    return np.column_stack(
+        (h.along[0] + i * h.resolution, h.across[0] + j * h.resolution, heights.ravel())
+    )
+
+
 def _margin(hold_map: HoldMap) -> float:
     """Rock kept around a tile's outer holds: the gripper's reach on a rock relief (so a seam
     between copies never reaches under a closing gripper), none between columns."""
